@@ -1,0 +1,678 @@
+//! DICOM volumes: a single file, a multi-frame file, or a directory holding one or more
+//! series. Geometry comes from ImagePositionPatient / ImageOrientationPatient (slices are
+//! sorted by their position along the slice normal, never by file name or InstanceNumber),
+//! values from the decoded pixel data with BitsStored, PixelRepresentation and the
+//! rescale applied as DICOM says. World space is converted from LPS to RAS+.
+
+use crate::error::{ErrorKind, FormatError, Result};
+use crate::memory::check_alloc;
+use crate::volume::{spacing_of, Affine, Rescale, ScalarType, Volume, VoxelData};
+use dicom_dictionary_std::tags;
+use dicom_object::{InMemDicomObject, OpenFileOptions};
+use dicom_pixeldata::PixelDecoder;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, Default)]
+pub struct DicomOptions {
+    /// SeriesInstanceUID (or a unique prefix, or the 1-based number `info` lists) to read
+    /// from a directory holding several series.
+    pub series: Option<String>,
+    /// Resample slices with non-uniform spacing (or gaps) to uniform spacing instead of
+    /// refusing them.
+    pub resample: bool,
+}
+
+/// One series found in a directory.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct SeriesSummary {
+    pub uid: String,
+    pub description: String,
+    pub modality: String,
+    pub files: usize,
+    pub rows: u32,
+    pub columns: u32,
+}
+
+/// What one file says about its image, read without decoding pixel data.
+#[derive(Debug, Clone)]
+struct ImageInfo {
+    path: PathBuf,
+    transfer_syntax: String,
+    series_uid: String,
+    series_description: String,
+    modality: String,
+    rows: u32,
+    columns: u32,
+    frames: u32,
+    samples_per_pixel: u16,
+    photometric: String,
+    bits_allocated: u16,
+    bits_stored: u16,
+    signed: bool,
+    rescale: Rescale,
+    units: Option<String>,
+    orientation: Option<[f64; 6]>,
+    pixel_spacing: Option<[f64; 2]>,
+    slice_spacing: Option<f64>,
+    /// One position per frame where the file gives them (ImagePositionPatient for a
+    /// single frame; per-frame functional groups or GridFrameOffsetVector for multi-frame).
+    frame_positions: Vec<[f64; 3]>,
+    /// Per-frame rescale of enhanced multi-frame files, where it varies.
+    frame_rescale: Vec<Rescale>,
+}
+
+type Obj = InMemDicomObject;
+
+fn floats(obj: &Obj, tag: dicom_core::Tag) -> Option<Vec<f64>> {
+    obj.get(tag).and_then(|e| e.to_multi_float64().ok()).filter(|v| v.iter().all(|x| x.is_finite()))
+}
+fn float(obj: &Obj, tag: dicom_core::Tag) -> Option<f64> {
+    floats(obj, tag).and_then(|v| v.first().copied())
+}
+fn int(obj: &Obj, tag: dicom_core::Tag) -> Option<i64> {
+    obj.get(tag).and_then(|e| e.to_int::<i64>().ok())
+}
+fn text(obj: &Obj, tag: dicom_core::Tag) -> Option<String> {
+    obj.get(tag).and_then(|e| e.to_str().ok()).map(|s| s.trim_matches(|c: char| c == '\0' || c.is_whitespace()).to_string())
+}
+fn item(obj: &Obj, seq: dicom_core::Tag) -> Option<&Obj> {
+    obj.get(seq).and_then(|e| e.items()).and_then(|items| items.first())
+}
+fn items(obj: &Obj, seq: dicom_core::Tag) -> &[Obj] {
+    obj.get(seq).and_then(|e| e.items()).unwrap_or(&[])
+}
+
+fn open(path: &Path, metadata_only: bool) -> Result<dicom_object::DefaultDicomObject> {
+    let opts = OpenFileOptions::new();
+    let opts = if metadata_only { opts.read_until(tags::PIXEL_DATA) } else { opts };
+    opts.open_file(path).map_err(|e| FormatError::invalid(path, format!("not a readable DICOM file: {}", first_line(&e.to_string()))))
+}
+
+fn first_line(s: &str) -> &str {
+    s.lines().next().unwrap_or(s)
+}
+
+fn units_for(obj: &Obj, modality: &str) -> Option<String> {
+    match modality {
+        "CT" => match text(obj, tags::RESCALE_TYPE).as_deref() {
+            None | Some("") | Some("HU") => Some("HU".into()),
+            Some(other) => Some(other.into()),
+        },
+        "PT" | "NM" => text(obj, tags::UNITS).filter(|u| !u.is_empty()).map(|u| match u.as_str() {
+            "BQML" => "Bq/ml".to_string(),
+            _ => u,
+        }),
+        "RTDOSE" => text(obj, tags::DOSE_UNITS).map(|u| if u == "GY" { "Gy".into() } else { u }),
+        _ => text(obj, tags::RESCALE_TYPE).filter(|u| !u.is_empty() && u != "US"),
+    }
+}
+
+fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<ImageInfo> {
+    let obj: &Obj = file;
+    let need = |tag, name: &str| {
+        int(obj, tag).ok_or_else(|| FormatError::invalid(path, format!("missing or malformed {name}")))
+    };
+    let rows = need(tags::ROWS, "Rows")?;
+    let columns = need(tags::COLUMNS, "Columns")?;
+    if rows < 1 || columns < 1 || rows > 65535 || columns > 65535 {
+        return Err(FormatError::invalid(path, format!("image size {columns}x{rows} is not valid")));
+    }
+    let frames = int(obj, tags::NUMBER_OF_FRAMES).unwrap_or(1);
+    if frames < 1 || frames > i32::MAX as i64 {
+        return Err(FormatError::invalid(path, format!("NumberOfFrames {frames} is not valid")));
+    }
+    let bits_allocated = need(tags::BITS_ALLOCATED, "BitsAllocated")? as u16;
+    let bits_stored = int(obj, tags::BITS_STORED).unwrap_or(bits_allocated as i64) as u16;
+    if ![8, 16, 32].contains(&bits_allocated) || bits_stored == 0 || bits_stored > bits_allocated {
+        return Err(FormatError::unsupported(
+            path,
+            format!("BitsAllocated {bits_allocated} / BitsStored {bits_stored} is not a scalar layout volterra reads (8, 16 or 32 bits)"),
+        ));
+    }
+    let modality = text(obj, tags::MODALITY).unwrap_or_default();
+    let mut rescale = Rescale {
+        slope: float(obj, tags::RESCALE_SLOPE).filter(|s| *s != 0.0).unwrap_or(1.0),
+        intercept: float(obj, tags::RESCALE_INTERCEPT).unwrap_or(0.0),
+    };
+    if modality == "RTDOSE" {
+        // Dose values are stored × DoseGridScaling (Gy per unit); it plays the slope's role.
+        if let Some(s) = float(obj, tags::DOSE_GRID_SCALING).filter(|s| *s != 0.0) {
+            rescale.slope = s;
+        }
+    }
+
+    let shared = item(obj, tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE);
+    let per_frame = items(obj, tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE);
+    let from_groups = |tag_seq, tag| -> Option<Vec<f64>> {
+        let from = |o: &Obj| item(o, tag_seq).and_then(|i| floats(i, tag));
+        per_frame.first().and_then(from).or_else(|| shared.and_then(from))
+    };
+    let orientation = floats(obj, tags::IMAGE_ORIENTATION_PATIENT)
+        .or_else(|| from_groups(tags::PLANE_ORIENTATION_SEQUENCE, tags::IMAGE_ORIENTATION_PATIENT))
+        .filter(|v| v.len() == 6)
+        .map(|v| [v[0], v[1], v[2], v[3], v[4], v[5]]);
+    let pixel_spacing = floats(obj, tags::PIXEL_SPACING)
+        .or_else(|| from_groups(tags::PIXEL_MEASURES_SEQUENCE, tags::PIXEL_SPACING))
+        .filter(|v| v.len() == 2)
+        .map(|v| [v[0], v[1]]);
+    if let Some(ps) = pixel_spacing {
+        if ps.iter().any(|&s| s <= 0.0) {
+            return Err(FormatError::invalid(path, format!("PixelSpacing {ps:?} is not positive")));
+        }
+    }
+    let slice_spacing = float(obj, tags::SPACING_BETWEEN_SLICES)
+        .or_else(|| from_groups(tags::PIXEL_MEASURES_SEQUENCE, tags::SPACING_BETWEEN_SLICES).and_then(|v| v.first().copied()))
+        .or_else(|| float(obj, tags::SLICE_THICKNESS))
+        .or_else(|| from_groups(tags::PIXEL_MEASURES_SEQUENCE, tags::SLICE_THICKNESS).and_then(|v| v.first().copied()))
+        .filter(|s| *s > 0.0);
+
+    let ipp = floats(obj, tags::IMAGE_POSITION_PATIENT).filter(|v| v.len() == 3).map(|v| [v[0], v[1], v[2]]);
+    let mut frame_positions = Vec::new();
+    let mut frame_rescale = Vec::new();
+    if frames > 1 && !per_frame.is_empty() {
+        for f in per_frame {
+            if let Some(p) = item(f, tags::PLANE_POSITION_SEQUENCE).and_then(|i| floats(i, tags::IMAGE_POSITION_PATIENT)) {
+                if p.len() == 3 {
+                    frame_positions.push([p[0], p[1], p[2]]);
+                }
+            }
+            if let Some(t) = item(f, tags::PIXEL_VALUE_TRANSFORMATION_SEQUENCE) {
+                frame_rescale.push(Rescale {
+                    slope: float(t, tags::RESCALE_SLOPE).filter(|s| *s != 0.0).unwrap_or(1.0),
+                    intercept: float(t, tags::RESCALE_INTERCEPT).unwrap_or(0.0),
+                });
+            }
+        }
+        if frame_positions.len() != frames as usize {
+            frame_positions.clear();
+        }
+        if frame_rescale.len() != frames as usize {
+            frame_rescale.clear();
+        }
+        if frame_rescale.is_empty() {
+            if let Some(t) = shared.and_then(|s| item(s, tags::PIXEL_VALUE_TRANSFORMATION_SEQUENCE)) {
+                rescale = Rescale {
+                    slope: float(t, tags::RESCALE_SLOPE).filter(|s| *s != 0.0).unwrap_or(1.0),
+                    intercept: float(t, tags::RESCALE_INTERCEPT).unwrap_or(0.0),
+                };
+            }
+        }
+    } else if frames > 1 {
+        // RT Dose and similar: frame k lies at IPP + offset[k] along the slice normal.
+        if let (Some(p0), Some(o), Some(offsets)) = (ipp, orientation, floats(obj, tags::GRID_FRAME_OFFSET_VECTOR)) {
+            if offsets.len() == frames as usize {
+                let n = cross([o[0], o[1], o[2]], [o[3], o[4], o[5]]);
+                frame_positions = offsets.iter().map(|&d| [p0[0] + d * n[0], p0[1] + d * n[1], p0[2] + d * n[2]]).collect();
+            }
+        }
+    } else if let Some(p) = ipp {
+        frame_positions.push(p);
+    }
+
+    Ok(ImageInfo {
+        path: path.to_path_buf(),
+        transfer_syntax: file.meta().transfer_syntax().trim_end_matches('\0').to_string(),
+        series_uid: text(obj, tags::SERIES_INSTANCE_UID).unwrap_or_default(),
+        series_description: text(obj, tags::SERIES_DESCRIPTION).unwrap_or_default(),
+        units: units_for(obj, &modality),
+        modality,
+        rows: rows as u32,
+        columns: columns as u32,
+        frames: frames as u32,
+        samples_per_pixel: int(obj, tags::SAMPLES_PER_PIXEL).unwrap_or(1) as u16,
+        photometric: text(obj, tags::PHOTOMETRIC_INTERPRETATION).unwrap_or_default(),
+        bits_allocated,
+        bits_stored,
+        signed: int(obj, tags::PIXEL_REPRESENTATION).unwrap_or(0) == 1,
+        rescale,
+        orientation,
+        pixel_spacing,
+        slice_spacing,
+        frame_positions,
+        frame_rescale,
+    })
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// Refuses transfer syntaxes that dicom-pixeldata cannot decode with our features.
+fn check_transfer_syntax(info: &ImageInfo) -> Result<()> {
+    use dicom_encoding::transfer_syntax::TransferSyntaxIndex;
+    use dicom_transfer_syntax_registry::TransferSyntaxRegistry;
+    let uid = info.transfer_syntax.as_str();
+    match TransferSyntaxRegistry.get(uid) {
+        Some(ts) if ts.can_decode_all() => Ok(()),
+        Some(ts) => Err(FormatError::unsupported(&info.path, format!("unsupported transfer syntax {} ({uid})", ts.name()))),
+        None => Err(FormatError::unsupported(&info.path, format!("unsupported transfer syntax {uid} (unknown)"))),
+    }
+}
+
+/// Decodes one file's pixel data into `frames × rows × cols` samples of the stored type,
+/// as little-endian bytes, with BitsStored masking / sign extension applied.
+fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
+    let file = open(&info.path, false)?;
+    let decoded = file
+        .decode_pixel_data()
+        .map_err(|e| FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string()))))?;
+    let pixels = info.rows as usize * info.columns as usize * info.frames as usize;
+    let bytes_per = info.bits_allocated as usize / 8;
+    let data = decoded.data();
+    let spp = decoded.samples_per_pixel() as usize;
+    let want = pixels * bytes_per * spp;
+    if data.len() < want {
+        return Err(FormatError::invalid(
+            &info.path,
+            format!("pixel data holds {} bytes, but {}x{}x{} frames need {want}", data.len(), info.columns, info.rows, info.frames),
+        ));
+    }
+    let mut out = if spp == 1 {
+        data[..want].to_vec()
+    } else if spp == 3 && bytes_per == 1 {
+        // Colour to luminance (ITU-R BT.601), so colour images still load as scalar volumes.
+        let planar = decoded.planar_configuration() == dicom_pixeldata::PlanarConfiguration::PixelFirst;
+        let frame_px = info.rows as usize * info.columns as usize;
+        (0..pixels)
+            .map(|p| {
+                let (r, g, b) = if planar {
+                    let f = p / frame_px;
+                    let q = p % frame_px;
+                    let base = f * frame_px * 3;
+                    (data[base + q], data[base + frame_px + q], data[base + 2 * frame_px + q])
+                } else {
+                    (data[3 * p], data[3 * p + 1], data[3 * p + 2])
+                };
+                (0.299 * r as f64 + 0.587 * g as f64 + 0.114 * b as f64).round() as u8
+            })
+            .collect()
+    } else {
+        return Err(FormatError::unsupported(&info.path, format!("{spp} samples per pixel at {} bits is not a scalar image", info.bits_allocated)));
+    };
+    // BitsStored: keep the low bits; sign-extend them for signed data.
+    let bs = info.bits_stored as u32;
+    if bs < info.bits_allocated as u32 && spp == 1 {
+        match bytes_per {
+            1 => out.iter_mut().for_each(|b| *b = mask_bits(*b as u32, bs, info.signed) as u8),
+            2 => out.chunks_exact_mut(2).for_each(|c| {
+                let v = u16::from_le_bytes([c[0], c[1]]) as u32;
+                c.copy_from_slice(&(mask_bits(v, bs, info.signed) as u16).to_le_bytes());
+            }),
+            _ => out.chunks_exact_mut(4).for_each(|c| {
+                let v = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                c.copy_from_slice(&mask_bits(v, bs, info.signed).to_le_bytes());
+            }),
+        }
+    }
+    Ok(out)
+}
+
+fn mask_bits(v: u32, bits: u32, signed: bool) -> u32 {
+    let m = (1u32 << bits) - 1;
+    let low = v & m;
+    if signed && low & (1 << (bits - 1)) != 0 {
+        low | !m
+    } else {
+        low
+    }
+}
+
+fn scalar_type(info: &ImageInfo) -> ScalarType {
+    match (info.bits_allocated, info.signed && info.samples_per_pixel == 1) {
+        (8, false) => ScalarType::U8,
+        (8, true) => ScalarType::I8,
+        (16, false) => ScalarType::U16,
+        (16, true) => ScalarType::I16,
+        (32, false) => ScalarType::U32,
+        _ => ScalarType::I32,
+    }
+}
+
+/// Is `path` a DICOM file? (the "DICM" magic at 128, or a bare data set starting with a
+/// group 0008 element).
+pub fn looks_like_dicom(path: &Path) -> bool {
+    use std::io::Read;
+    let mut buf = [0u8; 132];
+    let Ok(mut f) = std::fs::File::open(path) else { return false };
+    let n = f.read(&mut buf).unwrap_or(0);
+    (n >= 132 && &buf[128..132] == b"DICM") || (n >= 4 && buf[0] == 0x08 && buf[1] == 0x00)
+}
+
+/// Lists the DICOM files under `dir` (recursively), skipping others.
+fn dicom_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for entry in walkdir::WalkDir::new(dir).follow_links(true).sort_by_file_name() {
+        let entry = entry.map_err(|e| FormatError::new(dir, ErrorKind::Io, e.to_string()))?;
+        if entry.file_type().is_file() && looks_like_dicom(entry.path()) {
+            files.push(entry.into_path());
+        }
+    }
+    if files.is_empty() {
+        return Err(FormatError::invalid(dir, "directory holds no DICOM files"));
+    }
+    Ok(files)
+}
+
+fn scan(dir: &Path) -> Result<BTreeMap<String, Vec<ImageInfo>>> {
+    let files = dicom_files(dir)?;
+    let infos: Vec<Result<ImageInfo>> = files
+        .par_iter()
+        .map(|p| {
+            let f = open(p, true)?;
+            image_info(p, &f)
+        })
+        .collect();
+    let mut series: BTreeMap<String, Vec<ImageInfo>> = BTreeMap::new();
+    let mut first_err = None;
+    for r in infos {
+        match r {
+            Ok(i) => series.entry(i.series_uid.clone()).or_default().push(i),
+            // Non-image objects (reports, presentation states) in a study folder are skipped.
+            Err(e) => first_err = first_err.or(Some(e)),
+        }
+    }
+    if series.is_empty() {
+        return Err(first_err.unwrap_or_else(|| FormatError::invalid(dir, "directory holds no DICOM images")));
+    }
+    Ok(series)
+}
+
+/// The series in a directory, for `info` and for choosing one.
+pub fn list_series(dir: &Path) -> Result<Vec<SeriesSummary>> {
+    Ok(scan(dir)?
+        .into_iter()
+        .map(|(uid, v)| SeriesSummary {
+            uid,
+            description: v[0].series_description.clone(),
+            modality: v[0].modality.clone(),
+            files: v.len(),
+            rows: v[0].rows,
+            columns: v[0].columns,
+        })
+        .collect())
+}
+
+pub fn read_dicom(path: &Path, opts: &DicomOptions) -> Result<Volume> {
+    if path.is_dir() {
+        read_series_dir(path, opts)
+    } else {
+        let f = open(path, true)?;
+        let info = image_info(path, &f)?;
+        assemble(path, vec![info], opts)
+    }
+}
+
+fn read_series_dir(dir: &Path, opts: &DicomOptions) -> Result<Volume> {
+    let mut series = scan(dir)?;
+    let uid = if series.len() == 1 {
+        series.keys().next().unwrap().clone()
+    } else {
+        let listing = series
+            .iter()
+            .enumerate()
+            .map(|(n, (uid, v))| format!("{}: {uid} '{}' {} ({} files)", n + 1, v[0].series_description, v[0].modality, v.len()))
+            .collect::<Vec<_>>()
+            .join("; ");
+        match &opts.series {
+            None => {
+                return Err(FormatError::new(
+                    dir,
+                    ErrorKind::Ambiguous,
+                    format!("directory holds {} series, choose one with --series: {listing}", series.len()),
+                ))
+            }
+            Some(want) => {
+                let by_number = want.parse::<usize>().ok().and_then(|n| series.keys().nth(n.wrapping_sub(1)).cloned());
+                let matches: Vec<&String> = series.keys().filter(|u| *u == want || u.starts_with(want.as_str())).collect();
+                match (by_number, matches.as_slice()) {
+                    (_, [one]) => (*one).clone(),
+                    (Some(u), []) => u,
+                    _ => return Err(FormatError::new(dir, ErrorKind::Ambiguous, format!("--series {want} matches none or several of: {listing}"))),
+                }
+            }
+        }
+    };
+    let infos = series.remove(&uid).unwrap();
+    assemble(dir, infos, opts)
+}
+
+/// A frame in the final volume: which file and frame it comes from, and where it lies.
+struct FrameRef {
+    file: usize,
+    frame: usize,
+    position: Option<[f64; 3]>,
+}
+
+fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Volume> {
+    let first = &infos[0];
+    for info in &infos {
+        check_transfer_syntax(info)?;
+    }
+    // A series must agree with itself on everything that shapes the volume.
+    for info in &infos[1..] {
+        let contradiction = if (info.rows, info.columns) != (first.rows, first.columns) {
+            Some(format!("{}x{} vs {}x{} pixels", info.columns, info.rows, first.columns, first.rows))
+        } else if (info.bits_allocated, info.signed, info.samples_per_pixel) != (first.bits_allocated, first.signed, first.samples_per_pixel) {
+            Some("pixel formats differ".to_string())
+        } else if !orientation_close(info.orientation, first.orientation) {
+            Some(format!("orientations differ ({:?} vs {:?})", info.orientation, first.orientation))
+        } else if info.pixel_spacing.zip(first.pixel_spacing).is_some_and(|(a, b)| (a[0] - b[0]).abs() > 1e-4 || (a[1] - b[1]).abs() > 1e-4) {
+            Some("pixel spacings differ".to_string())
+        } else {
+            None
+        };
+        if let Some(c) = contradiction {
+            return Err(FormatError::invalid(&info.path, format!("series contradicts itself: {c} (first file {})", first.path.display())));
+        }
+    }
+    if infos.len() > 1 && infos.iter().any(|i| i.frames > 1) {
+        return Err(FormatError::unsupported(src, "a series of several multi-frame files is not supported"));
+    }
+
+    let mut notes = Vec::new();
+    let orientation = first.orientation.unwrap_or_else(|| {
+        notes.push("no ImageOrientationPatient: axial orientation assumed".to_string());
+        [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    });
+    let row_dir = [orientation[0], orientation[1], orientation[2]];
+    let col_dir = [orientation[3], orientation[4], orientation[5]];
+    let normal = cross(row_dir, col_dir);
+    let nn = dot(normal, normal).sqrt();
+    if !(0.5..1.5).contains(&nn) {
+        return Err(FormatError::invalid(&first.path, format!("ImageOrientationPatient {orientation:?} is not two unit vectors")));
+    }
+    let normal = [normal[0] / nn, normal[1] / nn, normal[2] / nn];
+
+    let mut frames: Vec<FrameRef> = Vec::new();
+    for (fi, info) in infos.iter().enumerate() {
+        for k in 0..info.frames as usize {
+            frames.push(FrameRef { file: fi, frame: k, position: info.frame_positions.get(k).copied() });
+        }
+    }
+    let positioned = frames.iter().all(|f| f.position.is_some());
+    if frames.len() > 1 && !positioned {
+        if infos.len() > 1 {
+            return Err(FormatError::invalid(src, "some slices have no ImagePositionPatient, so they cannot be ordered"));
+        }
+        notes.push("frames have no positions: stacked in file order".to_string());
+    }
+    let along = |f: &FrameRef| f.position.map(|p| dot(p, normal)).unwrap_or(f.frame as f64);
+    if positioned {
+        frames.sort_by(|a, b| along(a).total_cmp(&along(b)));
+    }
+
+    let [row_spacing, col_spacing] = first.pixel_spacing.unwrap_or_else(|| {
+        notes.push("no PixelSpacing: 1 mm assumed".to_string());
+        [1.0, 1.0]
+    });
+    let n = frames.len();
+    let origin = frames[0].position.unwrap_or([0.0; 3]);
+    // The slice step vector: from the positions when there are several, else the normal
+    // times SpacingBetweenSlices / SliceThickness (or 1 mm).
+    let mut slice_vec = {
+        let s = first.slice_spacing.unwrap_or(1.0);
+        [normal[0] * s, normal[1] * s, normal[2] * s]
+    };
+    let mut resample_to: Option<(f64, Vec<f64>)> = None;
+    if n > 1 && positioned {
+        let d: Vec<f64> = frames.iter().map(along).collect();
+        let gaps: Vec<f64> = d.windows(2).map(|w| w[1] - w[0]).collect();
+        let mut sorted = gaps.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        if let Some(i) = gaps.iter().position(|&g| g.abs() < 1e-4) {
+            let f = &frames[i + 1];
+            return Err(FormatError::invalid(
+                &infos[f.file].path,
+                format!("two slices share position {:.4} mm along the normal (duplicates, or several volumes in one series)", d[i]),
+            ));
+        }
+        let tol = (0.01 * median).max(1e-3);
+        let uniform = gaps.iter().all(|g| (g - median).abs() <= tol);
+        if !uniform {
+            let (i, g) = gaps.iter().enumerate().max_by(|a, b| (a.1 - median).abs().total_cmp(&(b.1 - median).abs())).unwrap();
+            let what = if *g > 1.5 * median {
+                let missing = (g / median).round() as i64 - 1;
+                format!("{missing} slice(s) missing between {:.3} and {:.3} mm along the normal (gap {g:.3} mm, usual {median:.3} mm)", d[i], d[i + 1])
+            } else {
+                format!("non-uniform slice spacing: gap {g:.3} mm between {:.3} and {:.3} mm along the normal, usual {median:.3} mm", d[i], d[i + 1])
+            };
+            if !opts.resample {
+                return Err(FormatError::invalid(src, format!("{what}; pass --resample to resample to uniform spacing")));
+            }
+            notes.push(format!("{what}; resampled to uniform {median:.4} mm spacing"));
+            resample_to = Some((median, d.clone()));
+        }
+        let last = frames[n - 1].position.unwrap();
+        let span = sub(last, origin);
+        let steps = match &resample_to {
+            Some((s, d)) => (d[n - 1] - d[0]) / s,
+            None => (n - 1) as f64,
+        };
+        slice_vec = [span[0] / steps, span[1] / steps, span[2] / steps];
+        let tilt = 1.0 - dot(slice_vec, normal).abs() / dot(slice_vec, slice_vec).sqrt();
+        if tilt > 1e-4 {
+            notes.push("slices are offset in-plane (gantry tilt): the affine is sheared to keep their true positions".to_string());
+        }
+    }
+
+    // Affine in LPS, then to RAS by negating x and y.
+    let mut affine: Affine = [[0.0; 4]; 4];
+    for r in 0..3 {
+        affine[r][0] = row_dir[r] * col_spacing;
+        affine[r][1] = col_dir[r] * row_spacing;
+        affine[r][2] = slice_vec[r];
+        affine[r][3] = origin[r];
+    }
+    affine[3][3] = 1.0;
+    for row in affine.iter_mut().take(2) {
+        for v in row.iter_mut() {
+            *v = -*v;
+        }
+    }
+
+    let ty = scalar_type(first);
+    let (rows, cols) = (first.rows as usize, first.columns as usize);
+    let frame_bytes = rows * cols * ty.size();
+    check_alloc(src, "DICOM volume", &[cols as u64, rows as u64, n as u64, ty.size() as u64])?;
+    let mut bytes = vec![0u8; frame_bytes * n];
+
+    // Decode files in parallel; each file's frames go to their sorted slots.
+    let mut slot_of: Vec<Vec<(usize, usize)>> = vec![Vec::new(); infos.len()];
+    for (slot, f) in frames.iter().enumerate() {
+        slot_of[f.file].push((f.frame, slot));
+    }
+    let chunks: Vec<Result<Vec<(usize, Vec<u8>)>>> = infos
+        .par_iter()
+        .enumerate()
+        .map(|(fi, info)| {
+            let data = decode_frames(info)?;
+            Ok(slot_of[fi].iter().map(|&(frame, slot)| (slot, data[frame * frame_bytes..(frame + 1) * frame_bytes].to_vec())).collect())
+        })
+        .collect();
+    for c in chunks {
+        for (slot, data) in c? {
+            bytes[slot * frame_bytes..(slot + 1) * frame_bytes].copy_from_slice(&data);
+        }
+    }
+    let mut data = VoxelData::from_bytes(ty, &bytes, false);
+    drop(bytes);
+
+    // One rescale for all slices keeps the stored type; differing ones force real values.
+    let slice_rescale: Vec<Rescale> = frames
+        .iter()
+        .map(|f| infos[f.file].frame_rescale.get(f.frame).copied().unwrap_or(infos[f.file].rescale))
+        .collect();
+    let mut rescale = slice_rescale[0];
+    if slice_rescale.iter().any(|r| r != &rescale) {
+        let plane = rows * cols;
+        data = VoxelData::F32((0..plane * n).map(|i| slice_rescale[i / plane].apply(data.stored(i)) as f32).collect());
+        rescale = Rescale::IDENTITY;
+        notes.push("rescale differs between slices: real-world values stored as f32".to_string());
+    }
+    let mut depth = n;
+    if let Some((spacing, d)) = resample_to {
+        let (vals, k) = resample_uniform(&data, rescale, rows * cols, &d, spacing);
+        data = VoxelData::F32(vals);
+        rescale = Rescale::IDENTITY;
+        depth = k;
+    }
+    if first.samples_per_pixel == 3 {
+        notes.push("colour image converted to luminance (BT.601)".to_string());
+    }
+    if first.photometric == "MONOCHROME1" {
+        notes.push("MONOCHROME1: low values display bright; values kept as stored".to_string());
+    }
+    notes.insert(0, format!("DICOM {} file(s), {} slice(s), transfer syntax {}", infos.len(), n, first.transfer_syntax));
+    let spacing = spacing_of(&affine);
+    Ok(Volume {
+        dims: [cols, rows, depth],
+        spacing,
+        affine,
+        data,
+        rescale,
+        modality: Some(first.modality.clone()).filter(|m| !m.is_empty()),
+        units: first.units.clone(),
+        volume_count: 1,
+        volume_index: 0,
+        notes,
+    })
+}
+
+fn orientation_close(a: Option<[f64; 6]>, b: Option<[f64; 6]>) -> bool {
+    match (a, b) {
+        (Some(a), Some(b)) => a.iter().zip(b.iter()).all(|(x, y)| (x - y).abs() < 1e-4),
+        (None, None) => true,
+        _ => false,
+    }
+}
+
+/// Linear interpolation of slices at positions `d` (sorted, mm along the normal) onto a
+/// uniform grid starting at d[0] with the given spacing. Returns real-world values.
+fn resample_uniform(data: &VoxelData, rescale: Rescale, plane: usize, d: &[f64], spacing: f64) -> (Vec<f32>, usize) {
+    let total = d[d.len() - 1] - d[0];
+    let k = (total / spacing + 1e-6).floor() as usize + 1;
+    let mut out = vec![0f32; plane * k];
+    let mut lo = 0;
+    for z in 0..k {
+        let t = d[0] + z as f64 * spacing;
+        while lo + 2 < d.len() && d[lo + 1] < t {
+            lo += 1;
+        }
+        let w = ((t - d[lo]) / (d[lo + 1] - d[lo])).clamp(0.0, 1.0);
+        for p in 0..plane {
+            let a = rescale.apply(data.stored(lo * plane + p));
+            let b = rescale.apply(data.stored((lo + 1) * plane + p));
+            out[z * plane + p] = (a + w * (b - a)) as f32;
+        }
+    }
+    (out, k)
+}

@@ -1,0 +1,61 @@
+//! One error type for every reader and writer: it always names the file and the problem,
+//! so the CLI can print it as a single line.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug)]
+pub struct FormatError {
+    pub path: PathBuf,
+    pub kind: ErrorKind,
+    pub message: String,
+}
+
+/// Broad classes of failure, so callers (and tests) can tell bad input from missing files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// The file could not be opened, read or written.
+    Io,
+    /// The file is malformed, truncated or contradicts itself.
+    Invalid,
+    /// The file is well-formed but uses a feature we do not read.
+    Unsupported,
+    /// The file declares more data than the memory limit allows.
+    TooLarge,
+    /// The request is ambiguous (e.g. a directory holding several DICOM series).
+    Ambiguous,
+}
+
+impl fmt::Display for FormatError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.path.display(), self.message)
+    }
+}
+
+impl std::error::Error for FormatError {}
+
+impl FormatError {
+    pub fn new(path: impl AsRef<Path>, kind: ErrorKind, message: impl Into<String>) -> Self {
+        FormatError {
+            path: path.as_ref().to_path_buf(),
+            kind,
+            message: message.into(),
+        }
+    }
+    pub fn invalid(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
+        Self::new(path, ErrorKind::Invalid, message)
+    }
+    pub fn unsupported(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
+        Self::new(path, ErrorKind::Unsupported, message)
+    }
+    pub fn io(path: impl AsRef<Path>, err: std::io::Error) -> Self {
+        let message = match err.kind() {
+            std::io::ErrorKind::NotFound => "no such file".to_string(),
+            std::io::ErrorKind::UnexpectedEof => "file is truncated".to_string(),
+            _ => err.to_string(),
+        };
+        Self::new(path, ErrorKind::Io, message)
+    }
+}
+
+pub type Result<T> = std::result::Result<T, FormatError>;

@@ -1,0 +1,296 @@
+//! GeoTIFF elevation rasters through the `tiff` crate (strips or tiles; none, LZW, Deflate,
+//! PackBits; predictors 2 and 3; int16/uint16/int32/float32/float64), with the GeoTIFF
+//! tags read here: ModelPixelScale + ModelTiepoint or ModelTransformation, the
+//! GeoKeyDirectory (EPSG code, raster type, vertical units) and GDAL_NODATA.
+
+use crate::atomic::write_bytes_atomically;
+use crate::error::{FormatError, Result};
+use crate::heightfield::{metres_per_degree, Crs, Heightfield};
+use crate::memory::check_alloc;
+use std::io::{BufReader, Cursor};
+use std::path::Path;
+use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::tags::Tag;
+
+const KEY_MODEL_TYPE: u16 = 1024;
+const KEY_RASTER_TYPE: u16 = 1025;
+const KEY_CITATION: u16 = 1026;
+const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
+const KEY_PROJECTED_TYPE: u16 = 3072;
+const KEY_VERTICAL_UNITS: u16 = 4099;
+
+/// A decoded GeoKey value.
+#[derive(Debug, Clone)]
+enum GeoKey {
+    Short(u16),
+    Doubles(Vec<f64>),
+    Ascii(String),
+}
+
+fn tiff_err(path: &Path, e: tiff::TiffError) -> FormatError {
+    match e {
+        tiff::TiffError::UnsupportedError(u) => FormatError::unsupported(path, format!("unsupported TIFF feature: {u}")),
+        tiff::TiffError::IoError(io) => FormatError::invalid(path, format!("TIFF is truncated or unreadable: {io}")),
+        other => FormatError::invalid(path, format!("invalid TIFF: {other}")),
+    }
+}
+
+fn geo_keys<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -> Result<Vec<(u16, GeoKey)>> {
+    let Some(dir) = d.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| tiff_err(path, e))? else {
+        return Ok(Vec::new());
+    };
+    let dir = dir.into_u16_vec().map_err(|e| tiff_err(path, e))?;
+    let doubles = match d.find_tag(Tag::GeoDoubleParamsTag).map_err(|e| tiff_err(path, e))? {
+        Some(v) => v.into_f64_vec().map_err(|e| tiff_err(path, e))?,
+        None => Vec::new(),
+    };
+    let ascii = match d.find_tag(Tag::GeoAsciiParamsTag).map_err(|e| tiff_err(path, e))? {
+        Some(v) => v.into_string().map_err(|e| tiff_err(path, e))?,
+        None => String::new(),
+    };
+    if dir.len() < 4 {
+        return Err(FormatError::invalid(path, "GeoKeyDirectory is shorter than its header"));
+    }
+    let n = dir[3] as usize;
+    if dir.len() < 4 + 4 * n {
+        return Err(FormatError::invalid(path, format!("GeoKeyDirectory declares {n} keys but holds {}", (dir.len() - 4) / 4)));
+    }
+    let mut keys = Vec::with_capacity(n);
+    for k in 0..n {
+        let e = &dir[4 + 4 * k..8 + 4 * k];
+        let (id, loc, count, off) = (e[0], e[1], e[2] as usize, e[3] as usize);
+        let value = match loc {
+            0 => GeoKey::Short(off as u16),
+            34736 => GeoKey::Doubles(doubles.get(off..off + count).map(<[f64]>::to_vec).unwrap_or_default()),
+            34737 => GeoKey::Ascii(
+                ascii.get(off..(off + count).min(ascii.len())).unwrap_or("").trim_end_matches(['|', '\0']).to_string(),
+            ),
+            34735 => GeoKey::Short(dir.get(off).copied().unwrap_or(0)),
+            _ => continue,
+        };
+        keys.push((id, value));
+    }
+    Ok(keys)
+}
+
+fn short_key(keys: &[(u16, GeoKey)], id: u16) -> Option<u16> {
+    keys.iter().find_map(|(k, v)| match v {
+        GeoKey::Short(s) if *k == id => Some(*s),
+        _ => None,
+    })
+}
+
+pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
+    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
+    let mut d = Decoder::new(BufReader::new(file)).map_err(|e| tiff_err(path, e))?;
+    // A GeoTIFF may carry overviews: use the first directory that is not a reduced image.
+    let mut index = 0;
+    loop {
+        let subfile = d.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(|e| tiff_err(path, e))?.unwrap_or(0);
+        if subfile & 1 == 0 {
+            break;
+        }
+        if !d.more_images() {
+            return Err(FormatError::invalid(path, "TIFF holds only reduced-resolution images"));
+        }
+        index += 1;
+        d.seek_to_image(index).map_err(|e| tiff_err(path, e))?;
+    }
+    let (w, h) = d.dimensions().map_err(|e| tiff_err(path, e))?;
+    let spp = d.find_tag_unsigned::<u16>(Tag::SamplesPerPixel).map_err(|e| tiff_err(path, e))?.unwrap_or(1);
+    if spp != 1 {
+        return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: an elevation raster has one band")));
+    }
+    let bps = d.find_tag_unsigned::<u16>(Tag::BitsPerSample).map_err(|e| tiff_err(path, e))?.unwrap_or(1) as u64;
+    let bytes = check_alloc(path, "elevation raster", &[w as u64, h as u64, bps.div_ceil(8).max(1)])?;
+    let mut limits = Limits::default();
+    limits.decoding_buffer_size = bytes.max(1 << 20);
+    limits.intermediate_buffer_size = bytes.max(1 << 20);
+    limits.ifd_value_size = 64 << 20;
+    d = d.with_limits(limits);
+
+    let keys = geo_keys(path, &mut d)?;
+    let nodata_value: Option<f64> = match d.find_tag(Tag::GdalNodata).map_err(|e| tiff_err(path, e))? {
+        Some(v) => {
+            let s = v.into_string().map_err(|e| tiff_err(path, e))?;
+            let t = s.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+            Some(t.parse::<f64>().map_err(|_| FormatError::invalid(path, format!("GDAL_NODATA '{t}' is not a number")))?)
+        }
+        None => None,
+    };
+    let scale = match d.find_tag(Tag::ModelPixelScaleTag).map_err(|e| tiff_err(path, e))? {
+        Some(v) => Some(v.into_f64_vec().map_err(|e| tiff_err(path, e))?),
+        None => None,
+    };
+    let tie = match d.find_tag(Tag::ModelTiepointTag).map_err(|e| tiff_err(path, e))? {
+        Some(v) => Some(v.into_f64_vec().map_err(|e| tiff_err(path, e))?),
+        None => None,
+    };
+    let transform = match d.find_tag(Tag::ModelTransformationTag).map_err(|e| tiff_err(path, e))? {
+        Some(v) => Some(v.into_f64_vec().map_err(|e| tiff_err(path, e))?),
+        None => None,
+    };
+
+    let mut notes = Vec::new();
+    // Raster → model: X = x0 + sx·I, Y = y0 − sy·J, for raster coordinates (I, J) where
+    // (0, 0) is the corner of the first pixel (PixelIsArea) or its centre (PixelIsPoint).
+    let (x0, y0, sx, sy) = match (&scale, &tie, &transform) {
+        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => {
+            (t[3] - t[0] * s[0], t[4] + t[1] * s[1], s[0], s[1])
+        }
+        (_, _, Some(m)) if m.len() >= 16 => {
+            if m[1] != 0.0 || m[4] != 0.0 {
+                return Err(FormatError::unsupported(path, "ModelTransformation is rotated or sheared; only north-up rasters are supported"));
+            }
+            (m[3], m[7], m[0], -m[5])
+        }
+        _ => {
+            notes.push("no georeferencing tags: unit cells at a local origin".to_string());
+            (0.0, 0.0, 1.0, 1.0)
+        }
+    };
+    if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0 && x0.is_finite() && y0.is_finite()) {
+        return Err(FormatError::invalid(path, format!("pixel scale ({sx}, {sy}) must be finite and positive (north-up)")));
+    }
+    let point = short_key(&keys, KEY_RASTER_TYPE) == Some(2);
+    let (ox, oy) = if point { (x0, y0) } else { (x0 + 0.5 * sx, y0 - 0.5 * sy) };
+
+    let model = short_key(&keys, KEY_MODEL_TYPE);
+    let projected = short_key(&keys, KEY_PROJECTED_TYPE).filter(|&c| c != 0 && c != 32767);
+    let geographic_code = short_key(&keys, KEY_GEOGRAPHIC_TYPE).filter(|&c| c != 0 && c != 32767);
+    let geographic = model == Some(2) || (model.is_none() && projected.is_none() && geographic_code.is_some());
+    let epsg = if geographic { geographic_code } else { projected.or(geographic_code) }.map(u32::from);
+    let citation = keys.iter().find_map(|(k, v)| match v {
+        GeoKey::Ascii(s) if *k == KEY_CITATION => Some(s.clone()),
+        _ => None,
+    });
+    let crs = if keys.is_empty() {
+        Crs::local()
+    } else {
+        let mut desc = match epsg {
+            Some(c) => format!("EPSG:{c}"),
+            None => "user-defined CRS".to_string(),
+        };
+        desc.push_str(if geographic { " (geographic)" } else { " (projected)" });
+        if let Some(c) = citation {
+            desc.push_str(&format!(" {c}"));
+        }
+        Crs { epsg, geographic, description: desc }
+    };
+
+    let raw = d.read_image().map_err(|e| tiff_err(path, e))?;
+    let n = w as usize * h as usize;
+    let vertical = match short_key(&keys, KEY_VERTICAL_UNITS) {
+        Some(9002) => {
+            notes.push("vertical unit: foot, converted to metres".into());
+            0.3048
+        }
+        Some(9003) => {
+            notes.push("vertical unit: US survey foot, converted to metres".into());
+            1200.0 / 3937.0
+        }
+        _ => 1.0,
+    };
+    let values: Vec<f64> = match raw {
+        DecodingResult::U8(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::I8(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::U16(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::I16(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::U32(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::I32(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::F64(v) => v,
+        _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
+    };
+    if values.len() < n {
+        return Err(FormatError::invalid(path, format!("image data holds {} of {n} samples", values.len())));
+    }
+    let mut nodata = vec![false; n];
+    let mut any = false;
+    let elevations: Vec<f32> = values[..n]
+        .iter()
+        .zip(nodata.iter_mut())
+        .map(|(&v, flag)| {
+            let is_nd = v.is_nan() || nodata_value.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
+            if is_nd {
+                *flag = true;
+                any = true;
+                f32::NAN
+            } else {
+                (v * vertical) as f32
+            }
+        })
+        .collect();
+    if !any {
+        nodata.clear();
+    }
+
+    let cell_size = if geographic {
+        let centre_lat = oy - 0.5 * (h as f64 - 1.0) * sy;
+        let (mx, my) = metres_per_degree(centre_lat);
+        notes.push(format!(
+            "geographic CRS: cell size {sx}°×{sy}° converted to {:.3} m × {:.3} m at the centre latitude {centre_lat:.5}°",
+            sx * mx,
+            sy * my
+        ));
+        [sx * mx, sy * my]
+    } else {
+        [sx, sy]
+    };
+    Ok(Heightfield {
+        width: w as usize,
+        height: h as usize,
+        cell_size,
+        cell_size_native: [sx, sy],
+        origin: [ox, oy],
+        crs,
+        elevations,
+        nodata,
+        nodata_value,
+        notes,
+    })
+}
+
+/// Writes a float32 GeoTIFF (Deflate, floating-point predictor) that keeps the pixel scale,
+/// tiepoint (PixelIsArea), EPSG code and NoData value. Written atomically.
+pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
+    use tiff::encoder::{colortype, Compression, Predictor, TiffEncoder};
+    let err = |e: tiff::TiffError| FormatError::invalid(path, format!("cannot write TIFF: {e}"));
+    let nodata = hf.nodata_value.unwrap_or(-32768.0);
+    let data: Vec<f32> = hf
+        .elevations
+        .iter()
+        .enumerate()
+        .map(|(i, &z)| if hf.nodata.get(i).copied().unwrap_or(false) { nodata as f32 } else { z })
+        .collect();
+    let mut buf = Cursor::new(Vec::new());
+    {
+        let mut enc = TiffEncoder::new(&mut buf)
+            .map_err(err)?
+            .with_compression(Compression::Deflate(tiff::encoder::DeflateLevel::Balanced))
+            .with_predictor(Predictor::FloatingPoint);
+        let mut img = enc.new_image::<colortype::Gray32Float>(hf.width as u32, hf.height as u32).map_err(err)?;
+        let [sx, sy] = hf.cell_size_native;
+        let corner = [hf.origin[0] - 0.5 * sx, hf.origin[1] + 0.5 * sy];
+        let e = img.encoder();
+        e.write_tag(Tag::ModelPixelScaleTag, &[sx, sy, 0.0][..]).map_err(err)?;
+        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..]).map_err(err)?;
+        let mut keys: Vec<u16> = vec![1, 1, 0, 0];
+        let mut push = |id: u16, v: u16| keys.extend_from_slice(&[id, 0, 1, v]);
+        if hf.crs != Crs::local() {
+            push(KEY_MODEL_TYPE, if hf.crs.geographic { 2 } else { 1 });
+        }
+        push(KEY_RASTER_TYPE, 1);
+        if let Some(c) = hf.crs.epsg {
+            push(if hf.crs.geographic { KEY_GEOGRAPHIC_TYPE } else { KEY_PROJECTED_TYPE }, c as u16);
+        }
+        push(KEY_VERTICAL_UNITS, 9001);
+        keys[3] = ((keys.len() - 4) / 4) as u16;
+        e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).map_err(err)?;
+        if !hf.nodata.is_empty() || hf.nodata_value.is_some() {
+            e.write_tag(Tag::GdalNodata, &*format!("{nodata}")).map_err(err)?;
+        }
+        img.write_data(&data).map_err(err)?;
+    }
+    write_bytes_atomically(path, buf.get_ref())
+}

@@ -1,0 +1,77 @@
+//! One entry point that opens any supported file by what it is, not only by its name.
+
+use crate::dicom::{self, DicomOptions};
+use crate::error::{FormatError, Result};
+use crate::nifti::{self, NiftiOptions};
+use crate::png_height::{self, PngHeightOptions};
+use crate::{geotiff, vtk, Heightfield, ParticleArrayNames, ParticleSet, Volume};
+use std::path::Path;
+
+/// What a file holds once read.
+#[derive(Debug)]
+pub enum Dataset {
+    Volume(Volume),
+    Heightfield(Heightfield),
+    Particles(ParticleSet),
+}
+
+/// Every reader's options in one place; each reader looks only at its own.
+#[derive(Debug, Clone, Default)]
+pub struct LoadOptions {
+    pub nifti: NiftiOptions,
+    pub dicom: DicomOptions,
+    pub png: PngHeightOptions,
+    pub particles: ParticleArrayNames,
+}
+
+/// The kinds of file volterra reads, decided from the name and, where that is ambiguous,
+/// the first bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FileKind {
+    Nifti,
+    Dicom,
+    DicomDir,
+    GeoTiff,
+    PngHeightmap,
+    VtkLegacy,
+    VtkXml,
+}
+
+pub fn detect(path: &Path) -> Result<FileKind> {
+    if path.is_dir() {
+        return Ok(FileKind::DicomDir);
+    }
+    if !path.exists() {
+        return Err(FormatError::new(path, crate::ErrorKind::Io, "no such file"));
+    }
+    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    let kind = if name.ends_with(".nii") || name.ends_with(".nii.gz") || name.ends_with(".hdr") || name.ends_with(".hdr.gz") {
+        FileKind::Nifti
+    } else if name.ends_with(".tif") || name.ends_with(".tiff") {
+        FileKind::GeoTiff
+    } else if name.ends_with(".png") {
+        FileKind::PngHeightmap
+    } else if name.ends_with(".vtk") {
+        FileKind::VtkLegacy
+    } else if name.ends_with(".vtp") || name.ends_with(".vtu") {
+        FileKind::VtkXml
+    } else if name.ends_with(".dcm") || dicom::looks_like_dicom(path) {
+        FileKind::Dicom
+    } else {
+        return Err(FormatError::unsupported(
+            path,
+            "unknown file type (volterra reads .nii[.gz], .hdr/.img, DICOM files and directories, .tif, .png, .vtk, .vtp, .vtu)",
+        ));
+    };
+    Ok(kind)
+}
+
+pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
+    Ok(match detect(path)? {
+        FileKind::Nifti => Dataset::Volume(nifti::read_nifti(path, &opts.nifti)?),
+        FileKind::Dicom | FileKind::DicomDir => Dataset::Volume(dicom::read_dicom(path, &opts.dicom)?),
+        FileKind::GeoTiff => Dataset::Heightfield(geotiff::read_geotiff(path)?),
+        FileKind::PngHeightmap => Dataset::Heightfield(png_height::read_png_heightmap(path, &opts.png)?),
+        FileKind::VtkLegacy | FileKind::VtkXml => Dataset::Particles(vtk::read_vtk_particles(path, &opts.particles)?),
+    })
+}

@@ -1,0 +1,106 @@
+//! PNG heightmaps: 8- or 16-bit greyscale with a vertical scale and offset, or RGB-encoded
+//! elevation (Terrarium, Mapbox Terrain-RGB). A PNG carries no georeferencing: the cell
+//! size comes from the scene (or the defaults below) and the origin is (0, 0).
+
+use crate::error::{FormatError, Result};
+use crate::heightfield::{Crs, Heightfield};
+use crate::image::decode_png;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum HeightEncoding {
+    /// elevation = vertical_offset + vertical_scale · grey value (8 or 16 bit).
+    #[default]
+    Grey,
+    /// Mapzen Terrarium: elevation = (R·256 + G + B/256) − 32768 m.
+    Terrarium,
+    /// Mapbox Terrain-RGB: elevation = −10000 + (R·65536 + G·256 + B) · 0.1 m.
+    Mapbox,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PngHeightOptions {
+    pub encoding: HeightEncoding,
+    /// Metres per grey level (Grey only). Default 1.
+    pub vertical_scale: f64,
+    /// Metres added after scaling (Grey only). Default 0.
+    pub vertical_offset: f64,
+    /// Metres between samples. Default 1.
+    pub cell_size: f64,
+    /// A grey value that marks NoData (Grey only), e.g. 0 for some exports. Default none.
+    pub nodata: Option<u16>,
+}
+
+impl Default for PngHeightOptions {
+    fn default() -> Self {
+        PngHeightOptions { encoding: HeightEncoding::Grey, vertical_scale: 1.0, vertical_offset: 0.0, cell_size: 1.0, nodata: None }
+    }
+}
+
+pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions) -> Result<Heightfield> {
+    if !(opts.cell_size.is_finite() && opts.cell_size > 0.0) {
+        return Err(FormatError::invalid(path, format!("cell_size {} must be positive", opts.cell_size)));
+    }
+    if !opts.vertical_scale.is_finite() || !opts.vertical_offset.is_finite() {
+        return Err(FormatError::invalid(path, "vertical_scale and vertical_offset must be finite"));
+    }
+    let p = decode_png(path)?;
+    let n = p.width * p.height;
+    let mut nodata = Vec::new();
+    let elevations: Vec<f32> = match opts.encoding {
+        HeightEncoding::Grey => {
+            if p.channels > 2 {
+                return Err(FormatError::invalid(path, "a colour PNG needs encoding = \"terrarium\" or \"mapbox\" to be read as heights"));
+            }
+            let grey = |i: usize| p.samples[i * p.channels];
+            if let Some(nd) = opts.nodata {
+                nodata = (0..n).map(|i| grey(i) == nd).collect();
+                if !nodata.iter().any(|&b| b) {
+                    nodata.clear();
+                }
+            }
+            (0..n)
+                .map(|i| {
+                    if !nodata.is_empty() && nodata[i] {
+                        f32::NAN
+                    } else {
+                        (opts.vertical_offset + opts.vertical_scale * grey(i) as f64) as f32
+                    }
+                })
+                .collect()
+        }
+        enc => {
+            if p.channels < 3 || p.bit_depth != 8 {
+                return Err(FormatError::invalid(path, "RGB-encoded elevation needs an 8-bit RGB(A) PNG"));
+            }
+            (0..n)
+                .map(|i| {
+                    let s = &p.samples[i * p.channels..];
+                    let (r, g, b) = (s[0] as f64, s[1] as f64, s[2] as f64);
+                    (match enc {
+                        HeightEncoding::Terrarium => r * 256.0 + g + b / 256.0 - 32768.0,
+                        _ => -10000.0 + (r * 65536.0 + g * 256.0 + b) * 0.1,
+                    }) as f32
+                })
+                .collect()
+        }
+    };
+    Ok(Heightfield {
+        width: p.width,
+        height: p.height,
+        cell_size: [opts.cell_size; 2],
+        cell_size_native: [opts.cell_size; 2],
+        origin: [0.0, 0.0],
+        crs: Crs::local(),
+        elevations,
+        nodata,
+        nodata_value: opts.nodata.map(f64::from),
+        notes: vec![format!(
+            "PNG {}-bit, {} channel(s), encoding {:?}, vertical scale {} m, offset {} m, cell {} m",
+            p.bit_depth, p.channels, opts.encoding, opts.vertical_scale, opts.vertical_offset, opts.cell_size
+        )],
+    })
+}

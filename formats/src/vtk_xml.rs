@@ -1,0 +1,362 @@
+//! VTK XML PolyData / UnstructuredGrid reader (see `vtk.rs` for why it is our own).
+//! Reads the Piece's Points and PointData arrays in every encoding VTK writes: ascii,
+//! base64 `binary`, and `appended` (raw or base64), each optionally zlib-compressed, with
+//! UInt32 or UInt64 headers in either byte order.
+
+use crate::error::{FormatError, Result};
+use crate::memory::check_alloc;
+use crate::particles::{ParticleArrayNames, ParticleSet, PointArray};
+use base64::Engine;
+use quick_xml::events::{BytesStart, Event};
+use std::io::Read;
+use std::path::Path;
+
+#[derive(Debug, Default, Clone)]
+struct ArrayDecl {
+    name: String,
+    ty: String,
+    components: usize,
+    format: String,
+    offset: Option<usize>,
+    text: String,
+}
+
+#[derive(Debug, Default)]
+struct FileDecl {
+    dataset: String,
+    big_endian: bool,
+    header64: bool,
+    zlib: bool,
+    points: usize,
+    point_arrays: Vec<ArrayDecl>,
+    positions: Option<ArrayDecl>,
+    appended_base64: bool,
+}
+
+fn attr(e: &BytesStart, key: &str) -> Option<String> {
+    e.attributes().flatten().find(|a| a.key.as_ref() == key.as_bytes()).map(|a| String::from_utf8_lossy(&a.value).into_owned())
+}
+
+fn type_size(ty: &str) -> Option<usize> {
+    Some(match ty {
+        "Int8" | "UInt8" => 1,
+        "Int16" | "UInt16" => 2,
+        "Int32" | "UInt32" | "Float32" => 4,
+        "Int64" | "UInt64" | "Float64" => 8,
+        _ => return None,
+    })
+}
+
+pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
+    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    // The appended block may hold raw bytes that are not XML: parse only what precedes it.
+    let app_tag = find(&bytes, b"<AppendedData");
+    let xml_end = app_tag.unwrap_or(bytes.len());
+    let appended: &[u8] = match app_tag {
+        Some(start) => {
+            let us = find(&bytes[start..], b"_").map(|i| start + i + 1).ok_or_else(|| FormatError::invalid(path, "AppendedData has no '_' marker"))?;
+            &bytes[us..]
+        }
+        None => &[],
+    };
+    let mut decl = parse_decl(path, &bytes[..xml_end])?;
+    if let Some(start) = app_tag {
+        let head_end = find(&bytes[start..], b">").map(|i| start + i + 1).unwrap_or(start);
+        let tag = String::from_utf8_lossy(&bytes[start..head_end]);
+        decl.appended_base64 = tag.contains("base64");
+    }
+    if decl.dataset != "PolyData" && decl.dataset != "UnstructuredGrid" {
+        return Err(FormatError::unsupported(path, format!("VTK XML type '{}': particles come from PolyData (.vtp) or UnstructuredGrid (.vtu)", decl.dataset)));
+    }
+    let n = decl.points;
+    let pos_decl = decl.positions.clone().ok_or_else(|| FormatError::invalid(path, "Piece has no Points array"))?;
+    if pos_decl.components != 3 {
+        return Err(FormatError::invalid(path, format!("Points have {} components, not 3", pos_decl.components)));
+    }
+    let coords = decode_array(path, &decl, &pos_decl, appended, n)?;
+    let positions: Vec<[f64; 3]> = coords.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let mut arrays = Vec::new();
+    for a in &decl.point_arrays {
+        let values = decode_array(path, &decl, a, appended, n)?;
+        arrays.push(PointArray { name: a.name.clone(), components: a.components, values });
+    }
+    let notes = vec![format!(
+        "VTK XML {}, {} points, {}{}",
+        decl.dataset,
+        n,
+        if app_tag.is_some() { if decl.appended_base64 { "appended base64" } else { "appended raw" } } else { "inline" },
+        if decl.zlib { ", zlib" } else { "" }
+    )];
+    ParticleSet::from_arrays(positions, arrays, names, notes).map_err(|m| FormatError::invalid(path, m))
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+fn parse_decl(path: &Path, xml: &[u8]) -> Result<FileDecl> {
+    let mut reader = quick_xml::Reader::from_reader(xml);
+    reader.config_mut().check_end_names = false;
+    let mut decl = FileDecl::default();
+    let mut section: Vec<String> = Vec::new();
+    let mut current: Option<ArrayDecl> = None;
+    let mut pieces = 0;
+    // Elements nested inside a DataArray (InformationKey…): their text is not array data.
+    let mut nested = 0usize;
+    let mut buf = Vec::new();
+    let bad = |e: quick_xml::Error| FormatError::invalid(path, format!("malformed VTK XML: {e}"));
+    loop {
+        buf.clear();
+        let ev = reader.read_event_into(&mut buf).map_err(bad)?;
+        let (start, empty) = match &ev {
+            Event::Start(e) => (Some(e.clone()), false),
+            Event::Empty(e) => (Some(e.clone()), true),
+            _ => (None, false),
+        };
+        if let Some(e) = start {
+            let name = String::from_utf8_lossy(e.name().as_ref()).into_owned();
+            if current.is_some() {
+                if !empty {
+                    nested += 1;
+                }
+                continue;
+            }
+            match name.as_str() {
+                "VTKFile" => {
+                    decl.dataset = attr(&e, "type").unwrap_or_default();
+                    decl.big_endian = attr(&e, "byte_order").as_deref() == Some("BigEndian");
+                    decl.header64 = attr(&e, "header_type").as_deref() == Some("UInt64");
+                    match attr(&e, "compressor").as_deref() {
+                        None | Some("") => {}
+                        Some("vtkZLibDataCompressor") => decl.zlib = true,
+                        Some(other) => return Err(FormatError::unsupported(path, format!("compressor {other} (only zlib is supported)"))),
+                    }
+                }
+                "Piece" => {
+                    pieces += 1;
+                    if pieces > 1 {
+                        return Err(FormatError::unsupported(path, "file holds several pieces; only the first is read"));
+                    }
+                    let np = attr(&e, "NumberOfPoints").unwrap_or_default();
+                    decl.points = np.trim().parse().map_err(|_| FormatError::invalid(path, format!("NumberOfPoints '{np}' is not a count")))?;
+                }
+                "DataArray" => {
+                    let ty = attr(&e, "type").unwrap_or_default();
+                    if type_size(&ty).is_none() {
+                        return Err(FormatError::unsupported(path, format!("DataArray type '{ty}'")));
+                    }
+                    let comps = attr(&e, "NumberOfComponents").unwrap_or_else(|| "1".into());
+                    let components: usize = comps.trim().parse().ok().filter(|&c| c >= 1 && c <= 64).ok_or_else(|| FormatError::invalid(path, format!("NumberOfComponents '{comps}' is not valid")))?;
+                    let offset = match attr(&e, "offset") {
+                        Some(o) => Some(o.trim().parse().map_err(|_| FormatError::invalid(path, format!("DataArray offset '{o}' is not valid")))?),
+                        None => None,
+                    };
+                    let a = ArrayDecl {
+                        name: attr(&e, "Name").unwrap_or_default(),
+                        ty,
+                        components,
+                        format: attr(&e, "format").unwrap_or_else(|| "ascii".into()),
+                        offset,
+                        text: String::new(),
+                    };
+                    if empty {
+                        store(&mut decl, &section, a);
+                    } else {
+                        current = Some(a);
+                    }
+                }
+                _ => {
+                    if !empty {
+                        section.push(name);
+                    }
+                }
+            }
+            continue;
+        }
+        match ev {
+            Event::Text(t) => {
+                if let Some(a) = current.as_mut().filter(|_| nested == 0) {
+                    a.text.push_str(&String::from_utf8_lossy(t.as_ref()));
+                }
+            }
+            Event::End(e) => {
+                let name = String::from_utf8_lossy(e.name().as_ref()).into_owned();
+                if nested > 0 {
+                    nested -= 1;
+                } else if name == "DataArray" {
+                    if let Some(a) = current.take() {
+                        store(&mut decl, &section, a);
+                    }
+                } else if section.last() == Some(&name) {
+                    section.pop();
+                }
+            }
+            Event::Eof => break,
+            _ => {}
+        }
+    }
+    if decl.dataset.is_empty() {
+        return Err(FormatError::invalid(path, "not a VTK XML file (no VTKFile element)"));
+    }
+    if pieces == 0 {
+        return Err(FormatError::invalid(path, "VTK XML file has no Piece"));
+    }
+    Ok(decl)
+}
+
+fn store(decl: &mut FileDecl, section: &[String], a: ArrayDecl) {
+    match section.last().map(String::as_str) {
+        Some("Points") if decl.positions.is_none() => decl.positions = Some(a),
+        Some("PointData") => decl.point_arrays.push(a),
+        _ => {}
+    }
+}
+
+/// Decodes one DataArray into f64 values, checking its length against `n` points.
+fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: usize) -> Result<Vec<f64>> {
+    let size = type_size(&a.ty).unwrap();
+    let want = check_alloc(path, &format!("array '{}'", a.name), &[n as u64, a.components as u64, size as u64])?;
+    check_alloc(path, &format!("array '{}' as f64", a.name), &[n as u64, a.components as u64, 8])?;
+    let what = if a.name.is_empty() { "Points".to_string() } else { format!("array '{}'", a.name) };
+    let values = match a.format.as_str() {
+        "ascii" => {
+            let v: std::result::Result<Vec<f64>, _> = a.text.split_ascii_whitespace().map(str::parse::<f64>).collect();
+            v.map_err(|_| FormatError::invalid(path, format!("{what}: ascii data holds a non-number")))?
+        }
+        "binary" => {
+            let text: String = a.text.chars().filter(|c| !c.is_whitespace()).collect();
+            let raw = decode_base64_block(path, f, text.as_bytes(), want, &what)?;
+            to_f64(&raw, &a.ty, f.big_endian)
+        }
+        "appended" => {
+            let off = a.offset.ok_or_else(|| FormatError::invalid(path, format!("{what}: appended array has no offset")))?;
+            if off >= appended.len() {
+                return Err(FormatError::invalid(path, format!("{what}: offset {off} lies beyond the appended data ({} bytes)", appended.len())));
+            }
+            let raw = if f.appended_base64 {
+                let end = appended[off..].iter().position(|c| c.is_ascii_whitespace() || *c == b'<').map(|e| off + e).unwrap_or(appended.len());
+                decode_base64_block(path, f, &appended[off..end], want, &what)?
+            } else {
+                decode_raw_block(path, f, &appended[off..], want, &what)?
+            };
+            to_f64(&raw, &a.ty, f.big_endian)
+        }
+        other => return Err(FormatError::unsupported(path, format!("{what}: DataArray format '{other}'"))),
+    };
+    if values.len() != n * a.components {
+        return Err(FormatError::invalid(
+            path,
+            format!("{what} holds {} values, but {n} points × {} components need {}", values.len(), a.components, n * a.components),
+        ));
+    }
+    Ok(values)
+}
+
+fn header_int(f: &FileDecl, b: &[u8]) -> u64 {
+    if f.header64 {
+        let a: [u8; 8] = b[..8].try_into().unwrap();
+        if f.big_endian { u64::from_be_bytes(a) } else { u64::from_le_bytes(a) }
+    } else {
+        let a: [u8; 4] = b[..4].try_into().unwrap();
+        (if f.big_endian { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) }) as u64
+    }
+}
+
+/// Raw appended block: header then (possibly compressed) data, all bytes.
+fn decode_raw_block(path: &Path, f: &FileDecl, block: &[u8], want: usize, what: &str) -> Result<Vec<u8>> {
+    let hs = if f.header64 { 8 } else { 4 };
+    let short = || FormatError::invalid(path, format!("{what}: appended data is truncated"));
+    if f.zlib {
+        let nblocks = header_int(f, block.get(..hs).ok_or_else(short)?) as usize;
+        let hlen = nblocks.checked_add(3).and_then(|c| c.checked_mul(hs)).ok_or_else(short)?;
+        let header = block.get(..hlen).ok_or_else(short)?;
+        inflate_blocks(path, f, header, &block[hlen..], want, what)
+    } else {
+        let nbytes = header_int(f, block.get(..hs).ok_or_else(short)?) as usize;
+        if nbytes != want {
+            return Err(FormatError::invalid(path, format!("{what}: block holds {nbytes} bytes, expected {want}")));
+        }
+        Ok(block.get(hs..hs + nbytes).ok_or_else(short)?.to_vec())
+    }
+}
+
+/// Base64 block: VTK encodes the header and the data as separate base64 runs (for
+/// compressed data always; for uncompressed data some writers use one run).
+fn decode_base64_block(path: &Path, f: &FileDecl, text: &[u8], want: usize, what: &str) -> Result<Vec<u8>> {
+    let b64 = base64::engine::general_purpose::STANDARD;
+    let bad = || FormatError::invalid(path, format!("{what}: base64 data is corrupt or truncated"));
+    let hs = if f.header64 { 8 } else { 4 };
+    let enc_len = |bytes: usize| bytes.div_ceil(3) * 4;
+    if f.zlib {
+        let first = b64.decode(text.get(..enc_len(hs)).ok_or_else(bad)?).map_err(|_| bad())?;
+        let nblocks = header_int(f, &first) as usize;
+        let hlen = nblocks.checked_add(3).and_then(|c| c.checked_mul(hs)).ok_or_else(bad)?;
+        let henc = enc_len(hlen);
+        let header = b64.decode(text.get(..henc).ok_or_else(bad)?).map_err(|_| bad())?;
+        let data = b64.decode(&text[henc..]).map_err(|_| bad())?;
+        inflate_blocks(path, f, &header, &data, want, what)
+    } else {
+        if let Ok(all) = b64.decode(text) {
+            if all.len() >= hs && header_int(f, &all) as usize == all.len() - hs {
+                return check_len(path, all[hs..].to_vec(), want, what);
+            }
+        }
+        let henc = enc_len(hs);
+        let _header = b64.decode(text.get(..henc).ok_or_else(bad)?).map_err(|_| bad())?;
+        let data = b64.decode(&text[henc..]).map_err(|_| bad())?;
+        check_len(path, data, want, what)
+    }
+}
+
+fn check_len(path: &Path, data: Vec<u8>, want: usize, what: &str) -> Result<Vec<u8>> {
+    if data.len() < want {
+        return Err(FormatError::invalid(path, format!("{what}: holds {} bytes, expected {want}", data.len())));
+    }
+    Ok(data)
+}
+
+/// zlib blocks: header = [nblocks, block size, last block size, compressed sizes…].
+fn inflate_blocks(path: &Path, f: &FileDecl, header: &[u8], data: &[u8], want: usize, what: &str) -> Result<Vec<u8>> {
+    let hs = if f.header64 { 8 } else { 4 };
+    let h: Vec<u64> = header.chunks_exact(hs).map(|c| header_int(f, c)).collect();
+    let (nblocks, block, last) = (h[0] as usize, h[1] as usize, h[2] as usize);
+    let total = if nblocks == 0 { 0 } else { (nblocks - 1) * block + if last == 0 { block } else { last } };
+    if total != want {
+        return Err(FormatError::invalid(path, format!("{what}: compressed header declares {total} bytes, expected {want}")));
+    }
+    let mut out = Vec::with_capacity(want);
+    let mut pos = 0usize;
+    for &csize in &h[3..3 + nblocks] {
+        let csize = csize as usize;
+        let chunk = data.get(pos..pos.saturating_add(csize)).ok_or_else(|| FormatError::invalid(path, format!("{what}: compressed data is truncated")))?;
+        let mut d = flate2::read::ZlibDecoder::new(chunk).take((block.max(last)) as u64);
+        d.read_to_end(&mut out).map_err(|e| FormatError::invalid(path, format!("{what}: corrupt zlib data: {e}")))?;
+        pos += csize;
+    }
+    check_len(path, out, want, what)
+}
+
+fn to_f64(raw: &[u8], ty: &str, be: bool) -> Vec<f64> {
+    macro_rules! conv {
+        ($t:ty, $n:expr) => {
+            raw.chunks_exact($n)
+                .map(|c| {
+                    let a: [u8; $n] = c.try_into().unwrap();
+                    (if be { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as f64
+                })
+                .collect()
+        };
+    }
+    match ty {
+        "Int8" => raw.iter().map(|&b| b as i8 as f64).collect(),
+        "UInt8" => raw.iter().map(|&b| b as f64).collect(),
+        "Int16" => conv!(i16, 2),
+        "UInt16" => conv!(u16, 2),
+        "Int32" => conv!(i32, 4),
+        "UInt32" => conv!(u32, 4),
+        "Int64" => conv!(i64, 8),
+        "UInt64" => conv!(u64, 8),
+        "Float32" => conv!(f32, 4),
+        _ => conv!(f64, 8),
+    }
+}

@@ -1,0 +1,196 @@
+//! The `volterra` command line: a thin layer over the library.
+
+use anyhow::{anyhow, bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use volterra::{compare, info};
+use volterra_formats::{self as formats, dicom, Dataset, LoadOptions};
+
+#[derive(Parser)]
+#[command(name = "volterra", version, about = "Medical and scientific visualization: volumes, terrain, particles")]
+struct Cli {
+    /// Refuse inputs that would need more memory than this (e.g. 4G, 512M). Default: the
+    /// memory available.
+    #[arg(long, global = true, value_name = "SIZE")]
+    max_memory: Option<String>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Args, Clone, Default)]
+struct ReadArgs {
+    /// DICOM directory with several series: the SeriesInstanceUID (or a prefix, or the
+    /// number `info` lists) to read.
+    #[arg(long)]
+    series: Option<String>,
+    /// DICOM: resample slices with non-uniform spacing or gaps instead of refusing them.
+    #[arg(long)]
+    resample: bool,
+    /// NIfTI 4-D: which volume to read (0-based).
+    #[arg(long, default_value_t = 0)]
+    volume: usize,
+    /// PNG heightmap: metres per grey level.
+    #[arg(long)]
+    vertical_scale: Option<f64>,
+    /// PNG heightmap: metres added after scaling.
+    #[arg(long)]
+    vertical_offset: Option<f64>,
+    /// PNG heightmap: metres between samples.
+    #[arg(long)]
+    cell_size: Option<f64>,
+    /// PNG heightmap: grey, terrarium or mapbox.
+    #[arg(long)]
+    encoding: Option<String>,
+}
+
+impl ReadArgs {
+    fn options(&self) -> Result<LoadOptions> {
+        let mut o = LoadOptions::default();
+        o.dicom.series = self.series.clone();
+        o.dicom.resample = self.resample;
+        o.nifti.volume_index = self.volume;
+        if let Some(v) = self.vertical_scale {
+            o.png.vertical_scale = v;
+        }
+        if let Some(v) = self.vertical_offset {
+            o.png.vertical_offset = v;
+        }
+        if let Some(v) = self.cell_size {
+            o.png.cell_size = v;
+        }
+        if let Some(e) = &self.encoding {
+            o.png.encoding = match e.as_str() {
+                "grey" | "gray" => formats::png_height::HeightEncoding::Grey,
+                "terrarium" => formats::png_height::HeightEncoding::Terrarium,
+                "mapbox" => formats::png_height::HeightEncoding::Mapbox,
+                other => bail!("--encoding {other}: expected grey, terrarium or mapbox"),
+            };
+        }
+        Ok(o)
+    }
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Show what a file (or DICOM directory) holds.
+    Info {
+        path: PathBuf,
+        /// Print one JSON object instead of text.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+    /// Convert: volume → .nii/.nii.gz, heightfield → .tif/.exr, particles → .vtp.
+    Convert {
+        input: PathBuf,
+        output: PathBuf,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+    /// Compare two EXR images: RMSE, PSNR, max error, relative RMSE per channel.
+    Compare {
+        a: PathBuf,
+        /// The reference image.
+        b: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One line: the chain of contexts, outermost first.
+            let msg: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+            eprintln!("error: {}", msg.join(": "));
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    if let Some(m) = &cli.max_memory {
+        let bytes = formats::memory::parse_size(m).ok_or_else(|| anyhow!("--max-memory {m}: expected a size such as 512M or 4G"))?;
+        formats::memory::set_limit(bytes);
+    }
+    match cli.command {
+        Command::Info { path, json, read } => cmd_info(&path, json, &read),
+        Command::Convert { input, output, read } => cmd_convert(&input, &output, &read),
+        Command::Compare { a, b, json } => cmd_compare(&a, &b, json),
+    }
+}
+
+fn cmd_info(path: &Path, json: bool, read: &ReadArgs) -> Result<()> {
+    let opts = read.options()?;
+    if path.is_dir() && opts.dicom.series.is_none() {
+        let list = dicom::list_series(path)?;
+        if list.len() > 1 {
+            if json {
+                println!("{}", serde_json::to_string_pretty(&info::series_json(&list))?);
+            } else {
+                println!("{} series (choose one with --series):", list.len());
+                for (i, s) in list.iter().enumerate() {
+                    println!("  {}: {} '{}' {} {}×{}, {} files", i + 1, s.uid, s.description, s.modality, s.columns, s.rows, s.files);
+                }
+            }
+            return Ok(());
+        }
+    }
+    let data = formats::load(path, &opts)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&info::dataset_json(&data, &opts.particles))?);
+    } else {
+        print!("{}", info::dataset_text(&data, &opts.particles));
+    }
+    Ok(())
+}
+
+fn lower_name(p: &Path) -> String {
+    p.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
+}
+
+fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
+    let opts = read.options()?;
+    let data = formats::load(input, &opts)?;
+    let out = lower_name(output);
+    match data {
+        Dataset::Volume(v) if out.ends_with(".nii") || out.ends_with(".nii.gz") => formats::nifti::write_nifti(output, &v)?,
+        Dataset::Heightfield(h) if out.ends_with(".tif") || out.ends_with(".tiff") => formats::geotiff::write_geotiff(output, &h)?,
+        Dataset::Heightfield(h) if out.ends_with(".exr") => {
+            let mut img = formats::FloatImage::new(h.width, h.height);
+            img.add_channel("Y", h.elevations.clone());
+            formats::exr_io::write_exr(output, &img)?
+        }
+        Dataset::Particles(p) if out.ends_with(".vtp") => formats::vtk::write_vtp(output, &p, &opts.particles)?,
+        d => {
+            let (kind, allowed) = match d {
+                Dataset::Volume(_) => ("a volume", ".nii or .nii.gz"),
+                Dataset::Heightfield(_) => ("a heightfield", ".tif or .exr"),
+                Dataset::Particles(_) => ("a particle set", ".vtp"),
+            };
+            bail!("{}: {} converts to {allowed}", output.display(), kind);
+        }
+    }
+    eprintln!("wrote {}", output.display());
+    Ok(())
+}
+
+fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
+    let ia = formats::exr_io::read_exr(a)?;
+    let ib = formats::exr_io::read_exr(b)?;
+    let c = compare::compare(&ia, &ib).map_err(|m| anyhow!(m)).with_context(|| format!("{} vs {}", a.display(), b.display()))?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&c)?);
+    } else {
+        println!("{:<8} {:>12} {:>10} {:>12} {:>12}", "channel", "RMSE", "PSNR dB", "max |err|", "rel. RMSE");
+        for s in c.channels.iter().chain(std::iter::once(&c.overall)) {
+            println!("{:<8} {:>12.6} {:>10.2} {:>12.6} {:>11.4}%", s.channel, s.rmse, s.psnr_db, s.max_abs, 100.0 * s.relative_rmse);
+        }
+        println!("coverage mismatch: {} pixels", c.coverage_mismatch);
+    }
+    Ok(())
+}
