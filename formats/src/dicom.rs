@@ -261,9 +261,18 @@ fn check_transfer_syntax(info: &ImageInfo) -> Result<()> {
 /// as little-endian bytes, with BitsStored masking / sign extension applied.
 fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
     let file = open(&info.path, false)?;
-    let decoded = file
-        .decode_pixel_data()
-        .map_err(|e| FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string()))))?;
+    let decoded = file.decode_pixel_data().map_err(|e| {
+        // jpeg-decoder (behind dicom-pixeldata) has no 12-bit DCT: say so instead of a
+        // generic decode failure.
+        if info.transfer_syntax == "1.2.840.10008.1.2.4.51" && info.bits_stored > 8 {
+            FormatError::unsupported(
+                &info.path,
+                format!("unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)", info.bits_stored),
+            )
+        } else {
+            FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string())))
+        }
+    })?;
     let pixels = info.rows as usize * info.columns as usize * info.frames as usize;
     let bytes_per = info.bits_allocated as usize / 8;
     let data = decoded.data();

@@ -1,0 +1,53 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+/// `../shared/data` beside the repository (or $VOLTERRA_SHARED_DATA). Under CI (CI=true) a
+/// missing directory is a failure; locally the test is skipped with a printed reason.
+pub fn shared_data() -> Option<PathBuf> {
+    let dir = std::env::var_os("VOLTERRA_SHARED_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    if dir.join("SOURCES.md").exists() {
+        return Some(dir);
+    }
+    if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
+        panic!("shared data not found at {} (CI=true: tests that need it must not skip)", dir.display());
+    }
+    eprintln!("SKIPPED: shared data not found at {}", dir.display());
+    None
+}
+
+pub fn repo_path(rel: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+/// The sample positions and weights of tests/reference/make_references.py.
+pub fn weight(i: usize) -> f64 {
+    ((i as u64 * 7919) % 1009) as f64
+}
+pub fn sample_index(k: usize, n: usize) -> usize {
+    (k * 104729 + 17) % n
+}
+
+pub struct Fingerprint {
+    pub count: usize,
+    pub sum: f64,
+    pub wsum: f64,
+}
+
+pub fn fingerprint(values: impl Iterator<Item = f64>) -> Fingerprint {
+    let mut f = Fingerprint { count: 0, sum: 0.0, wsum: 0.0 };
+    for (i, v) in values.enumerate() {
+        let v = if v.is_finite() { v } else { 0.0 };
+        f.sum += v;
+        f.wsum += v * weight(i);
+        f.count += 1;
+    }
+    f
+}
+
+pub fn close(a: f64, b: f64, rel: f64) -> bool {
+    (a - b).abs() <= rel * a.abs().max(b.abs()).max(1e-300) || (a.is_nan() && b.is_nan())
+}
