@@ -439,12 +439,17 @@ fn read_series_dir(dir: &Path, opts: &DicomOptions) -> Result<Volume> {
                 ))
             }
             Some(want) => {
+                // An exact UID first, then the number `info` lists, then a unique prefix.
                 let by_number = want.parse::<usize>().ok().and_then(|n| series.keys().nth(n.wrapping_sub(1)).cloned());
-                let matches: Vec<&String> = series.keys().filter(|u| *u == want || u.starts_with(want.as_str())).collect();
-                match (by_number, matches.as_slice()) {
-                    (_, [one]) => (*one).clone(),
-                    (Some(u), []) => u,
-                    _ => return Err(FormatError::new(dir, ErrorKind::Ambiguous, format!("--series {want} matches none or several of: {listing}"))),
+                let prefixed: Vec<&String> = series.keys().filter(|u| u.starts_with(want.as_str())).collect();
+                if series.contains_key(want) {
+                    want.clone()
+                } else if let Some(u) = by_number {
+                    u
+                } else if let [one] = prefixed.as_slice() {
+                    (*one).clone()
+                } else {
+                    return Err(FormatError::new(dir, ErrorKind::Ambiguous, format!("--series {want} matches none or several of: {listing}")));
                 }
             }
         }

@@ -220,7 +220,10 @@ fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: us
     let what = if a.name.is_empty() { "Points".to_string() } else { format!("array '{}'", a.name) };
     let values = match a.format.as_str() {
         "ascii" => {
-            let v: std::result::Result<Vec<f64>, _> = a.text.split_ascii_whitespace().map(str::parse::<f64>).collect();
+            // Float32 text is the shortest decimal of an f32: parse it as f32 to get the
+            // value VTK stored, then widen.
+            let parse = |t: &str| if a.ty == "Float32" { t.parse::<f32>().map(f64::from) } else { t.parse::<f64>() };
+            let v: std::result::Result<Vec<f64>, _> = a.text.split_ascii_whitespace().map(parse).collect();
             v.map_err(|_| FormatError::invalid(path, format!("{what}: ascii data holds a non-number")))?
         }
         "binary" => {
@@ -280,32 +283,47 @@ fn decode_raw_block(path: &Path, f: &FileDecl, block: &[u8], want: usize, what: 
     }
 }
 
-/// Base64 block: VTK encodes the header and the data as separate base64 runs (for
-/// compressed data always; for uncompressed data some writers use one run).
+/// Base64 block (inline, or one array's run inside an appended base64 block, which may be
+/// followed by the next array's run). VTK encodes a compressed array's header and data as
+/// two base64 runs; an uncompressed one as one run or two, depending on the writer.
 fn decode_base64_block(path: &Path, f: &FileDecl, text: &[u8], want: usize, what: &str) -> Result<Vec<u8>> {
     let b64 = base64::engine::general_purpose::STANDARD;
     let bad = || FormatError::invalid(path, format!("{what}: base64 data is corrupt or truncated"));
+    let run = |from: usize, bytes: usize| -> Result<Vec<u8>> {
+        let to = from.checked_add(enc_len(bytes)).ok_or_else(bad)?;
+        b64.decode(text.get(from..to).ok_or_else(bad)?).map_err(|_| bad())
+    };
     let hs = if f.header64 { 8 } else { 4 };
-    let enc_len = |bytes: usize| bytes.div_ceil(3) * 4;
+    let first = run(0, hs)?;
     if f.zlib {
-        let first = b64.decode(text.get(..enc_len(hs)).ok_or_else(bad)?).map_err(|_| bad())?;
         let nblocks = header_int(f, &first) as usize;
         let hlen = nblocks.checked_add(3).and_then(|c| c.checked_mul(hs)).ok_or_else(bad)?;
-        let henc = enc_len(hlen);
-        let header = b64.decode(text.get(..henc).ok_or_else(bad)?).map_err(|_| bad())?;
-        let data = b64.decode(&text[henc..]).map_err(|_| bad())?;
+        let header = run(0, hlen)?;
+        if header.len() < hlen {
+            return Err(bad());
+        }
+        let sizes: u64 = header.chunks_exact(hs).skip(3).map(|c| header_int(f, c)).fold(0u64, u64::saturating_add);
+        let sizes = usize::try_from(sizes).map_err(|_| bad())?;
+        let data = run(enc_len(hlen), sizes)?;
         inflate_blocks(path, f, &header, &data, want, what)
     } else {
-        if let Ok(all) = b64.decode(text) {
-            if all.len() >= hs && header_int(f, &all) as usize == all.len() - hs {
-                return check_len(path, all[hs..].to_vec(), want, what);
-            }
+        let nbytes = header_int(f, &first) as usize;
+        if nbytes != want {
+            return Err(FormatError::invalid(path, format!("{what}: block holds {nbytes} bytes, expected {want}")));
         }
-        let henc = enc_len(hs);
-        let _header = b64.decode(text.get(..henc).ok_or_else(bad)?).map_err(|_| bad())?;
-        let data = b64.decode(&text[henc..]).map_err(|_| bad())?;
-        check_len(path, data, want, what)
+        // A separately encoded header ends in '=' padding; a joint run does not.
+        let separate = text[..enc_len(hs).min(text.len())].contains(&b'=');
+        if separate {
+            check_len(path, run(enc_len(hs), nbytes)?, want, what)
+        } else {
+            let all = run(0, hs + nbytes)?;
+            check_len(path, all[hs..].to_vec(), want, what)
+        }
     }
+}
+
+fn enc_len(bytes: usize) -> usize {
+    bytes.div_ceil(3) * 4
 }
 
 fn check_len(path: &Path, data: Vec<u8>, want: usize, what: &str) -> Result<Vec<u8>> {
