@@ -251,10 +251,11 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
     })
 }
 
-/// Writes a float32 GeoTIFF (Deflate, floating-point predictor) that keeps the pixel scale,
+/// Writes a float32 GeoTIFF (Deflate; the tiff crate's encoder has no floating-point
+/// predictor, so none is used) that keeps the pixel scale,
 /// tiepoint (PixelIsArea), EPSG code and NoData value. Written atomically.
 pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
-    use tiff::encoder::{colortype, Compression, Predictor, TiffEncoder};
+    use tiff::encoder::{colortype, Compression, TiffEncoder};
     let err = |e: tiff::TiffError| FormatError::invalid(path, format!("cannot write TIFF: {e}"));
     let nodata = hf.nodata_value.unwrap_or(-32768.0);
     let data: Vec<f32> = hf
@@ -267,8 +268,7 @@ pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
     {
         let mut enc = TiffEncoder::new(&mut buf)
             .map_err(err)?
-            .with_compression(Compression::Deflate(tiff::encoder::DeflateLevel::Balanced))
-            .with_predictor(Predictor::FloatingPoint);
+            .with_compression(Compression::Deflate(tiff::encoder::DeflateLevel::Balanced));
         let mut img = enc.new_image::<colortype::Gray32Float>(hf.width as u32, hf.height as u32).map_err(err)?;
         let [sx, sy] = hf.cell_size_native;
         let corner = [hf.origin[0] - 0.5 * sx, hf.origin[1] + 0.5 * sy];
