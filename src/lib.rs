@@ -6,3 +6,6 @@ pub mod compare;
 pub mod info;
 
 pub use volterra_formats as formats;
+pub mod scene;
+pub mod render;
+pub mod samples;

@@ -4,7 +4,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use volterra::{compare, info};
+use volterra::{compare, info, render, scene::Scene};
 use volterra_formats::{self as formats, dicom, Dataset, LoadOptions};
 
 #[derive(Parser)]
@@ -89,6 +89,28 @@ enum Command {
         #[command(flatten)]
         read: ReadArgs,
     },
+    /// Render a scene to EXR (colour, alpha, depth Z, extra channels), optionally a PNG.
+    Render {
+        scene: PathBuf,
+        /// Output EXR.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Also write an sRGB PNG preview.
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// Override a scene value: `camera.view_angle=20`, `image.width=256`,
+        /// `node.NAME.settings.step=0.25` (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+    },
+    /// Write the built-in sample data and a scene for each into DIR.
+    Samples { dir: PathBuf },
+    /// The main job on built-in samples: write them, render every scene a renderer exists
+    /// for, write EXR and PNG into OUT, print a summary.
+    Demo {
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+    },
     /// Compare two EXR images: RMSE, PSNR, max error, relative RMSE per channel.
     Compare {
         a: PathBuf,
@@ -121,6 +143,13 @@ fn run(cli: Cli) -> Result<()> {
         Command::Info { path, json, read } => cmd_info(&path, json, &read),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read),
         Command::Compare { a, b, json } => cmd_compare(&a, &b, json),
+        Command::Render { scene, output, png, sets } => cmd_render(&scene, &output, png.as_deref(), &sets).map(|_| ()),
+        Command::Samples { dir } => {
+            volterra::samples::write_samples(&dir)?;
+            eprintln!("wrote samples and scenes into {}", dir.display());
+            Ok(())
+        }
+        Command::Demo { out } => cmd_demo(&out),
     }
 }
 
@@ -191,6 +220,41 @@ fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
             println!("{:<8} {:>12.6} {:>10.2} {:>12.6} {:>11.4}%", s.channel, s.rmse, s.psnr_db, s.max_abs, 100.0 * s.relative_rmse);
         }
         println!("coverage mismatch: {} pixels", c.coverage_mismatch);
+    }
+    Ok(())
+}
+
+fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String]) -> Result<render::Frame> {
+    let scene = Scene::load(scene_path, sets)?;
+    let frame = render::render_scene(&scene)?;
+    let bg = scene.file.image.background;
+    formats::exr_io::write_exr(output, &frame.to_image(bg))?;
+    if let Some(p) = png {
+        formats::image::write_png_preview(p, frame.width, frame.height, &frame.preview_rgba(bg))?;
+    }
+    Ok(frame)
+}
+
+fn cmd_demo(out: &Path) -> Result<()> {
+    let samples = out.join("samples");
+    volterra::samples::write_samples(&samples)?;
+    eprintln!("wrote built-in samples into {}", samples.display());
+    println!("{:<18} {:<12} {:>9} {:>9}  {}", "scene", "renderer", "size", "seconds", "result");
+    for (name, _) in volterra::samples::SCENES {
+        let stem = name.trim_end_matches(".toml");
+        let scene = Scene::load(&samples.join(name), &[])?;
+        let renderer = scene.nodes().iter().filter_map(|n| n.renderer.clone()).collect::<Vec<_>>().join("+");
+        let size = format!("{}×{}", scene.file.image.width, scene.file.image.height);
+        let exr = out.join(format!("{stem}.exr"));
+        let png = out.join(format!("{stem}.png"));
+        let t = std::time::Instant::now();
+        match cmd_render(&samples.join(name), &exr, Some(&png), &[]) {
+            Ok(_) => println!("{stem:<18} {renderer:<12} {size:>9} {:>9.2}  {} + {}", t.elapsed().as_secs_f64(), exr.display(), png.display()),
+            Err(e) if format!("{e:#}").contains("not implemented yet") => {
+                println!("{stem:<18} {renderer:<12} {size:>9} {:>9}  skipped: renderer not implemented yet", "-")
+            }
+            Err(e) => return Err(e),
+        }
     }
     Ok(())
 }

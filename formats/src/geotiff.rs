@@ -19,11 +19,10 @@ const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
 const KEY_PROJECTED_TYPE: u16 = 3072;
 const KEY_VERTICAL_UNITS: u16 = 4099;
 
-/// A decoded GeoKey value.
+/// A decoded GeoKey value (double-valued keys are not needed and skipped).
 #[derive(Debug, Clone)]
 enum GeoKey {
     Short(u16),
-    Doubles(Vec<f64>),
     Ascii(String),
 }
 
@@ -40,10 +39,6 @@ fn geo_keys<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -
         return Ok(Vec::new());
     };
     let dir = dir.into_u16_vec().map_err(|e| tiff_err(path, e))?;
-    let doubles = match d.find_tag(Tag::GeoDoubleParamsTag).map_err(|e| tiff_err(path, e))? {
-        Some(v) => v.into_f64_vec().map_err(|e| tiff_err(path, e))?,
-        None => Vec::new(),
-    };
     let ascii = match d.find_tag(Tag::GeoAsciiParamsTag).map_err(|e| tiff_err(path, e))? {
         Some(v) => v.into_string().map_err(|e| tiff_err(path, e))?,
         None => String::new(),
@@ -61,7 +56,6 @@ fn geo_keys<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -
         let (id, loc, count, off) = (e[0], e[1], e[2] as usize, e[3] as usize);
         let value = match loc {
             0 => GeoKey::Short(off as u16),
-            34736 => GeoKey::Doubles(doubles.get(off..off + count).map(<[f64]>::to_vec).unwrap_or_default()),
             34737 => GeoKey::Ascii(
                 ascii.get(off..(off + count).min(ascii.len())).unwrap_or("").trim_end_matches(['|', '\0']).to_string(),
             ),

@@ -28,7 +28,7 @@ pub struct ParticleSet {
 }
 
 /// Which point arrays hold the SPH quantities. Defaults: `mass`, `density`, `h`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ParticleArrayNames {
     pub mass: String,

@@ -20,7 +20,7 @@ pub enum HeightEncoding {
     Mapbox,
 }
 
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PngHeightOptions {
     pub encoding: HeightEncoding,

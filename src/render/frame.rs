@@ -1,0 +1,85 @@
+//! What every renderer returns: premultiplied linear RGBA, a depth, optional extra
+//! channels, and statistics.
+
+use volterra_formats::FloatImage;
+
+#[derive(Debug, Clone, Default)]
+pub struct FrameStats {
+    pub renderer: String,
+    pub seconds: f64,
+    /// Named counters (samples taken, rays terminated early, …).
+    pub counters: Vec<(String, f64)>,
+    pub notes: Vec<String>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub width: usize,
+    pub height: usize,
+    /// Premultiplied linear RGBA over a transparent background, row 0 at the top.
+    pub rgba: Vec<[f32; 4]>,
+    /// Distance along the pixel's ray to what the renderer defines as the surface
+    /// (for volumes: where accumulated opacity passes 0.5); +∞ where nothing.
+    pub depth: Vec<f32>,
+    /// Extra named channels (step counts, …).
+    pub extra: Vec<(String, Vec<f32>)>,
+    pub stats: FrameStats,
+}
+
+impl Frame {
+    pub fn empty(width: usize, height: usize) -> Frame {
+        Frame { width, height, rgba: vec![[0.0; 4]; width * height], depth: vec![f32::INFINITY; width * height], extra: Vec::new(), stats: FrameStats::default() }
+    }
+
+    /// Composites `layers` per pixel front to back by depth (premultiplied "over").
+    pub fn composite(width: usize, height: usize, layers: &[Frame]) -> Frame {
+        let mut out = Frame::empty(width, height);
+        let mut order: Vec<usize> = (0..layers.len()).collect();
+        for p in 0..width * height {
+            order.sort_by(|&a, &b| layers[a].depth[p].total_cmp(&layers[b].depth[p]));
+            let mut acc = [0.0f32; 4];
+            for &l in &order {
+                let c = layers[l].rgba[p];
+                let t = 1.0 - acc[3];
+                for k in 0..4 {
+                    acc[k] += t * c[k];
+                }
+            }
+            out.rgba[p] = acc;
+            out.depth[p] = order.iter().map(|&l| layers[l].depth[p]).fold(f32::INFINITY, f32::min);
+        }
+        for l in layers {
+            out.extra.extend(l.extra.iter().cloned());
+            out.stats.counters.extend(l.stats.counters.iter().cloned());
+            out.stats.notes.extend(l.stats.notes.iter().cloned());
+        }
+        out.stats.renderer = layers.iter().map(|l| l.stats.renderer.clone()).collect::<Vec<_>>().join("+");
+        out
+    }
+
+    /// The EXR image: R, G, B composited over `background`, A = coverage, Z = depth, and
+    /// the extra channels.
+    pub fn to_image(&self, background: [f64; 3]) -> FloatImage {
+        let mut img = FloatImage::new(self.width, self.height);
+        for (k, name) in ["R", "G", "B"].iter().enumerate() {
+            img.add_channel(name, self.rgba.iter().map(|p| p[k] + (1.0 - p[3]) * background[k] as f32).collect());
+        }
+        img.add_channel("A", self.rgba.iter().map(|p| p[3]).collect());
+        img.add_channel("Z", self.depth.clone());
+        for (name, v) in &self.extra {
+            img.add_channel(name, v.clone());
+        }
+        img
+    }
+
+    /// Interleaved RGBA for a PNG preview (colour over the background, alpha 1).
+    pub fn preview_rgba(&self, background: [f64; 3]) -> Vec<f32> {
+        self.rgba
+            .iter()
+            .flat_map(|p| {
+                let t = 1.0 - p[3];
+                [p[0] + t * background[0] as f32, p[1] + t * background[1] as f32, p[2] + t * background[2] as f32, 1.0]
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,81 @@
+//! Renderers. Each takes the scene (and a node) with its settings and returns a [`Frame`];
+//! none reaches into another. `render_scene` draws every visible node with the renderer it
+//! names and composites the results by depth.
+
+pub mod frame;
+pub mod reference_volume;
+
+pub use frame::{Frame, FrameStats};
+
+use crate::scene::{NodeKind, Scene};
+use anyhow::{anyhow, bail, Context, Result};
+
+/// Renderers by name, with the node kinds they draw and whether they exist yet.
+pub const RENDERERS: &[(&str, NodeKind, bool)] = &[
+    ("reference", NodeKind::Volume, true),
+    ("shear-warp", NodeKind::Volume, false),
+    ("terrain", NodeKind::Heightfield, false),
+    ("smoke", NodeKind::Particles, false),
+];
+
+/// The renderer a node uses when it names none: the best one available for its kind.
+pub fn default_renderer(kind: NodeKind) -> Option<&'static str> {
+    RENDERERS.iter().find(|(_, k, ready)| *k == kind && *ready).map(|(n, _, _)| *n)
+}
+
+fn settings<T: serde::de::DeserializeOwned + Default>(table: &toml::Table, node: &str, renderer: &str) -> Result<T> {
+    if table.is_empty() {
+        return Ok(T::default());
+    }
+    toml::Value::Table(table.clone())
+        .try_into()
+        .map_err(|e: toml::de::Error| anyhow!("node '{node}': settings for renderer '{renderer}': {}", e.message().trim()))
+}
+
+/// Renders one node. Returns None for nodes nothing is drawn for (groups, hidden nodes).
+pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
+    let desc = &scene.nodes()[node];
+    if !desc.visible || desc.kind == NodeKind::Group {
+        return Ok(None);
+    }
+    let name = match &desc.renderer {
+        Some(r) => r.as_str(),
+        None => default_renderer(desc.kind).ok_or_else(|| anyhow!("node '{}': no renderer for {:?} nodes is available yet", desc.name, desc.kind))?,
+    };
+    let Some(&(_, kind, ready)) = RENDERERS.iter().find(|(n, _, _)| *n == name) else {
+        let names: Vec<&str> = RENDERERS.iter().map(|r| r.0).collect();
+        bail!("node '{}': unknown renderer '{name}' (known: {})", desc.name, names.join(", "));
+    };
+    if kind != desc.kind {
+        bail!("node '{}': renderer '{name}' draws {:?} nodes, not {:?}", desc.name, kind, desc.kind);
+    }
+    if !ready {
+        bail!("node '{}': renderer '{name}' is not implemented yet", desc.name);
+    }
+    let (w, h) = (scene.file.image.width, scene.file.image.height);
+    let rays = scene.file.camera.rays(w, h);
+    let frame = match name {
+        "reference" => {
+            let s: reference_volume::Settings = settings(&desc.settings, &desc.name, name)?;
+            let tf = desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name))?;
+            let vol = scene.volume(node)?;
+            reference_volume::render(&vol, scene.world_transform(node), tf, desc.blend, &rays, w, h, &s)?
+        }
+        _ => unreachable!(),
+    };
+    Ok(Some(frame))
+}
+
+pub fn render_scene(scene: &Scene) -> Result<Frame> {
+    let (w, h) = (scene.file.image.width, scene.file.image.height);
+    let mut layers = Vec::new();
+    for i in 0..scene.nodes().len() {
+        if let Some(f) = render_node(scene, i).with_context(|| scene.source.display().to_string())? {
+            layers.push(f);
+        }
+    }
+    if layers.len() == 1 {
+        return Ok(layers.pop().unwrap());
+    }
+    Ok(Frame::composite(w, h, &layers))
+}

@@ -1,0 +1,300 @@
+//! `volterra samples DIR`: deterministic built-in sample data, made by our own code (no
+//! network, no ../shared), and a scene for each:
+//! - `angio_phantom.nii.gz`: a vessel-tree angiography phantom with an aneurysm bulge;
+//! - `fractal_dem.tif` (float32 GeoTIFF, UTM 10N), `fractal_dem.png` (16-bit) and
+//!   `fractal_dem_texture.png`: a fractal DEM with a colour texture;
+//! - `smoke_plume.vtp`: a rising smoke plume as SPH particles.
+
+use anyhow::{Context, Result};
+use std::path::Path;
+use volterra_formats::heightfield::{Crs, Heightfield};
+use volterra_formats::{image, ParticleArrayNames, ParticleSet, PointArray, Rescale, RgbImage, Volume, VoxelData};
+
+/// SplitMix64: a tiny, fast, seedable generator; good enough for procedural samples.
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.next_f64()
+    }
+}
+
+/// The scene files `samples` writes, by file name. Kept identical to `samples/*.toml` in
+/// the repository (a test checks it).
+pub const SCENES: &[(&str, &str)] = &[
+    ("angio.toml", include_str!("../samples/angio.toml")),
+    ("angio_mip.toml", include_str!("../samples/angio_mip.toml")),
+    ("terrain.toml", include_str!("../samples/terrain.toml")),
+    ("terrain_png.toml", include_str!("../samples/terrain_png.toml")),
+    ("smoke.toml", include_str!("../samples/smoke.toml")),
+];
+
+pub fn write_samples(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create directory", dir.display()))?;
+    let vol = angio_phantom(128);
+    volterra_formats::nifti::write_nifti(&dir.join("angio_phantom.nii.gz"), &vol)?;
+    let dem = fractal_dem(9, 30.0, 7);
+    volterra_formats::geotiff::write_geotiff(&dir.join("fractal_dem.tif"), &dem)?;
+    let grey: Vec<u16> = dem.elevations.iter().map(|&z| (z as f64 / DEM_PNG_SCALE).round().clamp(0.0, 65535.0) as u16).collect();
+    image::write_png_grey16(&dir.join("fractal_dem.png"), dem.width, dem.height, &grey)?;
+    image::write_png_rgb8(&dir.join("fractal_dem_texture.png"), &dem_texture(&dem))?;
+    let plume = smoke_plume(20_000, 3);
+    volterra_formats::vtk::write_vtp(&dir.join("smoke_plume.vtp"), &plume, &ParticleArrayNames::default())?;
+    for (name, text) in SCENES {
+        volterra_formats::atomic::write_bytes_atomically(&dir.join(name), text.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// Metres per grey level of `fractal_dem.png` (its scene sets the same).
+pub const DEM_PNG_SCALE: f64 = 0.05;
+
+/// Distance from p to the segment a–b, and the parameter of the closest point.
+fn segment_distance(p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> (f64, f64) {
+    let ab = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let ap = [p[0] - a[0], p[1] - a[1], p[2] - a[2]];
+    let len2 = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
+    let t = if len2 > 0.0 { ((ap[0] * ab[0] + ap[1] * ab[1] + ap[2] * ab[2]) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    let d = [ap[0] - t * ab[0], ap[1] - t * ab[1], ap[2] - t * ab[2]];
+    ((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(), t)
+}
+
+/// A vessel tree (tapered tubes that branch in two, four levels deep, from a trunk
+/// entering at the bottom) with a saccular aneurysm at one bifurcation, in an n³ u8
+/// volume with 0.6 mm voxels (RAS+, centred on the origin). Contrast-filled vessels are
+/// bright (≈ 220), the aneurysm brighter (≈ 250), soft tissue faint (≈ 15-30).
+pub fn angio_phantom(n: usize) -> Volume {
+    let mut rng = SplitMix64(0xA11C_E5ED);
+    let nf = n as f64;
+    // (start, end, radius) in voxel units.
+    let mut segments: Vec<([f64; 3], [f64; 3], f64)> = Vec::new();
+    let mut stack = vec![([0.5 * nf, 0.5 * nf, 0.04 * nf], [0.0, 0.0, 1.0], 0.04 * nf, 0.32 * nf, 0usize)];
+    let mut bifurcations = Vec::new();
+    while let Some((start, dir, radius, length, depth)) = stack.pop() {
+        let end = [start[0] + dir[0] * length, start[1] + dir[1] * length, start[2] + dir[2] * length];
+        segments.push((start, end, radius));
+        if depth < 4 {
+            bifurcations.push((end, radius));
+            for side in [-1.0, 1.0] {
+                let angle = rng.range(0.5, 0.9) * side;
+                let twist = rng.range(0.0, std::f64::consts::TAU);
+                let (s, c) = angle.sin_cos();
+                let nd = [dir[0] * c + s * twist.cos(), dir[1] * c + s * twist.sin(), dir[2] * c];
+                let norm = (nd[0] * nd[0] + nd[1] * nd[1] + nd[2] * nd[2]).sqrt();
+                let nd = [nd[0] / norm, nd[1] / norm, nd[2] / norm];
+                stack.push((end, nd, radius * 0.75, length * rng.range(0.62, 0.8), depth + 1));
+            }
+        }
+    }
+    let (bulge_at, bulge_r) = {
+        let (p, r) = bifurcations[2];
+        (p, 1.7 * r)
+    };
+    let mut data = vec![0u8; n * n * n];
+    // Soft tissue: a faint ellipsoid with smooth noise.
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y, z) = ((i as f64 / nf - 0.5) * 2.0, (j as f64 / nf - 0.5) * 2.0, (k as f64 / nf - 0.5) * 2.0);
+                let r2 = x * x / 0.8 + y * y / 0.9 + z * z;
+                if r2 < 1.0 {
+                    let wobble = 4.0 * ((7.0 * x).sin() * (5.0 * y).cos() + (6.0 * z).sin());
+                    data[i + n * (j + n * k)] = (20.0 + wobble).clamp(0.0, 255.0) as u8;
+                }
+            }
+        }
+    }
+    let mut paint = |centre: [f64; 3], reach: f64, value: &dyn Fn([f64; 3]) -> f64| {
+        let lo: Vec<usize> = centre.iter().map(|c| (c - reach).floor().max(0.0) as usize).collect();
+        let hi: Vec<usize> = centre.iter().map(|c| ((c + reach).ceil() as usize).min(n - 1)).collect();
+        for k in lo[2]..=hi[2] {
+            for j in lo[1]..=hi[1] {
+                for i in lo[0]..=hi[0] {
+                    let v = value([i as f64, j as f64, k as f64]);
+                    let cell = &mut data[i + n * (j + n * k)];
+                    *cell = (*cell).max(v.clamp(0.0, 255.0) as u8);
+                }
+            }
+        }
+    };
+    for (a, b, r) in &segments {
+        let mid = [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0, (a[2] + b[2]) / 2.0];
+        let half = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2) + (b[2] - a[2]).powi(2)).sqrt() / 2.0;
+        let (a, b, r) = (*a, *b, *r);
+        paint(mid, half + 2.0 * r + 2.0, &|p| {
+            let (d, t) = segment_distance(p, a, b);
+            let radius = r * (1.0 - 0.25 * t);
+            // A smooth tube wall: full contrast inside, a 1.5-voxel ramp at the wall.
+            220.0 * (0.5 - (d - radius) / 1.5).clamp(0.0, 1.0)
+        });
+    }
+    paint(bulge_at, bulge_r + 2.0, &|p| {
+        let d = ((p[0] - bulge_at[0]).powi(2) + (p[1] - bulge_at[1]).powi(2) + (p[2] - bulge_at[2]).powi(2)).sqrt();
+        250.0 * (0.5 - (d - bulge_r) / 1.5).clamp(0.0, 1.0)
+    });
+    let s = 0.6;
+    let c = -0.5 * (nf - 1.0) * s;
+    Volume {
+        dims: [n, n, n],
+        spacing: [s; 3],
+        affine: [[s, 0.0, 0.0, c], [0.0, s, 0.0, c], [0.0, 0.0, s, c], [0.0, 0.0, 0.0, 1.0]],
+        data: VoxelData::U8(data),
+        rescale: Rescale::IDENTITY,
+        modality: None,
+        units: None,
+        volume_count: 1,
+        volume_index: 0,
+        notes: vec!["volterra angiography phantom".into()],
+    }
+}
+
+/// A (2^levels + 1)² fractal DEM by the diamond-square algorithm, with `cell` metres per
+/// sample, georeferenced in UTM zone 10N (EPSG:32610), elevations 0..≈2500 m, with a lake
+/// of NoData in one corner so renderers meet holes.
+pub fn fractal_dem(levels: u32, cell: f64, seed: u64) -> Heightfield {
+    let n = (1usize << levels) + 1;
+    let mut rng = SplitMix64(seed);
+    let mut h = vec![0f64; n * n];
+    let mut amp = 1.0;
+    for &(x, y) in &[(0, 0), (n - 1, 0), (0, n - 1), (n - 1, n - 1)] {
+        h[y * n + x] = rng.range(-0.5, 0.5);
+    }
+    let mut step = n - 1;
+    while step > 1 {
+        let half = step / 2;
+        for y in (half..n).step_by(step) {
+            for x in (half..n).step_by(step) {
+                let avg = (h[(y - half) * n + x - half] + h[(y - half) * n + x + half] + h[(y + half) * n + x - half] + h[(y + half) * n + x + half]) / 4.0;
+                h[y * n + x] = avg + amp * rng.range(-0.5, 0.5);
+            }
+        }
+        for y in (0..n).step_by(half) {
+            let x0 = if (y / half) % 2 == 0 { half } else { 0 };
+            for x in (x0..n).step_by(step) {
+                let mut sum = 0.0;
+                let mut cnt = 0.0;
+                if y >= half { sum += h[(y - half) * n + x]; cnt += 1.0; }
+                if y + half < n { sum += h[(y + half) * n + x]; cnt += 1.0; }
+                if x >= half { sum += h[y * n + x - half]; cnt += 1.0; }
+                if x + half < n { sum += h[y * n + x + half]; cnt += 1.0; }
+                h[y * n + x] = sum / cnt + amp * rng.range(-0.5, 0.5);
+            }
+        }
+        amp *= 0.55;
+        step = half;
+    }
+    let (lo, hi) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let mut nodata = vec![false; n * n];
+    let elevations: Vec<f32> = h
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| {
+            let t = (v - lo) / (hi - lo);
+            // Sharpen peaks, flatten valleys, like eroded terrain.
+            let z = 2500.0 * t.powf(1.8);
+            let (x, y) = ((i % n) as f64 / n as f64, (i / n) as f64 / n as f64);
+            if (x - 0.12).powi(2) + (y - 0.85).powi(2) < 0.004 {
+                nodata[i] = true;
+                f32::NAN
+            } else {
+                z as f32
+            }
+        })
+        .collect();
+    Heightfield {
+        width: n,
+        height: n,
+        cell_size: [cell; 2],
+        cell_size_native: [cell; 2],
+        origin: [500_000.0 + 0.5 * cell, 5_200_000.0 - 0.5 * cell],
+        crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610 (projected)".into() },
+        elevations,
+        nodata,
+        nodata_value: Some(-32768.0),
+        notes: vec!["volterra fractal DEM".into()],
+    }
+}
+
+/// An elevation colour ramp with hillshading, one texel per DEM sample.
+pub fn dem_texture(dem: &Heightfield) -> RgbImage {
+    let (w, h) = (dem.width, dem.height);
+    let z = |x: usize, y: usize| {
+        let v = dem.elevations[y.min(h - 1) * w + x.min(w - 1)];
+        if v.is_nan() { 0.0 } else { v as f64 }
+    };
+    let ramp = [(0.0, [70.0, 120.0, 60.0]), (600.0, [120.0, 150.0, 80.0]), (1400.0, [150.0, 120.0, 90.0]), (2000.0, [130.0, 125.0, 120.0]), (2300.0, [245.0, 245.0, 250.0])];
+    let mut data = Vec::with_capacity(w * h * 3);
+    for y in 0..h {
+        for x in 0..w {
+            if dem.is_nodata(x, y) {
+                data.extend_from_slice(&[40, 80, 160]);
+                continue;
+            }
+            let e = z(x, y);
+            let k = ramp.iter().rposition(|(v, _)| e >= *v).unwrap_or(0);
+            let col = if k + 1 < ramp.len() {
+                let t = (e - ramp[k].0) / (ramp[k + 1].0 - ramp[k].0);
+                [0, 1, 2].map(|c| ramp[k].1[c] + t * (ramp[k + 1].1[c] - ramp[k].1[c]))
+            } else {
+                ramp[k].1
+            };
+            let dzdx = (z(x + 1, y) - z(x.saturating_sub(1), y)) / (2.0 * dem.cell_size[0]);
+            let dzdy = (z(x, y.saturating_sub(1)) - z(x, y + 1)) / (2.0 * dem.cell_size[1]);
+            let nrm = (1.0 + dzdx * dzdx + dzdy * dzdy).sqrt();
+            let sun = [-0.5f64, 0.5, 0.707];
+            let shade = ((-dzdx * sun[0] - dzdy * sun[1] + sun[2]) / nrm).clamp(0.0, 1.0);
+            let f = 0.35 + 0.65 * shade;
+            data.extend(col.iter().map(|c| (c * f).clamp(0.0, 255.0) as u8));
+        }
+    }
+    RgbImage { width: w, height: h, data }
+}
+
+/// A rising, widening, swirling plume of `count` SPH particles in a 1 m box (z up), with
+/// mass, density and smoothing length h set consistently: h from the local particle
+/// spacing, density from mass / h³ scaled to the emitted density of 1 kg/m³.
+pub fn smoke_plume(count: usize, seed: u64) -> ParticleSet {
+    let mut rng = SplitMix64(seed);
+    let total_mass = 0.01;
+    let m = total_mass / count as f64;
+    let mut positions = Vec::with_capacity(count);
+    let mut h = Vec::with_capacity(count);
+    let mut density = Vec::with_capacity(count);
+    let mut temperature = Vec::with_capacity(count);
+    for _ in 0..count {
+        let s = rng.next_f64().powf(0.8); // more particles near the source
+        let z = 0.05 + 0.85 * s;
+        let radius = 0.04 + 0.16 * s * s;
+        // A mushroom cap: wider near the top.
+        let cap = if s > 0.8 { 1.0 + 2.5 * (s - 0.8) } else { 1.0 };
+        let r = radius * cap * rng.next_f64().sqrt();
+        let swirl = 6.0 * s + rng.range(0.0, std::f64::consts::TAU);
+        let x = 0.5 + r * swirl.cos() + 0.03 * (9.0 * z).sin();
+        let y = 0.5 + r * swirl.sin();
+        positions.push([x, y, z]);
+        let vol_per_particle = std::f64::consts::PI * (radius * cap).powi(2) * 0.85 / (count as f64 * (0.8 * s.max(0.05).powf(-0.2)));
+        let spacing = vol_per_particle.cbrt();
+        h.push((1.3 * spacing) as f32);
+        density.push((m / vol_per_particle).min(5.0) as f32);
+        temperature.push((1.0 - s) as f32);
+    }
+    ParticleSet {
+        positions,
+        mass: Some(vec![m as f32; count]),
+        density: Some(density),
+        smoothing_length: Some(h),
+        arrays: vec![PointArray { name: "temperature".into(), components: 1, values: temperature.iter().map(|&t| t as f64).collect() }],
+        notes: vec!["volterra smoke plume".into()],
+    }
+}

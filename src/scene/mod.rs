@@ -1,0 +1,399 @@
+//! The scene graph and the scene file (TOML; documented in docs/scene-format.md).
+//!
+//! A scene is parsed once into plain objects ([`SceneFile`]), checked, and then holds its
+//! data lazily: a node's file is read (and cached) only when a renderer asks for it, so a
+//! render loads exactly the nodes it draws.
+
+pub mod camera;
+pub mod transfer;
+
+pub use camera::{Camera, Ray, RayGenerator};
+pub use transfer::TransferFunction;
+
+use anyhow::{anyhow, bail, Context, Result};
+use glam::{DMat4, DVec3};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+use volterra_formats::png_height::PngHeightOptions;
+use volterra_formats::{Dataset, Heightfield, LoadOptions, ParticleArrayNames, ParticleSet, RgbImage, Volume};
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ImageSettings {
+    #[serde(default = "default_size")]
+    pub width: usize,
+    #[serde(default = "default_size")]
+    pub height: usize,
+    /// Linear RGB.
+    #[serde(default)]
+    pub background: [f64; 3],
+}
+
+fn default_size() -> usize {
+    512
+}
+
+impl Default for ImageSettings {
+    fn default() -> Self {
+        ImageSettings { width: 512, height: 512, background: [0.0; 3] }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum NodeKind {
+    Group,
+    Volume,
+    Heightfield,
+    Particles,
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum BlendMode {
+    /// Front-to-back emission-absorption compositing.
+    #[default]
+    Composite,
+    /// Maximum intensity projection.
+    Mip,
+}
+
+/// A node's placement relative to its parent: `matrix` (4×4, row-major), or scale, then
+/// rotate (degrees about x, then y, then z), then translate.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Transform {
+    pub matrix: Option<[[f64; 4]; 4]>,
+    pub translate: Option<[f64; 3]>,
+    pub rotate: Option<[f64; 3]>,
+    pub scale: Option<[f64; 3]>,
+}
+
+impl Transform {
+    pub fn to_mat4(&self) -> Result<DMat4> {
+        if let Some(m) = self.matrix {
+            if self.translate.is_some() || self.rotate.is_some() || self.scale.is_some() {
+                bail!("transform: give either matrix or translate/rotate/scale, not both");
+            }
+            let rows = DMat4::from_cols_array_2d(&m);
+            return Ok(rows.transpose());
+        }
+        let s = DVec3::from(self.scale.unwrap_or([1.0; 3]));
+        let r = self.rotate.unwrap_or([0.0; 3]);
+        let t = DVec3::from(self.translate.unwrap_or([0.0; 3]));
+        let rot = DMat4::from_rotation_z(r[2].to_radians()) * DMat4::from_rotation_y(r[1].to_radians()) * DMat4::from_rotation_x(r[0].to_radians());
+        Ok(DMat4::from_translation(t) * rot * DMat4::from_scale(s))
+    }
+}
+
+/// Participating-medium parameters for particle smoke.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Medium {
+    /// σ_t = c_ext · ρ (m² per kg when ρ is in kg/m³).
+    pub c_ext: f64,
+    /// Single-scattering albedo σ_s / σ_t.
+    pub albedo: f64,
+    /// Henyey–Greenstein asymmetry g in (−1, 1).
+    #[serde(default)]
+    pub g: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NodeDesc {
+    pub name: String,
+    pub kind: NodeKind,
+    /// Data file, relative to the scene file.
+    pub file: Option<PathBuf>,
+    pub parent: Option<String>,
+    #[serde(default)]
+    pub transform: Transform,
+    /// Which renderer draws the node (see `volterra render --help`).
+    pub renderer: Option<String>,
+    #[serde(default = "yes")]
+    pub visible: bool,
+    /// Renderer quality settings; each renderer checks its own keys.
+    #[serde(default)]
+    pub settings: toml::Table,
+    // --- volumes
+    pub series: Option<String>,
+    #[serde(default)]
+    pub volume_index: usize,
+    #[serde(default)]
+    pub resample: bool,
+    pub transfer_function: Option<TransferFunction>,
+    #[serde(default)]
+    pub blend: BlendMode,
+    // --- heightfields
+    pub png: Option<PngHeightOptions>,
+    /// Colour texture draped over the terrain, relative to the scene file.
+    pub texture: Option<PathBuf>,
+    // --- particles
+    pub arrays: Option<ParticleArrayNames>,
+    pub medium: Option<Medium>,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum LightKind {
+    Directional,
+    Point,
+    Spot,
+}
+
+/// Light power: a directional light's `intensity` is irradiance (W/m²) on a surface facing
+/// it; a point or spot light's is radiant intensity (W/sr).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Light {
+    pub kind: LightKind,
+    /// Direction the light travels (directional, spot).
+    pub direction: Option<[f64; 3]>,
+    pub position: Option<[f64; 3]>,
+    #[serde(default = "white")]
+    pub color: [f64; 3],
+    #[serde(default = "unit")]
+    pub intensity: f64,
+    /// Spot cone half-angle in degrees.
+    pub cone_angle: Option<f64>,
+}
+
+fn white() -> [f64; 3] {
+    [1.0; 3]
+}
+fn unit() -> f64 {
+    1.0
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    #[serde(default)]
+    pub image: ImageSettings,
+    pub camera: Camera,
+    #[serde(default, rename = "light")]
+    pub lights: Vec<Light>,
+    #[serde(default, rename = "node")]
+    pub nodes: Vec<NodeDesc>,
+}
+
+/// A node's data, loaded on first use.
+#[derive(Debug, Clone)]
+pub enum NodeData {
+    Volume(Arc<Volume>),
+    Heightfield(Arc<Heightfield>),
+    Particles(Arc<ParticleSet>),
+}
+
+pub struct Scene {
+    pub file: SceneFile,
+    /// Directory the scene's relative paths start from.
+    pub base_dir: PathBuf,
+    /// Scene file path, for messages.
+    pub source: PathBuf,
+    world: Vec<DMat4>,
+    data: Vec<OnceLock<Result<NodeData, String>>>,
+    textures: Vec<OnceLock<Result<Arc<RgbImage>, String>>>,
+}
+
+/// The line (1-based) of a byte offset in `text`.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
+}
+
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// Parses TOML text into `T`, turning errors into one line that names the file and line.
+fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T> {
+    toml::from_str(text).map_err(|e| {
+        let line = e.span().map(|s| format!(" line {}", line_of(text, s.start))).unwrap_or_default();
+        anyhow!("{}:{line}: {}", path.display(), one_line(e.message()))
+    })
+}
+
+/// Applies `key=value` overrides to a parsed TOML document. Keys are dotted paths;
+/// `node.NAME.rest` addresses the node whose name is NAME. Values are TOML (strings may
+/// be given bare).
+pub fn apply_overrides(doc: &mut toml::Table, sets: &[String]) -> Result<()> {
+    for set in sets {
+        let (key, raw) = set.split_once('=').ok_or_else(|| anyhow!("--set {set}: expected key=value"))?;
+        let value: toml::Value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
+            Ok(mut t) => t.remove("v").unwrap(),
+            Err(_) => toml::Value::String(raw.to_string()),
+        };
+        let parts: Vec<&str> = key.split('.').collect();
+        let mut table: &mut toml::Table = doc;
+        let mut rest = &parts[..];
+        if parts.first() == Some(&"node") && parts.len() >= 3 {
+            let nodes = table.get_mut("node").and_then(|n| n.as_array_mut()).ok_or_else(|| anyhow!("--set {key}: the scene has no nodes"))?;
+            let node = nodes
+                .iter_mut()
+                .find(|n| n.get("name").and_then(|v| v.as_str()) == Some(parts[1]))
+                .ok_or_else(|| anyhow!("--set {key}: no node named '{}'", parts[1]))?;
+            table = node.as_table_mut().unwrap();
+            rest = &parts[2..];
+        }
+        for p in &rest[..rest.len() - 1] {
+            let entry = table.entry(p.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            table = entry.as_table_mut().ok_or_else(|| anyhow!("--set {key}: '{p}' is not a table"))?;
+        }
+        table.insert(rest[rest.len() - 1].to_string(), value);
+    }
+    Ok(())
+}
+
+impl Scene {
+    /// Reads, checks and resolves a scene file; no data file is read yet.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
+        let text = std::fs::read_to_string(path).map_err(|e| anyhow!("{}: cannot read scene file: {e}", path.display()))?;
+        // Parse the text as written first, so errors point at its lines.
+        let _: SceneFile = parse_toml(&text, path)?;
+        let file: SceneFile = if overrides.is_empty() {
+            parse_toml(&text, path)?
+        } else {
+            let mut doc: toml::Table = parse_toml(&text, path)?;
+            apply_overrides(&mut doc, overrides)?;
+            doc.try_into().map_err(|e: toml::de::Error| anyhow!("{}: after --set: {}", path.display(), one_line(e.message())))?
+        };
+        let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Scene::from_file(file, base_dir, path.to_path_buf())
+    }
+
+    pub fn from_file(file: SceneFile, base_dir: PathBuf, source: PathBuf) -> Result<Scene> {
+        let src = source.display().to_string();
+        file.camera.validate().map_err(|m| anyhow!("{src}: {m}"))?;
+        if file.image.width == 0 || file.image.height == 0 || file.image.width > 16384 || file.image.height > 16384 {
+            bail!("{src}: image size {}×{} must be between 1 and 16384", file.image.width, file.image.height);
+        }
+        let mut index: HashMap<&str, usize> = HashMap::new();
+        for (i, n) in file.nodes.iter().enumerate() {
+            if index.insert(n.name.as_str(), i).is_some() {
+                bail!("{src}: two nodes are named '{}'", n.name);
+            }
+            if n.kind != NodeKind::Group && n.file.is_none() {
+                bail!("{src}: node '{}' ({:?}) needs a file", n.name, n.kind);
+            }
+            if let Some(f) = &n.file {
+                let p = base_dir.join(f);
+                if !p.exists() {
+                    bail!("{src}: node '{}': data file {} not found", n.name, p.display());
+                }
+            }
+            if let Some(tf) = &n.transfer_function {
+                tf.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
+            }
+        }
+        // World transforms, parents first; a cycle is an error.
+        let mut world: Vec<Option<DMat4>> = vec![None; file.nodes.len()];
+        for i in 0..file.nodes.len() {
+            let mut chain = vec![i];
+            let mut cur = i;
+            while let Some(p) = &file.nodes[cur].parent {
+                let pi = *index.get(p.as_str()).ok_or_else(|| anyhow!("{src}: node '{}': parent '{p}' does not exist", file.nodes[cur].name))?;
+                if chain.contains(&pi) {
+                    bail!("{src}: node '{}': parents form a cycle", file.nodes[i].name);
+                }
+                chain.push(pi);
+                cur = pi;
+            }
+            let mut m = DMat4::IDENTITY;
+            for &c in chain.iter().rev() {
+                let local = file.nodes[c].transform.to_mat4().with_context(|| format!("{src}: node '{}'", file.nodes[c].name))?;
+                m *= local;
+            }
+            world[i] = Some(m);
+        }
+        let n = file.nodes.len();
+        Ok(Scene {
+            file,
+            base_dir,
+            source,
+            world: world.into_iter().map(Option::unwrap).collect(),
+            data: (0..n).map(|_| OnceLock::new()).collect(),
+            textures: (0..n).map(|_| OnceLock::new()).collect(),
+        })
+    }
+
+    pub fn nodes(&self) -> &[NodeDesc] {
+        &self.file.nodes
+    }
+
+    /// Node-local → world transform (parents applied).
+    pub fn world_transform(&self, node: usize) -> DMat4 {
+        self.world[node]
+    }
+
+    pub fn node_index(&self, name: &str) -> Option<usize> {
+        self.file.nodes.iter().position(|n| n.name == name)
+    }
+
+    /// The node's data, read on first call and cached.
+    pub fn data(&self, node: usize) -> Result<NodeData> {
+        let cell = &self.data[node];
+        cell.get_or_init(|| self.read_node(node).map_err(|e| format!("{e:#}"))).clone().map_err(|e| anyhow!(e))
+    }
+
+    fn read_node(&self, node: usize) -> Result<NodeData> {
+        let n = &self.file.nodes[node];
+        let path = self.base_dir.join(n.file.as_ref().ok_or_else(|| anyhow!("node '{}' has no file", n.name))?);
+        let mut opts = LoadOptions::default();
+        opts.dicom.series = n.series.clone();
+        opts.dicom.resample = n.resample;
+        opts.nifti.volume_index = n.volume_index;
+        if let Some(p) = &n.png {
+            opts.png = p.clone();
+        }
+        if let Some(a) = &n.arrays {
+            opts.particles = a.clone();
+        }
+        let d = volterra_formats::load(&path, &opts)?;
+        Ok(match (n.kind, d) {
+            (NodeKind::Volume, Dataset::Volume(v)) => NodeData::Volume(Arc::new(v)),
+            (NodeKind::Heightfield, Dataset::Heightfield(h)) => NodeData::Heightfield(Arc::new(h)),
+            (NodeKind::Particles, Dataset::Particles(p)) => NodeData::Particles(Arc::new(p)),
+            (k, _) => bail!("{}: node '{}' is a {:?} node but the file holds other data", path.display(), n.name, k),
+        })
+    }
+
+    pub fn volume(&self, node: usize) -> Result<Arc<Volume>> {
+        match self.data(node)? {
+            NodeData::Volume(v) => Ok(v),
+            _ => bail!("node '{}' is not a volume", self.file.nodes[node].name),
+        }
+    }
+    pub fn heightfield(&self, node: usize) -> Result<Arc<Heightfield>> {
+        match self.data(node)? {
+            NodeData::Heightfield(h) => Ok(h),
+            _ => bail!("node '{}' is not a heightfield", self.file.nodes[node].name),
+        }
+    }
+    pub fn particles(&self, node: usize) -> Result<Arc<ParticleSet>> {
+        match self.data(node)? {
+            NodeData::Particles(p) => Ok(p),
+            _ => bail!("node '{}' is not a particle set", self.file.nodes[node].name),
+        }
+    }
+    /// The node's colour texture, if it names one.
+    pub fn texture(&self, node: usize) -> Result<Option<Arc<RgbImage>>> {
+        let Some(t) = &self.file.nodes[node].texture else { return Ok(None) };
+        let path = self.base_dir.join(t);
+        let r = self.textures[node]
+            .get_or_init(|| volterra_formats::image::read_rgb_png(&path).map(Arc::new).map_err(|e| e.to_string()))
+            .clone();
+        r.map(Some).map_err(|e| anyhow!(e))
+    }
+
+    /// True if the node's data has been read (for tests of lazy loading).
+    pub fn is_loaded(&self, node: usize) -> bool {
+        self.data[node].get().is_some()
+    }
+}

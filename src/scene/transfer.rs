@@ -1,0 +1,110 @@
+//! Transfer functions with vtkVolumeProperty's semantics: piecewise-linear colour and
+//! scalar opacity over the real-world scalar value (clamped outside the given points), and
+//! `scalar_opacity_unit_distance`: opacity is per that distance in world units, so a step
+//! Δ uses α' = 1 − (1 − α)^(Δ / unit_distance).
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TransferFunction {
+    /// (value, opacity) points, values increasing.
+    pub scalar_opacity: Vec<[f64; 2]>,
+    /// (value, r, g, b) points, values increasing, linear RGB in [0, 1].
+    #[serde(default = "default_color")]
+    pub color: Vec<[f64; 4]>,
+    #[serde(default = "one")]
+    pub scalar_opacity_unit_distance: f64,
+}
+
+fn default_color() -> Vec<[f64; 4]> {
+    vec![[0.0, 1.0, 1.0, 1.0]]
+}
+fn one() -> f64 {
+    1.0
+}
+
+impl TransferFunction {
+    pub fn validate(&self) -> Result<(), String> {
+        if self.scalar_opacity.is_empty() {
+            return Err("transfer_function.scalar_opacity needs at least one point".into());
+        }
+        if self.color.is_empty() {
+            return Err("transfer_function.color needs at least one point".into());
+        }
+        for w in self.scalar_opacity.windows(2) {
+            if !(w[1][0] >= w[0][0]) {
+                return Err(format!("transfer_function.scalar_opacity values must increase ({} then {})", w[0][0], w[1][0]));
+            }
+        }
+        for w in self.color.windows(2) {
+            if !(w[1][0] >= w[0][0]) {
+                return Err(format!("transfer_function.color values must increase ({} then {})", w[0][0], w[1][0]));
+            }
+        }
+        if self.scalar_opacity.iter().any(|p| !(0.0..=1.0).contains(&p[1])) {
+            return Err("transfer_function.scalar_opacity opacities must lie in [0, 1]".into());
+        }
+        if !(self.scalar_opacity_unit_distance > 0.0 && self.scalar_opacity_unit_distance.is_finite()) {
+            return Err("transfer_function.scalar_opacity_unit_distance must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// Opacity per unit distance at real-world value `v`.
+    pub fn opacity(&self, v: f64) -> f64 {
+        piecewise(&self.scalar_opacity, v, |p| p[1])
+    }
+
+    pub fn color(&self, v: f64) -> [f64; 3] {
+        [piecewise(&self.color, v, |p| p[1]), piecewise(&self.color, v, |p| p[2]), piecewise(&self.color, v, |p| p[3])]
+    }
+
+    /// Opacity for a step of length `step` in world units.
+    pub fn opacity_for_step(&self, v: f64, step: f64) -> f64 {
+        let a = self.opacity(v);
+        if a >= 1.0 {
+            1.0
+        } else {
+            1.0 - (1.0 - a).powf(step / self.scalar_opacity_unit_distance)
+        }
+    }
+}
+
+/// Piecewise-linear interpolation through points sorted by their first element, clamped
+/// to the end values outside.
+fn piecewise<const N: usize>(pts: &[[f64; N]], v: f64, y: impl Fn(&[f64; N]) -> f64) -> f64 {
+    let first = &pts[0];
+    if v <= first[0] {
+        return y(first);
+    }
+    for w in pts.windows(2) {
+        if v <= w[1][0] {
+            let span = w[1][0] - w[0][0];
+            if span <= 0.0 {
+                return y(&w[1]);
+            }
+            let t = (v - w[0][0]) / span;
+            return y(&w[0]) + t * (y(&w[1]) - y(&w[0]));
+        }
+    }
+    y(&pts[pts.len() - 1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interpolates_clamps_and_corrects_for_step() {
+        let tf = TransferFunction { scalar_opacity: vec![[10.0, 0.0], [20.0, 0.5]], color: vec![[0.0, 1.0, 0.0, 0.0], [100.0, 0.0, 0.0, 1.0]], scalar_opacity_unit_distance: 2.0 };
+        assert_eq!(tf.opacity(5.0), 0.0);
+        assert_eq!(tf.opacity(15.0), 0.25);
+        assert_eq!(tf.opacity(30.0), 0.5);
+        assert_eq!(tf.color(50.0), [0.5, 0.0, 0.5]);
+        // Two steps of half the unit distance compose to one step of the unit distance.
+        let half = tf.opacity_for_step(20.0, 1.0);
+        assert!((1.0 - (1.0 - half).powi(2) - tf.opacity_for_step(20.0, 2.0)).abs() < 1e-15);
+        assert!((tf.opacity_for_step(20.0, 2.0) - 0.5).abs() < 1e-15);
+    }
+}

@@ -1,0 +1,66 @@
+#!/usr/bin/env python3
+"""Regenerates the committed reference files into a scratch directory and checks they
+match what is committed (floats to 1e-9 relative: numpy's summation order may differ
+between CPUs). Proves the references are reproducible from the scripts beside this file.
+
+Usage: check_references.py SHARED_DATA_DIR SCRATCH_DIR
+"""
+import json
+import math
+import os
+import subprocess
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(os.path.dirname(HERE))
+
+
+def same(a, b, path, errors):
+    if isinstance(a, dict) and isinstance(b, dict):
+        if set(a) != set(b):
+            errors.append(f"{path}: keys differ: {sorted(set(a) ^ set(b))}")
+        for k in set(a) & set(b):
+            same(a[k], b[k], f"{path}.{k}", errors)
+    elif isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            errors.append(f"{path}: lengths {len(a)} vs {len(b)}")
+        for i, (x, y) in enumerate(zip(a, b)):
+            same(x, y, f"{path}[{i}]", errors)
+    elif isinstance(a, float) or isinstance(b, float):
+        if a is None or b is None or not math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12):
+            errors.append(f"{path}: {a} vs {b}")
+    elif a != b:
+        errors.append(f"{path}: {a!r} vs {b!r}")
+
+
+def main():
+    shared, scratch = sys.argv[1], sys.argv[2]
+    os.makedirs(scratch, exist_ok=True)
+    py = sys.executable
+    errors = []
+    subprocess.run([py, os.path.join(HERE, "make_fixtures.py"), os.path.join(scratch, "fixtures")], check=True)
+    with open(os.path.join(REPO, "tests/fixtures/expected.json")) as f:
+        committed = json.load(f)
+    with open(os.path.join(scratch, "fixtures/expected.json")) as f:
+        same(committed, json.load(f), "fixtures", errors)
+    if os.path.exists(os.path.join(shared, "SOURCES.md")):
+        subprocess.run([py, os.path.join(HERE, "make_references.py"), shared, os.path.join(scratch, "data")], check=True,
+                       stderr=subprocess.DEVNULL)
+        with open(os.path.join(REPO, "tests/reference/data/shared_data.json")) as f:
+            committed = json.load(f)
+        with open(os.path.join(scratch, "data/shared_data.json")) as f:
+            same(committed, json.load(f), "shared_data", errors)
+    elif os.environ.get("CI") == "true":
+        print(f"shared data not found at {shared} (CI=true: must not skip)", file=sys.stderr)
+        sys.exit(1)
+    else:
+        print(f"SKIPPED shared-data references: {shared} not found", file=sys.stderr)
+    if errors:
+        print("\n".join(errors[:50]), file=sys.stderr)
+        print(f"references differ from the committed ones in {len(errors)} places", file=sys.stderr)
+        sys.exit(1)
+    print("references regenerate identically")
+
+
+if __name__ == "__main__":
+    main()

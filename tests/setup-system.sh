@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# System packages volterra needs to build and test (Debian/Ubuntu). Installs only what is
+# missing; uses sudo when not root.
+#   libcharls-dev   CharLS, the JPEG-LS decoder dicom-pixeldata links
+#   python3-venv    the venv for the reference readers (tests only)
+set -euo pipefail
+need=()
+for pkg in libcharls-dev python3-venv; do
+    dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
+done
+if [ ${#need[@]} -gt 0 ]; then
+    SUDO=""
+    [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need[@]}" >/dev/null
+fi
