@@ -42,7 +42,13 @@ fn stats(name: &str, a: &[f32], b: &[f32]) -> ChannelStats {
     let peak = if peak > 0.0 { peak.max(1.0) } else { 1.0 };
     let psnr_db = if rmse > 0.0 { 20.0 * (peak / rmse).log10() } else { f64::INFINITY };
     let rms_ref = (ref_sq / n).sqrt();
-    let relative_rmse = if rms_ref > 0.0 { rmse / rms_ref } else if rmse == 0.0 { 0.0 } else { f64::INFINITY };
+    let relative_rmse = if rms_ref > 0.0 {
+        rmse / rms_ref
+    } else if rmse == 0.0 {
+        0.0
+    } else {
+        f64::INFINITY
+    };
     ChannelStats { channel: name.to_string(), rmse, psnr_db, max_abs, relative_rmse }
 }
 
@@ -57,7 +63,8 @@ pub fn compare(a: &FloatImage, b: &FloatImage) -> Result<Comparison, String> {
     let mut all_b = Vec::new();
     for (name, va) in &a.channels {
         let Some(vb) = b.channel(name) else { continue };
-        let (fa, fb): (Vec<f32>, Vec<f32>) = va.iter().zip(vb).filter(|(x, y)| x.is_finite() && y.is_finite()).map(|(x, y)| (*x, *y)).unzip();
+        let (fa, fb): (Vec<f32>, Vec<f32>) =
+            va.iter().zip(vb).filter(|(x, y)| x.is_finite() && y.is_finite()).map(|(x, y)| (*x, *y)).unzip();
         if ["R", "G", "B", "A"].contains(&name.as_str()) {
             all_a.extend_from_slice(&fa);
             all_b.extend_from_slice(&fb);

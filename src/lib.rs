@@ -2,10 +2,13 @@
 //! the `volterra-formats` crate; this crate holds the scene graph, the renderers and the
 //! command-line tool.
 
+// Matrix and grid code indexes several arrays by the same loop variable; iterators would hide that.
+#![allow(clippy::needless_range_loop)]
+
 pub mod compare;
 pub mod info;
 
 pub use volterra_formats as formats;
-pub mod scene;
 pub mod render;
 pub mod samples;
+pub mod scene;

@@ -239,7 +239,7 @@ fn cmd_demo(out: &Path) -> Result<()> {
     let samples = out.join("samples");
     volterra::samples::write_samples(&samples)?;
     eprintln!("wrote built-in samples into {}", samples.display());
-    println!("{:<18} {:<12} {:>9} {:>9}  {}", "scene", "renderer", "size", "seconds", "result");
+    println!("{:<18} {:<12} {:>9} {:>9}  result", "scene", "renderer", "size", "seconds");
     for (name, _) in volterra::samples::SCENES {
         let stem = name.trim_end_matches(".toml");
         let scene = Scene::load(&samples.join(name), &[])?;
@@ -249,7 +249,9 @@ fn cmd_demo(out: &Path) -> Result<()> {
         let png = out.join(format!("{stem}.png"));
         let t = std::time::Instant::now();
         match cmd_render(&samples.join(name), &exr, Some(&png), &[]) {
-            Ok(_) => println!("{stem:<18} {renderer:<12} {size:>9} {:>9.2}  {} + {}", t.elapsed().as_secs_f64(), exr.display(), png.display()),
+            Ok(_) => {
+                println!("{stem:<18} {renderer:<12} {size:>9} {:>9.2}  {} + {}", t.elapsed().as_secs_f64(), exr.display(), png.display())
+            }
             Err(e) if format!("{e:#}").contains("not implemented yet") => {
                 println!("{stem:<18} {renderer:<12} {size:>9} {:>9}  skipped: renderer not implemented yet", "-")
             }

@@ -175,19 +175,35 @@ pub fn fractal_dem(levels: u32, cell: f64, seed: u64) -> Heightfield {
         let half = step / 2;
         for y in (half..n).step_by(step) {
             for x in (half..n).step_by(step) {
-                let avg = (h[(y - half) * n + x - half] + h[(y - half) * n + x + half] + h[(y + half) * n + x - half] + h[(y + half) * n + x + half]) / 4.0;
+                let avg = (h[(y - half) * n + x - half]
+                    + h[(y - half) * n + x + half]
+                    + h[(y + half) * n + x - half]
+                    + h[(y + half) * n + x + half])
+                    / 4.0;
                 h[y * n + x] = avg + amp * rng.range(-0.5, 0.5);
             }
         }
         for y in (0..n).step_by(half) {
-            let x0 = if (y / half) % 2 == 0 { half } else { 0 };
+            let x0 = if (y / half).is_multiple_of(2) { half } else { 0 };
             for x in (x0..n).step_by(step) {
                 let mut sum = 0.0;
                 let mut cnt = 0.0;
-                if y >= half { sum += h[(y - half) * n + x]; cnt += 1.0; }
-                if y + half < n { sum += h[(y + half) * n + x]; cnt += 1.0; }
-                if x >= half { sum += h[y * n + x - half]; cnt += 1.0; }
-                if x + half < n { sum += h[y * n + x + half]; cnt += 1.0; }
+                if y >= half {
+                    sum += h[(y - half) * n + x];
+                    cnt += 1.0;
+                }
+                if y + half < n {
+                    sum += h[(y + half) * n + x];
+                    cnt += 1.0;
+                }
+                if x >= half {
+                    sum += h[y * n + x - half];
+                    cnt += 1.0;
+                }
+                if x + half < n {
+                    sum += h[y * n + x + half];
+                    cnt += 1.0;
+                }
                 h[y * n + x] = sum / cnt + amp * rng.range(-0.5, 0.5);
             }
         }
@@ -231,9 +247,19 @@ pub fn dem_texture(dem: &Heightfield) -> RgbImage {
     let (w, h) = (dem.width, dem.height);
     let z = |x: usize, y: usize| {
         let v = dem.elevations[y.min(h - 1) * w + x.min(w - 1)];
-        if v.is_nan() { 0.0 } else { v as f64 }
+        if v.is_nan() {
+            0.0
+        } else {
+            v as f64
+        }
     };
-    let ramp = [(0.0, [70.0, 120.0, 60.0]), (600.0, [120.0, 150.0, 80.0]), (1400.0, [150.0, 120.0, 90.0]), (2000.0, [130.0, 125.0, 120.0]), (2300.0, [245.0, 245.0, 250.0])];
+    let ramp = [
+        (0.0, [70.0, 120.0, 60.0]),
+        (600.0, [120.0, 150.0, 80.0]),
+        (1400.0, [150.0, 120.0, 90.0]),
+        (2000.0, [130.0, 125.0, 120.0]),
+        (2300.0, [245.0, 245.0, 250.0]),
+    ];
     let mut data = Vec::with_capacity(w * h * 3);
     for y in 0..h {
         for x in 0..w {

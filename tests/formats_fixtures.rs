@@ -52,7 +52,11 @@ fn every_fixture_matches_its_reference_library() {
                     }
                 }
                 let rs = floats(&r["rescale"]);
-                assert!((v.rescale.slope - rs[0]).abs() < 1e-12 && (v.rescale.intercept - rs[1]).abs() < 1e-12, "{name}: rescale {:?}", v.rescale);
+                assert!(
+                    (v.rescale.slope - rs[0]).abs() < 1e-12 && (v.rescale.intercept - rs[1]).abs() < 1e-12,
+                    "{name}: rescale {:?}",
+                    v.rescale
+                );
                 let want = floats(&r["values"]);
                 let bad = (0..want.len()).filter(|&i| !same(v.data.stored(i), want[i])).count();
                 if bad > 0 {
@@ -95,7 +99,9 @@ fn every_fixture_matches_its_reference_library() {
                         "mass" => p.mass.clone().unwrap().iter().map(|&x| x as f64).collect(),
                         "density" => p.density.clone().unwrap().iter().map(|&x| x as f64).collect(),
                         "h" => p.smoothing_length.clone().unwrap().iter().map(|&x| x as f64).collect(),
-                        _ => p.arrays.iter().find(|a| &a.name == array).unwrap_or_else(|| panic!("{name}: no array {array}")).values.clone(),
+                        _ => {
+                            p.arrays.iter().find(|a| &a.name == array).unwrap_or_else(|| panic!("{name}: no array {array}")).values.clone()
+                        }
                     };
                     assert_eq!(got, floats(values), "{name}: array {array}");
                 }
@@ -104,7 +110,8 @@ fn every_fixture_matches_its_reference_library() {
                 let err = load(&path, &opts).expect_err(&name);
                 assert_eq!(err.kind, ErrorKind::Invalid, "{name}: {err}");
                 let msg = err.to_string();
-                let expect = if name.contains("missing") { "1 slice(s) missing between 2.000 and 4.000 mm" } else { "non-uniform slice spacing" };
+                let expect =
+                    if name.contains("missing") { "1 slice(s) missing between 2.000 and 4.000 mm" } else { "non-uniform slice spacing" };
                 assert!(msg.contains(expect) && msg.contains("--resample"), "{name}: {msg}");
                 // With resampling the volume loads on a uniform grid.
                 opts.dicom.resample = true;

@@ -151,7 +151,13 @@ fn check_heightfield(rel: &str, h: &volterra_formats::Heightfield, r: &Value, er
             errors.push(format!("{rel}: crs {:?} vs reference EPSG {} geographic {}", h.crs, r["epsg"], r["geographic"]));
         }
         if h.nodata_value != r["nodata_value"].as_f64() || h.nodata_count() as u64 != r["nodata_count"].as_u64().unwrap() {
-            errors.push(format!("{rel}: nodata {:?} ×{} vs reference {} ×{}", h.nodata_value, h.nodata_count(), r["nodata_value"], r["nodata_count"]));
+            errors.push(format!(
+                "{rel}: nodata {:?} ×{} vs reference {} ×{}",
+                h.nodata_value,
+                h.nodata_count(),
+                r["nodata_value"],
+                r["nodata_count"]
+            ));
         }
     }
     let elev: Vec<f64> = h.elevations.iter().map(|&z| z as f64).collect();
@@ -214,20 +220,6 @@ fn dicom_and_nifti_of_the_same_anatomy_agree_in_world_space() {
 }
 
 fn invert_affine(m: &volterra_formats::Affine) -> [[f64; 4]; 3] {
-    let a = |r: usize, c: usize| m[r][c];
-    let det = a(0, 0) * (a(1, 1) * a(2, 2) - a(1, 2) * a(2, 1)) - a(0, 1) * (a(1, 0) * a(2, 2) - a(1, 2) * a(2, 0))
-        + a(0, 2) * (a(1, 0) * a(2, 1) - a(1, 1) * a(2, 0));
-    let mut inv = [[0.0; 4]; 3];
-    for r in 0..3 {
-        for c in 0..3 {
-            let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
-            let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
-            inv[r][c] = (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det;
-        }
-    }
-    for r in 0..3 {
-        inv[r][3] = -(inv[r][0] * m[0][3] + inv[r][1] * m[1][3] + inv[r][2] * m[2][3]);
-    }
-    inv
+    let inv = glam::DMat4::from_cols_array_2d(m).transpose().inverse().transpose().to_cols_array_2d();
+    [inv[0], inv[1], inv[2]]
 }
-

@@ -111,9 +111,7 @@ fn units_for(obj: &Obj, modality: &str) -> Option<String> {
 
 fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<ImageInfo> {
     let obj: &Obj = file;
-    let need = |tag, name: &str| {
-        int(obj, tag).ok_or_else(|| FormatError::invalid(path, format!("missing or malformed {name}")))
-    };
+    let need = |tag, name: &str| int(obj, tag).ok_or_else(|| FormatError::invalid(path, format!("missing or malformed {name}")));
     let rows = need(tags::ROWS, "Rows")?;
     let columns = need(tags::COLUMNS, "Columns")?;
     if rows < 1 || columns < 1 || rows > 65535 || columns > 65535 {
@@ -267,7 +265,10 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
         if info.transfer_syntax == "1.2.840.10008.1.2.4.51" && info.bits_stored > 8 {
             FormatError::unsupported(
                 &info.path,
-                format!("unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)", info.bits_stored),
+                format!(
+                    "unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)",
+                    info.bits_stored
+                ),
             )
         } else {
             FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string())))
@@ -304,7 +305,10 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
             })
             .collect()
     } else {
-        return Err(FormatError::unsupported(&info.path, format!("{spp} samples per pixel at {} bits is not a scalar image", info.bits_allocated)));
+        return Err(FormatError::unsupported(
+            &info.path,
+            format!("{spp} samples per pixel at {} bits is not a scalar image", info.bits_allocated),
+        ));
     };
     // BitsStored: keep the low bits; sign-extend them for signed data.
     let bs = info.bits_stored as u32;
@@ -449,7 +453,11 @@ fn read_series_dir(dir: &Path, opts: &DicomOptions) -> Result<Volume> {
                 } else if let [one] = prefixed.as_slice() {
                     (*one).clone()
                 } else {
-                    return Err(FormatError::new(dir, ErrorKind::Ambiguous, format!("--series {want} matches none or several of: {listing}")));
+                    return Err(FormatError::new(
+                        dir,
+                        ErrorKind::Ambiguous,
+                        format!("--series {want} matches none or several of: {listing}"),
+                    ));
                 }
             }
         }
@@ -474,11 +482,14 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     for info in &infos[1..] {
         let contradiction = if (info.rows, info.columns) != (first.rows, first.columns) {
             Some(format!("{}x{} vs {}x{} pixels", info.columns, info.rows, first.columns, first.rows))
-        } else if (info.bits_allocated, info.signed, info.samples_per_pixel) != (first.bits_allocated, first.signed, first.samples_per_pixel) {
+        } else if (info.bits_allocated, info.signed, info.samples_per_pixel)
+            != (first.bits_allocated, first.signed, first.samples_per_pixel)
+        {
             Some("pixel formats differ".to_string())
         } else if !orientation_close(info.orientation, first.orientation) {
             Some(format!("orientations differ ({:?} vs {:?})", info.orientation, first.orientation))
-        } else if info.pixel_spacing.zip(first.pixel_spacing).is_some_and(|(a, b)| (a[0] - b[0]).abs() > 1e-4 || (a[1] - b[1]).abs() > 1e-4) {
+        } else if info.pixel_spacing.zip(first.pixel_spacing).is_some_and(|(a, b)| (a[0] - b[0]).abs() > 1e-4 || (a[1] - b[1]).abs() > 1e-4)
+        {
             Some("pixel spacings differ".to_string())
         } else {
             None
@@ -555,9 +566,17 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
             let (i, g) = gaps.iter().enumerate().max_by(|a, b| (a.1 - median).abs().total_cmp(&(b.1 - median).abs())).unwrap();
             let what = if *g > 1.5 * median {
                 let missing = (g / median).round() as i64 - 1;
-                format!("{missing} slice(s) missing between {:.3} and {:.3} mm along the normal (gap {g:.3} mm, usual {median:.3} mm)", d[i], d[i + 1])
+                format!(
+                    "{missing} slice(s) missing between {:.3} and {:.3} mm along the normal (gap {g:.3} mm, usual {median:.3} mm)",
+                    d[i],
+                    d[i + 1]
+                )
             } else {
-                format!("non-uniform slice spacing: gap {g:.3} mm between {:.3} and {:.3} mm along the normal, usual {median:.3} mm", d[i], d[i + 1])
+                format!(
+                    "non-uniform slice spacing: gap {g:.3} mm between {:.3} and {:.3} mm along the normal, usual {median:.3} mm",
+                    d[i],
+                    d[i + 1]
+                )
             };
             if !opts.resample {
                 return Err(FormatError::invalid(src, format!("{what}; pass --resample to resample to uniform spacing")));
@@ -604,7 +623,9 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     for (slot, f) in frames.iter().enumerate() {
         slot_of[f.file].push((f.frame, slot));
     }
-    let chunks: Vec<Result<Vec<(usize, Vec<u8>)>>> = infos
+    // Per file: (slot, frame bytes) for each of its frames.
+    type Placed = Vec<(usize, Vec<u8>)>;
+    let chunks: Vec<Result<Placed>> = infos
         .par_iter()
         .enumerate()
         .map(|(fi, info)| {
@@ -621,10 +642,8 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     drop(bytes);
 
     // One rescale for all slices keeps the stored type; differing ones force real values.
-    let slice_rescale: Vec<Rescale> = frames
-        .iter()
-        .map(|f| infos[f.file].frame_rescale.get(f.frame).copied().unwrap_or(infos[f.file].rescale))
-        .collect();
+    let slice_rescale: Vec<Rescale> =
+        frames.iter().map(|f| infos[f.file].frame_rescale.get(f.frame).copied().unwrap_or(infos[f.file].rescale)).collect();
     let mut rescale = slice_rescale[0];
     if slice_rescale.iter().any(|r| r != &rescale) {
         let plane = rows * cols;

@@ -36,11 +36,7 @@ impl std::error::Error for FormatError {}
 
 impl FormatError {
     pub fn new(path: impl AsRef<Path>, kind: ErrorKind, message: impl Into<String>) -> Self {
-        FormatError {
-            path: path.as_ref().to_path_buf(),
-            kind,
-            message: message.into(),
-        }
+        FormatError { path: path.as_ref().to_path_buf(), kind, message: message.into() }
     }
     pub fn invalid(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
         Self::new(path, ErrorKind::Invalid, message)

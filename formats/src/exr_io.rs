@@ -45,7 +45,8 @@ pub fn write_exr(path: &Path, img: &FloatImage) -> Result<()> {
 
 pub fn read_exr(path: &Path) -> Result<FloatImage> {
     use exr::prelude::*;
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| FormatError::invalid(path, format!("not a readable EXR: {e}")))?;
+    let meta =
+        exr::meta::MetaData::read_from_file(path, false).map_err(|e| FormatError::invalid(path, format!("not a readable EXR: {e}")))?;
     let header = meta.headers.first().ok_or_else(|| FormatError::invalid(path, "EXR has no layer"))?;
     let size = header.layer_size;
     check_alloc(path, "EXR image", &[size.0 as u64, size.1 as u64, header.channels.list.len() as u64, 4])?;

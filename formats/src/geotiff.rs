@@ -56,9 +56,7 @@ fn geo_keys<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -
         let (id, loc, count, off) = (e[0], e[1], e[2] as usize, e[3] as usize);
         let value = match loc {
             0 => GeoKey::Short(off as u16),
-            34737 => GeoKey::Ascii(
-                ascii.get(off..(off + count).min(ascii.len())).unwrap_or("").trim_end_matches(['|', '\0']).to_string(),
-            ),
+            34737 => GeoKey::Ascii(ascii.get(off..(off + count).min(ascii.len())).unwrap_or("").trim_end_matches(['|', '\0']).to_string()),
             34735 => GeoKey::Short(dir.get(off).copied().unwrap_or(0)),
             _ => continue,
         };
@@ -129,12 +127,13 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
     // Raster → model: X = x0 + sx·I, Y = y0 − sy·J, for raster coordinates (I, J) where
     // (0, 0) is the corner of the first pixel (PixelIsArea) or its centre (PixelIsPoint).
     let (x0, y0, sx, sy) = match (&scale, &tie, &transform) {
-        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => {
-            (t[3] - t[0] * s[0], t[4] + t[1] * s[1], s[0], s[1])
-        }
+        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => (t[3] - t[0] * s[0], t[4] + t[1] * s[1], s[0], s[1]),
         (_, _, Some(m)) if m.len() >= 16 => {
             if m[1] != 0.0 || m[4] != 0.0 {
-                return Err(FormatError::unsupported(path, "ModelTransformation is rotated or sheared; only north-up rasters are supported"));
+                return Err(FormatError::unsupported(
+                    path,
+                    "ModelTransformation is rotated or sheared; only north-up rasters are supported",
+                ));
             }
             (m[3], m[7], m[0], -m[5])
         }
@@ -260,9 +259,8 @@ pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
         .collect();
     let mut buf = Cursor::new(Vec::new());
     {
-        let mut enc = TiffEncoder::new(&mut buf)
-            .map_err(err)?
-            .with_compression(Compression::Deflate(tiff::encoder::DeflateLevel::Balanced));
+        let mut enc =
+            TiffEncoder::new(&mut buf).map_err(err)?.with_compression(Compression::Deflate(tiff::encoder::DeflateLevel::Balanced));
         let mut img = enc.new_image::<colortype::Gray32Float>(hf.width as u32, hf.height as u32).map_err(err)?;
         let [sx, sy] = hf.cell_size_native;
         let corner = [hf.origin[0] - 0.5 * sx, hf.origin[1] + 0.5 * sy];

@@ -42,13 +42,7 @@ pub fn decode_png(path: &Path) -> Result<PngSamples> {
     } else {
         buf.iter().map(|&b| b as u16).collect()
     };
-    Ok(PngSamples {
-        width: w as usize,
-        height: h as usize,
-        channels,
-        bit_depth: if bytes_per == 2 { 16 } else { 8 },
-        samples,
-    })
+    Ok(PngSamples { width: w as usize, height: h as usize, channels, bit_depth: if bytes_per == 2 { 16 } else { 8 }, samples })
 }
 
 /// Reads a colour texture (PNG) as 8-bit RGB; grey is replicated, alpha dropped,
@@ -82,10 +76,8 @@ pub fn write_png_preview(path: &Path, width: usize, height: usize, rgba: &[f32])
         return Err(FormatError::invalid(path, "preview buffer size does not match the image size"));
     }
     let q = |v: f32| (if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) } * 255.0 + 0.5) as u8;
-    let bytes: Vec<u8> = rgba
-        .chunks_exact(4)
-        .flat_map(|p| [q(linear_to_srgb(p[0])), q(linear_to_srgb(p[1])), q(linear_to_srgb(p[2])), q(p[3])])
-        .collect();
+    let bytes: Vec<u8> =
+        rgba.chunks_exact(4).flat_map(|p| [q(linear_to_srgb(p[0])), q(linear_to_srgb(p[1])), q(linear_to_srgb(p[2])), q(p[3])]).collect();
     write_png_rgba8(path, width, height, &bytes)
 }
 

@@ -2,28 +2,31 @@
 //! [`Heightfield`], [`ParticleSet`], images — with metadata and units. Nothing here knows
 //! about rendering.
 
+// Matrix and grid code indexes several arrays by the same loop variable; iterators would hide that.
+#![allow(clippy::needless_range_loop)]
+
 pub mod atomic;
 pub mod dicom;
 pub mod error;
 pub mod exr_io;
-pub mod memory;
 pub mod geotiff;
 pub mod heightfield;
 pub mod image;
+pub mod memory;
 pub mod nifti;
 pub mod particles;
 pub mod png_height;
+pub mod volume;
 pub mod vtk;
 pub mod vtk_xml;
-pub mod volume;
 
 pub use error::{ErrorKind, FormatError, Result};
 pub use volume::{Affine, Rescale, ScalarType, Volume, VoxelData};
 
-pub use heightfield::{Crs, Heightfield};
-pub use particles::{ParticleArrayNames, ParticleSet, PointArray};
 pub use exr_io::FloatImage;
+pub use heightfield::{Crs, Heightfield};
 pub use image::RgbImage;
+pub use particles::{ParticleArrayNames, ParticleSet, PointArray};
 
 mod load;
 pub use load::*;

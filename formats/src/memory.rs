@@ -33,24 +33,19 @@ fn available_memory() -> Option<u64> {
 pub fn check_alloc(path: &Path, what: &str, factors: &[u64]) -> Result<usize> {
     let mut total: u64 = 1;
     for &f in factors {
-        total = total.checked_mul(f).ok_or_else(|| {
-            FormatError::new(path, ErrorKind::TooLarge, format!("{what}: size overflows ({factors:?})"))
-        })?;
+        total = total
+            .checked_mul(f)
+            .ok_or_else(|| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: size overflows ({factors:?})")))?;
     }
     let limit = limit();
     if total > limit {
         return Err(FormatError::new(
             path,
             ErrorKind::TooLarge,
-            format!(
-                "{what} needs {} but the memory limit is {} (set --max-memory to raise it)",
-                human_bytes(total),
-                human_bytes(limit)
-            ),
+            format!("{what} needs {} but the memory limit is {} (set --max-memory to raise it)", human_bytes(total), human_bytes(limit)),
         ));
     }
-    usize::try_from(total)
-        .map_err(|_| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: too large for this platform")))
+    usize::try_from(total).map_err(|_| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: too large for this platform")))
 }
 
 pub fn human_bytes(n: u64) -> String {

@@ -79,15 +79,27 @@ struct Fields<'a> {
 impl Fields<'_> {
     fn i16(&self, o: usize) -> i16 {
         let a = [self.b[o], self.b[o + 1]];
-        if self.be { i16::from_be_bytes(a) } else { i16::from_le_bytes(a) }
+        if self.be {
+            i16::from_be_bytes(a)
+        } else {
+            i16::from_le_bytes(a)
+        }
     }
     fn i32(&self, o: usize) -> i32 {
         let a: [u8; 4] = self.b[o..o + 4].try_into().unwrap();
-        if self.be { i32::from_be_bytes(a) } else { i32::from_le_bytes(a) }
+        if self.be {
+            i32::from_be_bytes(a)
+        } else {
+            i32::from_le_bytes(a)
+        }
     }
     fn i64(&self, o: usize) -> i64 {
         let a: [u8; 8] = self.b[o..o + 8].try_into().unwrap();
-        if self.be { i64::from_be_bytes(a) } else { i64::from_le_bytes(a) }
+        if self.be {
+            i64::from_be_bytes(a)
+        } else {
+            i64::from_le_bytes(a)
+        }
     }
     fn f32(&self, o: usize) -> f64 {
         let a: [u8; 4] = self.b[o..o + 4].try_into().unwrap();
@@ -95,7 +107,11 @@ impl Fields<'_> {
     }
     fn f64(&self, o: usize) -> f64 {
         let a: [u8; 8] = self.b[o..o + 8].try_into().unwrap();
-        if self.be { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }
+        if self.be {
+            f64::from_be_bytes(a)
+        } else {
+            f64::from_le_bytes(a)
+        }
     }
     fn text(&self, o: usize, n: usize) -> String {
         let s = &self.b[o..o + n];
@@ -348,9 +364,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
         if d < 1 {
             return Err(FormatError::invalid(path, format!("dim[{i}] = {d} is not positive")));
         }
-        volume_count = volume_count
-            .checked_mul(d as u64)
-            .ok_or_else(|| FormatError::invalid(path, "volume count overflows"))?;
+        volume_count = volume_count.checked_mul(d as u64).ok_or_else(|| FormatError::invalid(path, "volume count overflows"))?;
     }
     if opts.volume_index as u64 >= volume_count {
         return Err(FormatError::invalid(
@@ -386,8 +400,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
     };
     let skip_volumes = (opts.volume_index as u64) * vol_bytes as u64;
     if skip_volumes > 0 {
-        let n = std::io::copy(&mut (&mut data_reader).take(skip_volumes), &mut std::io::sink())
-            .map_err(|e| FormatError::io(path, e))?;
+        let n = std::io::copy(&mut (&mut data_reader).take(skip_volumes), &mut std::io::sink()).map_err(|e| FormatError::io(path, e))?;
         if n < skip_volumes {
             return Err(FormatError::invalid(path, "file is truncated before the requested volume"));
         }
@@ -396,12 +409,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
     let mut got = 0;
     while got < vol_bytes {
         match data_reader.read(&mut bytes[got..]) {
-            Ok(0) => {
-                return Err(FormatError::invalid(
-                    path,
-                    format!("file is truncated: voxel data holds {got} of {vol_bytes} bytes"),
-                ))
-            }
+            Ok(0) => return Err(FormatError::invalid(path, format!("file is truncated: voxel data holds {got} of {vol_bytes} bytes"))),
             Ok(n) => got += n,
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
             Err(e) => return Err(FormatError::invalid(path, format!("cannot read voxel data: {e}"))),
@@ -424,7 +432,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
         }
     }
     let spacing = spacing_of(&affine);
-    if spacing.iter().any(|&s| s == 0.0) {
+    if spacing.contains(&0.0) {
         return Err(FormatError::invalid(path, format!("the {which} affine is singular (a zero voxel spacing)")));
     }
     // scl_slope 0 (or not finite) means "no scaling" by the standard.
@@ -463,7 +471,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
 /// a rotation times a positive diagonal scale (times a z flip). None when it has shear.
 fn affine_to_quatern(m: &Affine) -> Option<([f64; 3], [f64; 3], f64)> {
     let s = spacing_of(m);
-    if s.iter().any(|&v| v == 0.0) {
+    if s.contains(&0.0) {
         return None;
     }
     let mut r = [[0.0; 3]; 3];
@@ -534,9 +542,12 @@ pub fn write_nifti(path: &Path, vol: &Volume) -> Result<()> {
     let ty = vol.data.scalar_type();
     put_i16(&mut h, 40, 3);
     for i in 0..3 {
-        put_i16(&mut h, 42 + 2 * i, i16::try_from(vol.dims[i]).map_err(|_| {
-            FormatError::unsupported(path, format!("dimension {} is too large for NIfTI-1", vol.dims[i]))
-        })?);
+        put_i16(
+            &mut h,
+            42 + 2 * i,
+            i16::try_from(vol.dims[i])
+                .map_err(|_| FormatError::unsupported(path, format!("dimension {} is too large for NIfTI-1", vol.dims[i])))?,
+        );
     }
     for i in 3..7 {
         put_i16(&mut h, 42 + 2 * i, 1);

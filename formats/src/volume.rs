@@ -71,6 +71,8 @@ macro_rules! each_variant {
     };
 }
 
+// The f64 variant makes `as f64` a same-type cast inside the shared macro.
+#[allow(clippy::unnecessary_cast)]
 impl VoxelData {
     pub fn scalar_type(&self) -> ScalarType {
         match self {

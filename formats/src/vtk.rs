@@ -53,10 +53,15 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
             let p = first_piece(path, pieces)?;
             (p.points, p.data)
         }
-        _ => return Err(FormatError::unsupported(path, "dataset holds no points (only POLYDATA, UNSTRUCTURED_GRID and STRUCTURED_GRID carry particles)")),
+        _ => {
+            return Err(FormatError::unsupported(
+                path,
+                "dataset holds no points (only POLYDATA, UNSTRUCTURED_GRID and STRUCTURED_GRID carry particles)",
+            ))
+        }
     };
     let coords: Vec<f64> = points.cast_into::<f64>().ok_or_else(|| FormatError::invalid(path, "POINTS are not numeric"))?;
-    if coords.len() % 3 != 0 {
+    if !coords.len().is_multiple_of(3) {
         return Err(FormatError::invalid(path, "POINTS length is not a multiple of 3"));
     }
     let positions: Vec<[f64; 3]> = coords.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
@@ -64,12 +69,16 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
     for a in attributes.point {
         match a {
             Attribute::DataArray(d) => {
-                let values = d.data.cast_into::<f64>().ok_or_else(|| FormatError::invalid(path, format!("array '{}' is not numeric", d.name)))?;
+                let values =
+                    d.data.cast_into::<f64>().ok_or_else(|| FormatError::invalid(path, format!("array '{}' is not numeric", d.name)))?;
                 arrays.push(PointArray { name: d.name, components: d.elem.num_comp() as usize, values });
             }
             Attribute::Field { data_array, .. } => {
                 for f in data_array {
-                    let values = f.data.cast_into::<f64>().ok_or_else(|| FormatError::invalid(path, format!("field array '{}' is not numeric", f.name)))?;
+                    let values = f
+                        .data
+                        .cast_into::<f64>()
+                        .ok_or_else(|| FormatError::invalid(path, format!("field array '{}' is not numeric", f.name)))?;
                     arrays.push(PointArray { name: f.name, components: f.elem as usize, values });
                 }
             }
@@ -90,7 +99,11 @@ fn first_piece<P>(path: &Path, pieces: Vec<vtkio::model::Piece<P>>) -> Result<P>
 
 fn short(s: &str) -> String {
     let l = s.lines().next().unwrap_or(s);
-    if l.len() > 200 { format!("{}…", &l[..200]) } else { l.to_string() }
+    if l.len() > 200 {
+        format!("{}…", &l[..200])
+    } else {
+        l.to_string()
+    }
 }
 
 /// Writes particles as VTK XML PolyData (`.vtp`): one vertex cell per point, every array

@@ -54,7 +54,9 @@ pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames) -> Result<ParticleS
     let xml_end = app_tag.unwrap_or(bytes.len());
     let appended: &[u8] = match app_tag {
         Some(start) => {
-            let us = find(&bytes[start..], b"_").map(|i| start + i + 1).ok_or_else(|| FormatError::invalid(path, "AppendedData has no '_' marker"))?;
+            let us = find(&bytes[start..], b"_")
+                .map(|i| start + i + 1)
+                .ok_or_else(|| FormatError::invalid(path, "AppendedData has no '_' marker"))?;
             &bytes[us..]
         }
         None => &[],
@@ -66,7 +68,10 @@ pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames) -> Result<ParticleS
         decl.appended_base64 = tag.contains("base64");
     }
     if decl.dataset != "PolyData" && decl.dataset != "UnstructuredGrid" {
-        return Err(FormatError::unsupported(path, format!("VTK XML type '{}': particles come from PolyData (.vtp) or UnstructuredGrid (.vtu)", decl.dataset)));
+        return Err(FormatError::unsupported(
+            path,
+            format!("VTK XML type '{}': particles come from PolyData (.vtp) or UnstructuredGrid (.vtu)", decl.dataset),
+        ));
     }
     let n = decl.points;
     let pos_decl = decl.positions.clone().ok_or_else(|| FormatError::invalid(path, "Piece has no Points array"))?;
@@ -84,7 +89,15 @@ pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames) -> Result<ParticleS
         "VTK XML {}, {} points, {}{}",
         decl.dataset,
         n,
-        if app_tag.is_some() { if decl.appended_base64 { "appended base64" } else { "appended raw" } } else { "inline" },
+        if app_tag.is_some() {
+            if decl.appended_base64 {
+                "appended base64"
+            } else {
+                "appended raw"
+            }
+        } else {
+            "inline"
+        },
         if decl.zlib { ", zlib" } else { "" }
     )];
     ParticleSet::from_arrays(positions, arrays, names, notes).map_err(|m| FormatError::invalid(path, m))
@@ -138,7 +151,8 @@ fn parse_decl(path: &Path, xml: &[u8]) -> Result<FileDecl> {
                         return Err(FormatError::unsupported(path, "file holds several pieces; only the first is read"));
                     }
                     let np = attr(&e, "NumberOfPoints").unwrap_or_default();
-                    decl.points = np.trim().parse().map_err(|_| FormatError::invalid(path, format!("NumberOfPoints '{np}' is not a count")))?;
+                    decl.points =
+                        np.trim().parse().map_err(|_| FormatError::invalid(path, format!("NumberOfPoints '{np}' is not a count")))?;
                 }
                 "DataArray" => {
                     let ty = attr(&e, "type").unwrap_or_default();
@@ -146,9 +160,16 @@ fn parse_decl(path: &Path, xml: &[u8]) -> Result<FileDecl> {
                         return Err(FormatError::unsupported(path, format!("DataArray type '{ty}'")));
                     }
                     let comps = attr(&e, "NumberOfComponents").unwrap_or_else(|| "1".into());
-                    let components: usize = comps.trim().parse().ok().filter(|&c| c >= 1 && c <= 64).ok_or_else(|| FormatError::invalid(path, format!("NumberOfComponents '{comps}' is not valid")))?;
+                    let components: usize = comps
+                        .trim()
+                        .parse()
+                        .ok()
+                        .filter(|c| (1..=64).contains(c))
+                        .ok_or_else(|| FormatError::invalid(path, format!("NumberOfComponents '{comps}' is not valid")))?;
                     let offset = match attr(&e, "offset") {
-                        Some(o) => Some(o.trim().parse().map_err(|_| FormatError::invalid(path, format!("DataArray offset '{o}' is not valid")))?),
+                        Some(o) => {
+                            Some(o.trim().parse().map_err(|_| FormatError::invalid(path, format!("DataArray offset '{o}' is not valid")))?)
+                        }
                         None => None,
                     };
                     let a = ArrayDecl {
@@ -234,10 +255,14 @@ fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: us
         "appended" => {
             let off = a.offset.ok_or_else(|| FormatError::invalid(path, format!("{what}: appended array has no offset")))?;
             if off >= appended.len() {
-                return Err(FormatError::invalid(path, format!("{what}: offset {off} lies beyond the appended data ({} bytes)", appended.len())));
+                return Err(FormatError::invalid(
+                    path,
+                    format!("{what}: offset {off} lies beyond the appended data ({} bytes)", appended.len()),
+                ));
             }
             let raw = if f.appended_base64 {
-                let end = appended[off..].iter().position(|c| c.is_ascii_whitespace() || *c == b'<').map(|e| off + e).unwrap_or(appended.len());
+                let end =
+                    appended[off..].iter().position(|c| c.is_ascii_whitespace() || *c == b'<').map(|e| off + e).unwrap_or(appended.len());
                 decode_base64_block(path, f, &appended[off..end], want, &what)?
             } else {
                 decode_raw_block(path, f, &appended[off..], want, &what)?
@@ -258,7 +283,11 @@ fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: us
 fn header_int(f: &FileDecl, b: &[u8]) -> u64 {
     if f.header64 {
         let a: [u8; 8] = b[..8].try_into().unwrap();
-        if f.big_endian { u64::from_be_bytes(a) } else { u64::from_le_bytes(a) }
+        if f.big_endian {
+            u64::from_be_bytes(a)
+        } else {
+            u64::from_le_bytes(a)
+        }
     } else {
         let a: [u8; 4] = b[..4].try_into().unwrap();
         (if f.big_endian { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) }) as u64
@@ -346,7 +375,9 @@ fn inflate_blocks(path: &Path, f: &FileDecl, header: &[u8], data: &[u8], want: u
     let mut pos = 0usize;
     for &csize in &h[3..3 + nblocks] {
         let csize = csize as usize;
-        let chunk = data.get(pos..pos.saturating_add(csize)).ok_or_else(|| FormatError::invalid(path, format!("{what}: compressed data is truncated")))?;
+        let chunk = data
+            .get(pos..pos.saturating_add(csize))
+            .ok_or_else(|| FormatError::invalid(path, format!("{what}: compressed data is truncated")))?;
         let mut d = flate2::read::ZlibDecoder::new(chunk).take((block.max(last)) as u64);
         d.read_to_end(&mut out).map_err(|e| FormatError::invalid(path, format!("{what}: corrupt zlib data: {e}")))?;
         pos += csize;

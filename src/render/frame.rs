@@ -28,7 +28,14 @@ pub struct Frame {
 
 impl Frame {
     pub fn empty(width: usize, height: usize) -> Frame {
-        Frame { width, height, rgba: vec![[0.0; 4]; width * height], depth: vec![f32::INFINITY; width * height], extra: Vec::new(), stats: FrameStats::default() }
+        Frame {
+            width,
+            height,
+            rgba: vec![[0.0; 4]; width * height],
+            depth: vec![f32::INFINITY; width * height],
+            extra: Vec::new(),
+            stats: FrameStats::default(),
+        }
     }
 
     /// Composites `layers` per pixel front to back by depth (premultiplied "over").

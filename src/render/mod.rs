@@ -40,7 +40,8 @@ pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
     }
     let name = match &desc.renderer {
         Some(r) => r.as_str(),
-        None => default_renderer(desc.kind).ok_or_else(|| anyhow!("node '{}': no renderer for {:?} nodes is available yet", desc.name, desc.kind))?,
+        None => default_renderer(desc.kind)
+            .ok_or_else(|| anyhow!("node '{}': no renderer for {:?} nodes is available yet", desc.name, desc.kind))?,
     };
     let Some(&(_, kind, ready)) = RENDERERS.iter().find(|(n, _, _)| *n == name) else {
         let names: Vec<&str> = RENDERERS.iter().map(|r| r.0).collect();
@@ -59,7 +60,8 @@ pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
             let s: reference_volume::Settings = settings(&desc.settings, &desc.name, name)?;
             let tf = desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name))?;
             let vol = scene.volume(node)?;
-            reference_volume::render(&vol, scene.world_transform(node), tf, desc.blend, &rays, w, h, &s)?
+            let input = reference_volume::VolumeInput { volume: &vol, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
+            reference_volume::render(&input, &rays, &s)?
         }
         _ => unreachable!(),
     };

@@ -78,16 +78,17 @@ fn clip_to_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
     (t0 < t1).then_some((t0, t1))
 }
 
-pub fn render(
-    volume: &Volume,
-    node_to_world: DMat4,
-    tf: &TransferFunction,
-    blend: BlendMode,
-    rays: &RayGenerator,
-    width: usize,
-    height: usize,
-    settings: &Settings,
-) -> Result<Frame> {
+/// What to draw: a volume placed in the world, classified by a transfer function.
+pub struct VolumeInput<'a> {
+    pub volume: &'a Volume,
+    pub node_to_world: DMat4,
+    pub tf: &'a TransferFunction,
+    pub blend: BlendMode,
+}
+
+pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
+    let VolumeInput { volume, node_to_world, tf, blend } = *input;
+    let (width, height) = rays.size();
     if !(settings.step > 0.0 && settings.step <= 1.0) {
         bail!("reference renderer: step {} must be in (0, 1] voxel", settings.step);
     }

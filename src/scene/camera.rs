@@ -87,11 +87,7 @@ impl Camera {
         let right = forward.cross(DVec3::from(self.view_up)).normalize();
         let up = right.cross(forward);
         let aspect = width as f64 / height as f64;
-        let half_h = if self.parallel_projection {
-            self.parallel_scale
-        } else {
-            (0.5 * self.view_angle.to_radians()).tan()
-        };
+        let half_h = if self.parallel_projection { self.parallel_scale } else { (0.5 * self.view_angle.to_radians()).tan() };
         RayGenerator { eye, forward, right, up, half_h, half_w: half_h * aspect, parallel: self.parallel_projection, width, height }
     }
 }
@@ -108,6 +104,10 @@ impl RayGenerator {
             Ray { origin: self.eye, dir: (self.forward + self.right * sx + self.up * sy).normalize() }
         }
     }
+    /// Image width and height in pixels.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
     pub fn forward(&self) -> DVec3 {
         self.forward
     }
@@ -119,7 +119,14 @@ mod tests {
 
     #[test]
     fn centre_ray_points_at_the_focal_point_and_edges_match_the_view_angle() {
-        let cam = Camera { position: [0.0, -10.0, 0.0], focal_point: [0.0; 3], view_up: [0.0, 0.0, 1.0], view_angle: 60.0, parallel_projection: false, parallel_scale: 1.0 };
+        let cam = Camera {
+            position: [0.0, -10.0, 0.0],
+            focal_point: [0.0; 3],
+            view_up: [0.0, 0.0, 1.0],
+            view_angle: 60.0,
+            parallel_projection: false,
+            parallel_scale: 1.0,
+        };
         let g = cam.rays(200, 100);
         let c = g.ray(100.0, 50.0);
         assert!((c.dir - DVec3::Y).length() < 1e-12);
@@ -132,7 +139,14 @@ mod tests {
 
     #[test]
     fn parallel_rays_span_twice_the_parallel_scale() {
-        let cam = Camera { position: [0.0, 0.0, 10.0], focal_point: [0.0; 3], view_up: [0.0, 1.0, 0.0], view_angle: 30.0, parallel_projection: true, parallel_scale: 5.0 };
+        let cam = Camera {
+            position: [0.0, 0.0, 10.0],
+            focal_point: [0.0; 3],
+            view_up: [0.0, 1.0, 0.0],
+            view_angle: 30.0,
+            parallel_projection: true,
+            parallel_scale: 5.0,
+        };
         let g = cam.rays(10, 10);
         assert!((g.ray(5.0, 0.0).origin.y - 5.0).abs() < 1e-12);
         assert!((g.ray(5.0, 10.0).origin.y + 5.0).abs() < 1e-12);

@@ -83,7 +83,9 @@ impl Transform {
         let s = DVec3::from(self.scale.unwrap_or([1.0; 3]));
         let r = self.rotate.unwrap_or([0.0; 3]);
         let t = DVec3::from(self.translate.unwrap_or([0.0; 3]));
-        let rot = DMat4::from_rotation_z(r[2].to_radians()) * DMat4::from_rotation_y(r[1].to_radians()) * DMat4::from_rotation_x(r[0].to_radians());
+        let rot = DMat4::from_rotation_z(r[2].to_radians())
+            * DMat4::from_rotation_y(r[1].to_radians())
+            * DMat4::from_rotation_x(r[0].to_radians());
         Ok(DMat4::from_translation(t) * rot * DMat4::from_scale(s))
     }
 }
@@ -234,7 +236,8 @@ pub fn apply_overrides(doc: &mut toml::Table, sets: &[String]) -> Result<()> {
         let mut table: &mut toml::Table = doc;
         let mut rest = &parts[..];
         if parts.first() == Some(&"node") && parts.len() >= 3 {
-            let nodes = table.get_mut("node").and_then(|n| n.as_array_mut()).ok_or_else(|| anyhow!("--set {key}: the scene has no nodes"))?;
+            let nodes =
+                table.get_mut("node").and_then(|n| n.as_array_mut()).ok_or_else(|| anyhow!("--set {key}: the scene has no nodes"))?;
             let node = nodes
                 .iter_mut()
                 .find(|n| n.get("name").and_then(|v| v.as_str()) == Some(parts[1]))
@@ -298,7 +301,8 @@ impl Scene {
             let mut chain = vec![i];
             let mut cur = i;
             while let Some(p) = &file.nodes[cur].parent {
-                let pi = *index.get(p.as_str()).ok_or_else(|| anyhow!("{src}: node '{}': parent '{p}' does not exist", file.nodes[cur].name))?;
+                let pi =
+                    *index.get(p.as_str()).ok_or_else(|| anyhow!("{src}: node '{}': parent '{p}' does not exist", file.nodes[cur].name))?;
                 if chain.contains(&pi) {
                     bail!("{src}: node '{}': parents form a cycle", file.nodes[i].name);
                 }

@@ -32,13 +32,17 @@ impl TransferFunction {
         if self.color.is_empty() {
             return Err("transfer_function.color needs at least one point".into());
         }
+        let finite = |p: &[f64]| p.iter().all(|v| v.is_finite());
+        if !self.scalar_opacity.iter().all(|p| finite(p)) || !self.color.iter().all(|p| finite(p)) {
+            return Err("transfer_function points must be finite numbers".into());
+        }
         for w in self.scalar_opacity.windows(2) {
-            if !(w[1][0] >= w[0][0]) {
+            if w[1][0] < w[0][0] {
                 return Err(format!("transfer_function.scalar_opacity values must increase ({} then {})", w[0][0], w[1][0]));
             }
         }
         for w in self.color.windows(2) {
-            if !(w[1][0] >= w[0][0]) {
+            if w[1][0] < w[0][0] {
                 return Err(format!("transfer_function.color values must increase ({} then {})", w[0][0], w[1][0]));
             }
         }
@@ -97,7 +101,11 @@ mod tests {
 
     #[test]
     fn interpolates_clamps_and_corrects_for_step() {
-        let tf = TransferFunction { scalar_opacity: vec![[10.0, 0.0], [20.0, 0.5]], color: vec![[0.0, 1.0, 0.0, 0.0], [100.0, 0.0, 0.0, 1.0]], scalar_opacity_unit_distance: 2.0 };
+        let tf = TransferFunction {
+            scalar_opacity: vec![[10.0, 0.0], [20.0, 0.5]],
+            color: vec![[0.0, 1.0, 0.0, 0.0], [100.0, 0.0, 0.0, 1.0]],
+            scalar_opacity_unit_distance: 2.0,
+        };
         assert_eq!(tf.opacity(5.0), 0.0);
         assert_eq!(tf.opacity(15.0), 0.25);
         assert_eq!(tf.opacity(30.0), 0.5);

@@ -1,0 +1,103 @@
+//! The command line as a user meets it: JSON info, errors, render and compare.
+
+mod common;
+
+use common::repo_path;
+use std::process::Command;
+
+fn volterra(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_volterra")).args(args).output().unwrap()
+}
+
+#[test]
+fn info_json_reports_volume_geometry() {
+    let p = repo_path("tests/fixtures/nifti/scaled.nii");
+    let out = volterra(&["info", "--json", p.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["kind"], "volume");
+    assert_eq!(v["dims"], serde_json::json!([5, 4, 3]));
+    assert_eq!(v["dtype"], "i16");
+    assert_eq!(v["rescale"]["slope"], 0.5);
+    assert_eq!(v["affine"][0][0], -1.5);
+    assert_eq!(v["affine"][3], serde_json::json!([0.0, 0.0, 0.0, 1.0]));
+}
+
+#[test]
+fn info_lists_series_of_a_multi_series_directory() {
+    let p = repo_path("tests/fixtures/dicom/two_series");
+    let out = volterra(&["info", "--json", p.to_str().unwrap()]);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["series"].as_array().unwrap().len(), 2);
+    assert_eq!(v["series"][1]["uid"], "1.2.3.4.302");
+}
+
+#[test]
+fn bad_inputs_give_one_line_errors_and_exit_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let garbage = dir.path().join("garbage.nii");
+    std::fs::write(&garbage, b"this is not a nifti header at all").unwrap();
+    let huge = dir.path().join("huge.nii");
+    // A valid NIfTI-1 header declaring 30000^3 voxels of f64 and no data.
+    let mut h = vec![0u8; 352];
+    h[0..4].copy_from_slice(&348i32.to_le_bytes());
+    for (i, d) in [3i16, 30000, 30000, 30000, 1, 1, 1, 1].iter().enumerate() {
+        h[40 + 2 * i..42 + 2 * i].copy_from_slice(&d.to_le_bytes());
+    }
+    h[70..72].copy_from_slice(&64i16.to_le_bytes());
+    h[72..74].copy_from_slice(&64i16.to_le_bytes());
+    h[108..112].copy_from_slice(&352f32.to_le_bytes());
+    h[344..348].copy_from_slice(b"n+1\0");
+    std::fs::write(&huge, &h).unwrap();
+    let cases: Vec<(String, &str)> = vec![
+        (garbage.display().to_string(), "not a NIfTI file"),
+        (huge.display().to_string(), "memory limit"),
+        (dir.path().join("absent.nii").display().to_string(), "no such file"),
+        (repo_path("tests/fixtures/dicom/missing_slice").display().to_string(), "missing"),
+        (dir.path().join("x.xyz").display().to_string(), "no such file"),
+    ];
+    for (path, want) in cases {
+        let out = volterra(&["info", &path]);
+        assert_eq!(out.status.code(), Some(1), "{path}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains(&path) || err.contains(path.rsplit('/').next().unwrap()), "{err}");
+        assert!(err.contains(want), "{path}: {err}");
+    }
+    let out = volterra(&["--max-memory", "100", "info", repo_path("tests/fixtures/nifti/f64_nifti1.nii").to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("memory limit is 100 B"));
+}
+
+#[test]
+fn render_then_compare_with_itself_and_with_a_coarser_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = volterra(&["samples", d.to_str().unwrap()]);
+    assert!(out.status.success());
+    let scene = d.join("angio.toml");
+    let fine = d.join("fine.exr");
+    let coarse = d.join("coarse.exr");
+    let png = d.join("fine.png");
+    let sets = ["--set", "image.width=48", "--set", "image.height=48"];
+    let mut args = vec!["render", scene.to_str().unwrap(), "-o", fine.to_str().unwrap(), "--png", png.to_str().unwrap()];
+    args.extend_from_slice(&sets);
+    assert!(volterra(&args).status.success());
+    let mut args = vec!["render", scene.to_str().unwrap(), "-o", coarse.to_str().unwrap(), "--set", "node.phantom.settings.step=1.0"];
+    args.extend_from_slice(&sets);
+    assert!(volterra(&args).status.success());
+    assert!(png.exists());
+    let same: serde_json::Value =
+        serde_json::from_slice(&volterra(&["compare", fine.to_str().unwrap(), fine.to_str().unwrap(), "--json"]).stdout).unwrap();
+    assert_eq!(same["overall"]["rmse"], 0.0);
+    let diff: serde_json::Value =
+        serde_json::from_slice(&volterra(&["compare", coarse.to_str().unwrap(), fine.to_str().unwrap(), "--json"]).stdout).unwrap();
+    let rel = diff["overall"]["relative_rmse"].as_f64().unwrap();
+    // A step of one voxel instead of 0.1 changes the image, but not beyond recognition.
+    assert!(rel > 1e-4 && rel < 0.2, "relative RMSE {rel}");
+    let img = volterra_formats::exr_io::read_exr(&fine).unwrap();
+    for c in ["R", "G", "B", "A", "Z"] {
+        assert!(img.channel(c).is_some(), "channel {c}");
+    }
+    assert!(img.channel("A").unwrap().iter().any(|&a| a > 0.5), "the phantom is visible");
+}
