@@ -9,6 +9,7 @@ pub mod compare;
 pub mod info;
 
 pub use volterra_formats as formats;
+pub mod bench;
 pub mod render;
 pub mod samples;
 pub mod scene;

@@ -111,6 +111,19 @@ enum Command {
         #[arg(long, default_value = "out")]
         out: PathBuf,
     },
+    /// Benchmarks: `formats` times loading against pydicom + numpy and nibabel.
+    Bench {
+        /// What to measure: formats.
+        what: String,
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Where the benchmark inputs are written (reused between runs).
+        #[arg(long, default_value = "target/bench-data")]
+        work_dir: PathBuf,
+        /// Python with pydicom, nibabel and numpy.
+        #[arg(long, default_value = "tests/reference/.venv/bin/python")]
+        python: PathBuf,
+    },
     /// Compare two EXR images: RMSE, PSNR, max error, relative RMSE per channel.
     Compare {
         a: PathBuf,
@@ -150,6 +163,10 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Demo { out } => cmd_demo(&out),
+        Command::Bench { what, runs, work_dir, python } => match what.as_str() {
+            "formats" => volterra::bench::run(&volterra::bench::FormatsBench { work_dir, runs, python }),
+            other => bail!("bench {other}: known benchmarks: formats"),
+        },
     }
 }
 

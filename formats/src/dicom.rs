@@ -616,30 +616,25 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     let (rows, cols) = (first.rows as usize, first.columns as usize);
     let frame_bytes = rows * cols * ty.size();
     check_alloc(src, "DICOM volume", &[cols as u64, rows as u64, n as u64, ty.size() as u64])?;
-    let mut bytes = vec![0u8; frame_bytes * n];
+    let mut data = VoxelData::zeroed(ty, cols * rows * n);
 
-    // Decode files in parallel; each file's frames go to their sorted slots.
+    // Decode files in parallel; each file's frames are copied straight to their sorted
+    // slots in the typed volume.
     let mut slot_of: Vec<Vec<(usize, usize)>> = vec![Vec::new(); infos.len()];
     for (slot, f) in frames.iter().enumerate() {
         slot_of[f.file].push((f.frame, slot));
     }
-    // Per file: (slot, frame bytes) for each of its frames.
-    type Placed = Vec<(usize, Vec<u8>)>;
-    let chunks: Vec<Result<Placed>> = infos
-        .par_iter()
-        .enumerate()
-        .map(|(fi, info)| {
-            let data = decode_frames(info)?;
-            Ok(slot_of[fi].iter().map(|&(frame, slot)| (slot, data[frame * frame_bytes..(frame + 1) * frame_bytes].to_vec())).collect())
-        })
-        .collect();
-    for c in chunks {
-        for (slot, data) in c? {
-            bytes[slot * frame_bytes..(slot + 1) * frame_bytes].copy_from_slice(&data);
+    let decoded: Vec<Result<Vec<u8>>> = infos.par_iter().map(decode_frames).collect();
+    let bytes = data.as_bytes_mut();
+    for (fi, file_bytes) in decoded.into_iter().enumerate() {
+        let file_bytes = file_bytes?;
+        for &(frame, slot) in &slot_of[fi] {
+            bytes[slot * frame_bytes..(slot + 1) * frame_bytes]
+                .copy_from_slice(&file_bytes[frame * frame_bytes..(frame + 1) * frame_bytes]);
         }
     }
-    let mut data = VoxelData::from_bytes(ty, &bytes, false);
-    drop(bytes);
+    // decode_frames yields little-endian samples.
+    data.fix_byte_order(false);
 
     // One rescale for all slices keeps the stored type; differing ones force real values.
     let slice_rescale: Vec<Rescale> =

@@ -7,6 +7,7 @@
 
 pub mod atomic;
 pub mod dicom;
+pub mod dicom_write;
 pub mod error;
 pub mod exr_io;
 pub mod geotiff;

@@ -405,7 +405,9 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
             return Err(FormatError::invalid(path, "file is truncated before the requested volume"));
         }
     }
-    let mut bytes = vec![0u8; vol_bytes];
+    // Read straight into the typed buffer: no second copy of a large volume.
+    let mut data = VoxelData::zeroed(ty, dims[0] * dims[1] * dims[2]);
+    let bytes = data.as_bytes_mut();
     let mut got = 0;
     while got < vol_bytes {
         match data_reader.read(&mut bytes[got..]) {
@@ -415,8 +417,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
             Err(e) => return Err(FormatError::invalid(path, format!("cannot read voxel data: {e}"))),
         }
     }
-    let data = VoxelData::from_bytes(ty, &bytes, h.big_endian);
-    drop(bytes);
+    data.fix_byte_order(h.big_endian);
 
     let (mut affine, which) = best_affine(&h);
     if unit_mm != 1.0 {

@@ -126,6 +126,43 @@ impl VoxelData {
             ScalarType::F64 => VoxelData::F64(conv!(f64, 8)),
         }
     }
+    /// A zeroed buffer of `n` values of type `ty`.
+    pub fn zeroed(ty: ScalarType, n: usize) -> VoxelData {
+        match ty {
+            ScalarType::U8 => VoxelData::U8(vec![0; n]),
+            ScalarType::I8 => VoxelData::I8(vec![0; n]),
+            ScalarType::U16 => VoxelData::U16(vec![0; n]),
+            ScalarType::I16 => VoxelData::I16(vec![0; n]),
+            ScalarType::U32 => VoxelData::U32(vec![0; n]),
+            ScalarType::I32 => VoxelData::I32(vec![0; n]),
+            ScalarType::F32 => VoxelData::F32(vec![0.0; n]),
+            ScalarType::F64 => VoxelData::F64(vec![0.0; n]),
+        }
+    }
+    /// The values' memory as bytes (native byte order), for reading files straight into it.
+    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+        each_variant!(self, v => bytemuck::cast_slice_mut(v.as_mut_slice()))
+    }
+    /// Converts values read in the file's byte order to native order, in place.
+    pub fn fix_byte_order(&mut self, file_big_endian: bool) {
+        if file_big_endian == cfg!(target_endian = "big") {
+            return;
+        }
+        macro_rules! swap {
+            ($v:expr) => {
+                $v.iter_mut().for_each(|x| *x = x.swap_bytes())
+            };
+        }
+        match self {
+            VoxelData::U8(_) | VoxelData::I8(_) => {}
+            VoxelData::U16(v) => swap!(v),
+            VoxelData::I16(v) => swap!(v),
+            VoxelData::U32(v) => swap!(v),
+            VoxelData::I32(v) => swap!(v),
+            VoxelData::F32(v) => v.iter_mut().for_each(|x| *x = f32::from_bits(x.to_bits().swap_bytes())),
+            VoxelData::F64(v) => v.iter_mut().for_each(|x| *x = f64::from_bits(x.to_bits().swap_bytes())),
+        }
+    }
     /// Little-endian bytes of the stored values.
     pub fn to_le_bytes(&self) -> Vec<u8> {
         each_variant!(self, v => v.iter().flat_map(|x| x.to_le_bytes()).collect())

@@ -1,0 +1,120 @@
+//! `volterra bench formats`: load speed against the reference readers, measured side by
+//! side in one run on the same files (medians of several runs; these machines are noisy).
+
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use volterra_formats::{dicom, nifti, Rescale, Volume, VoxelData};
+
+pub struct FormatsBench {
+    pub work_dir: PathBuf,
+    pub runs: usize,
+    /// Python with pydicom, nibabel and numpy (tests/reference/.venv by default).
+    pub python: PathBuf,
+}
+
+/// A 512-slice CT-like series (256×256, i16) and a 256³ i16 gzipped NIfTI, made from the
+/// angiography phantom so they compress like real data.
+fn prepare(dir: &Path) -> Result<(PathBuf, PathBuf)> {
+    let series = dir.join("series512");
+    let nii = dir.join("volume256.nii.gz");
+    if series.join("IMG00511.dcm").exists() && nii.exists() {
+        return Ok((series, nii));
+    }
+    std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
+    let phantom = crate::samples::angio_phantom(256);
+    let n = 256;
+    let hu = |i: usize| (phantom.data.stored(i) * 6.0 - 1000.0) as i16;
+    let mut slices = Vec::with_capacity(n * n * 512);
+    for k in 0..512 {
+        let src = k / 2;
+        slices.extend((0..n * n).map(|p| hu(src * n * n + p)));
+    }
+    let mut vol = Volume {
+        dims: [n, n, 512],
+        spacing: [0.6, 0.6, 0.3],
+        affine: [[-0.6, 0.0, 0.0, 76.5], [0.0, -0.6, 0.0, 76.5], [0.0, 0.0, 0.3, -76.5], [0.0, 0.0, 0.0, 1.0]],
+        data: VoxelData::I16(slices),
+        rescale: Rescale::IDENTITY,
+        modality: Some("CT".into()),
+        units: None,
+        volume_count: 1,
+        volume_index: 0,
+        notes: vec![],
+    };
+    eprintln!("writing 512 DICOM files into {}", series.display());
+    volterra_formats::dicom_write::write_series(&series, &vol, "1.2.826.0.1.3680043.10.1234.512", Some(42))?;
+    vol.dims = [n, n, 256];
+    vol.data = VoxelData::I16((0..n * n * n).map(hu).collect());
+    nifti::write_nifti(&nii, &vol)?;
+    Ok((series, nii))
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+fn time_runs(runs: usize, f: impl Fn() -> Result<()>) -> Result<Vec<f64>> {
+    (0..runs)
+        .map(|_| {
+            let t = Instant::now();
+            f()?;
+            Ok(t.elapsed().as_secs_f64())
+        })
+        .collect()
+}
+
+pub fn run(b: &FormatsBench) -> Result<()> {
+    if b.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let (series, nii) = prepare(&b.work_dir)?;
+    let opts = dicom::DicomOptions::default();
+    let mut ours_dicom = time_runs(b.runs, || dicom::read_dicom(&series, &opts).map(|_| ()).map_err(Into::into))?;
+    let mut ours_nifti = time_runs(b.runs, || nifti::read_nifti(&nii, &Default::default()).map(|_| ()).map_err(Into::into))?;
+    let py = std::process::Command::new(&b.python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/bench_readers.py"))
+        .arg(&series)
+        .arg(&nii)
+        .arg(b.runs.to_string())
+        .output();
+    let theirs: Option<serde_json::Value> = match py {
+        Ok(o) if o.status.success() => serde_json::from_slice(&o.stdout).ok(),
+        Ok(o) => {
+            eprintln!("reference timing failed: {}", String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or(""));
+            None
+        }
+        Err(e) => {
+            eprintln!("reference timing skipped: cannot run {}: {e} (run `python3 tests/setup_venv.py`)", b.python.display());
+            None
+        }
+    };
+    let threads = rayon::current_num_threads();
+    println!("load speed, median of {} runs, {} threads, {}", b.runs, threads, std::env::consts::ARCH);
+    println!("{:<34} {:>12} {:>14} {:>8}", "input", "volterra s", "reference s", "ratio");
+    let rows = [
+        ("512-slice DICOM series 256×256 i16", &mut ours_dicom, "pydicom"),
+        ("gzipped NIfTI 256³ i16 (32 MiB)", &mut ours_nifti, "nibabel"),
+    ];
+    for (name, ours, key) in rows {
+        let m = median(ours);
+        match theirs.as_ref().and_then(|t| t[key].as_array()) {
+            Some(v) => {
+                let mut r: Vec<f64> = v.iter().filter_map(|x| x.as_f64()).collect();
+                let rm = median(&mut r);
+                println!("{name:<34} {m:>12.3} {rm:>9.3} ({key}) {:>6.2}×", rm / m);
+            }
+            None => println!("{name:<34} {m:>12.3} {:>14} {:>8}", "-", "-"),
+        }
+    }
+    if let Some(v) = theirs.as_ref().map(|t| t["versions"].clone()) {
+        println!("reference versions: {v}");
+    }
+    Ok(())
+}
