@@ -186,7 +186,10 @@ fn cmd_info(path: &Path, json: bool, read: &ReadArgs) -> Result<()> {
             return Ok(());
         }
     }
-    let data = formats::load(path, &opts)?;
+    let spin = volterra::progress::spinner(&format!("reading {}", path.display()));
+    let data = formats::load(path, &opts);
+    spin.finish_and_clear();
+    let data = data?;
     if json {
         println!("{}", serde_json::to_string_pretty(&info::dataset_json(&data, &opts.particles))?);
     } else {
@@ -201,7 +204,10 @@ fn lower_name(p: &Path) -> String {
 
 fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
     let opts = read.options()?;
-    let data = formats::load(input, &opts)?;
+    let spin = volterra::progress::spinner(&format!("reading {}", input.display()));
+    let data = formats::load(input, &opts);
+    spin.finish_and_clear();
+    let data = data?;
     let out = lower_name(output);
     match data {
         Dataset::Volume(v) if out.ends_with(".nii") || out.ends_with(".nii.gz") => formats::nifti::write_nifti(output, &v)?,

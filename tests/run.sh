@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The test command: installs what the tests need, checks that the committed reference
-# files regenerate from their scripts, then runs every Rust test.
+# files regenerate from their scripts, then runs every Rust test and prints one summary
+# line ("N passed, M failed").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tests/setup-system.sh
@@ -8,4 +9,11 @@ python3 tests/setup_venv.py
 VENV_PY=tests/reference/.venv/bin/python
 SHARED="${VOLTERRA_SHARED_DATA:-$(cd .. && pwd)/shared/data}"
 "$VENV_PY" tests/reference/check_references.py "$SHARED" target/reference-regen
-cargo test --workspace --no-fail-fast
+mkdir -p target
+set +e
+cargo test --workspace --all-targets --no-fail-fast 2>&1 | tee target/test-output.log
+status=${PIPESTATUS[0]}
+set -e
+awk '/^test result:/ { for (i = 1; i <= NF; i++) { if ($(i+1) ~ /^passed/) p += $i; if ($(i+1) ~ /^failed/) f += $i } }
+     END { printf "tests: %d passed, %d failed\n", p, f }' target/test-output.log
+exit "$status"

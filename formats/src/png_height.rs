@@ -104,3 +104,41 @@ pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions) -> Result<Height
         )],
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::{write_png_grey16, write_png_rgb8, RgbImage};
+
+    #[test]
+    fn rgb_encodings_decode_to_known_elevations() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.png");
+        // Terrarium: (R·256 + G + B/256) − 32768; Mapbox: −10000 + (R·65536 + G·256 + B)·0.1.
+        let img = RgbImage { width: 2, height: 1, data: vec![128, 0, 0, 129, 44, 128] };
+        write_png_rgb8(&p, &img).unwrap();
+        let t = read_png_heightmap(&p, &PngHeightOptions { encoding: HeightEncoding::Terrarium, ..Default::default() }).unwrap();
+        assert_eq!(t.elevations, vec![0.0, 256.0 + 44.0 + 0.5]);
+        let m = read_png_heightmap(&p, &PngHeightOptions { encoding: HeightEncoding::Mapbox, ..Default::default() }).unwrap();
+        assert_eq!(m.elevations[0], (-10000.0 + 128.0 * 65536.0 * 0.1) as f32);
+        assert_eq!(m.elevations[1], (-10000.0 + (129.0 * 65536.0 + 44.0 * 256.0 + 128.0) * 0.1) as f32);
+        assert!(read_png_heightmap(&p, &PngHeightOptions::default()).is_err(), "colour PNG read as grey must be refused");
+    }
+
+    #[test]
+    fn grey_scale_offset_cell_size_and_nodata() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("g.png");
+        write_png_grey16(&p, 3, 2, &[0, 1, 2, 1000, 65535, 0]).unwrap();
+        let opts = PngHeightOptions { vertical_scale: 0.5, vertical_offset: -10.0, cell_size: 25.0, nodata: Some(0), ..Default::default() };
+        let h = read_png_heightmap(&p, &opts).unwrap();
+        assert_eq!((h.width, h.height), (3, 2));
+        assert_eq!(h.cell_size, [25.0, 25.0]);
+        assert_eq!(h.nodata, vec![true, false, false, false, false, true]);
+        assert_eq!(h.elevations[1], -9.5);
+        assert_eq!(h.elevations[3], 490.0);
+        assert_eq!(h.elevations[4], (-10.0 + 0.5 * 65535.0) as f32);
+        assert!(h.elevations[0].is_nan());
+        assert!(read_png_heightmap(&p, &PngHeightOptions { cell_size: 0.0, ..Default::default() }).is_err());
+    }
+}

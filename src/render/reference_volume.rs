@@ -111,6 +111,7 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
     let (lo, hi) = (-pad, hi + pad);
 
     let mut frame = Frame::empty(width, height);
+    let progress = crate::progress::bar(height as u64, "reference ray casting");
     let samples: u64 = frame
         .rgba
         .par_chunks_mut(width)
@@ -173,9 +174,11 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
                 row[x] = [c[0] as f32, c[1] as f32, c[2] as f32, a as f32];
                 depth[x] = z;
             }
+            progress.inc(1);
             n
         })
         .sum();
+    progress.finish_and_clear();
     frame.stats = FrameStats {
         renderer: "reference".into(),
         seconds: start.elapsed().as_secs_f64(),
