@@ -190,3 +190,31 @@ fn node_transform_moves_the_volume() {
     let miss = reference_volume::render(&input(&vol, moved, &tf, BlendMode::Composite), &rays, &s).unwrap();
     assert!(miss.rgba.iter().all(|p| p[3] == 0.0));
 }
+
+/// The stars file has no mass, h or density: a particle node gets the documented defaults.
+#[test]
+fn particle_nodes_get_documented_defaults_for_missing_sph_arrays() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut set = volterra::samples::smoke_plume(500, 1);
+    set.mass = None;
+    set.density = None;
+    set.smoothing_length = None;
+    volterra_formats::vtk::write_vtp(&dir.path().join("p.vtp"), &set, &Default::default()).unwrap();
+    let scene = r#"
+[camera]
+position = [0.5, -2.0, 0.5]
+focal_point = [0.5, 0.5, 0.5]
+
+[[node]]
+name = "p"
+kind = "particles"
+file = "p.vtp"
+"#;
+    let s = Scene::load(&write(dir.path(), "s.toml", scene), &[]).unwrap();
+    let p = s.particles(0).unwrap();
+    let (m, h, rho) = (p.mass.as_ref().unwrap(), p.smoothing_length.as_ref().unwrap(), p.density.as_ref().unwrap());
+    assert!(m.iter().all(|&x| x == 1.0 / 500.0));
+    assert!(h.iter().all(|&x| x > 0.0 && x.is_finite()));
+    assert!(rho.iter().all(|&x| x > 0.0 && x.is_finite()));
+    assert_eq!(p.notes.iter().filter(|n| n.starts_with("no ")).count(), 3, "{:?}", p.notes);
+}

@@ -17,6 +17,7 @@ pub mod memory;
 pub mod nifti;
 pub mod particles;
 pub mod png_height;
+pub mod sph;
 pub mod volume;
 pub mod vtk;
 pub mod vtk_xml;

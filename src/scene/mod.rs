@@ -363,7 +363,11 @@ impl Scene {
         Ok(match (n.kind, d) {
             (NodeKind::Volume, Dataset::Volume(v)) => NodeData::Volume(Arc::new(v)),
             (NodeKind::Heightfield, Dataset::Heightfield(h)) => NodeData::Heightfield(Arc::new(h)),
-            (NodeKind::Particles, Dataset::Particles(p)) => NodeData::Particles(Arc::new(p)),
+            (NodeKind::Particles, Dataset::Particles(mut p)) => {
+                // Renderers need mass, h and density: fill the documented defaults.
+                volterra_formats::sph::fill_defaults(&mut p);
+                NodeData::Particles(Arc::new(p))
+            }
             (k, _) => bail!("{}: node '{}' is a {:?} node but the file holds other data", path.display(), n.name, k),
         })
     }

@@ -179,6 +179,73 @@ def dicom_fixtures():
             px = np.full((rows, cols), 100 * sidx + k, dtype=np.int16)
             dicom_slice(os.path.join(d, f"a{sidx}_{k}.dcm"), px, [0, 0, 2 * k], iop_axial, (1, 1), uid, k + 1)
     EXPECT["dicom/two_series"] = {"kind": "series_list", "uids": ["1.2.3.4.301", "1.2.3.4.302"]}
+    enhanced_multiframe()
+
+
+def enhanced_multiframe():
+    """An Enhanced MR-style multi-frame file: geometry only in the functional groups, frames
+    stored out of spatial order, a per-frame rescale that differs between frames."""
+    from pydicom.dataset import Dataset, FileDataset, FileMetaDataset
+    from pydicom.sequence import Sequence
+    from pydicom.uid import ExplicitVRLittleEndian
+    path = os.path.join(OUT, "dicom/enhanced_multiframe.dcm")
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.4.1"
+    meta.MediaStorageSOPInstanceUID = "1.2.3.4.500.1"
+    meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds = FileDataset(path, {}, file_meta=meta, preamble=b"\0" * 128)
+    ds.SOPClassUID = meta.MediaStorageSOPClassUID
+    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
+    ds.Modality = "MR"
+    ds.SeriesInstanceUID = "1.2.3.4.500"
+    rows, cols, frames = 5, 6, 4
+    z_order = [2, 0, 3, 1]  # frame f lies at slice z_order[f]
+    slopes = [1.0, 2.0, 1.0, 0.5]
+    pix = rng(600).integers(0, 4000, size=(frames, rows, cols)).astype(np.uint16)
+    ds.NumberOfFrames = frames
+    ds.Rows, ds.Columns = rows, cols
+    ds.SamplesPerPixel = 1
+    ds.PhotometricInterpretation = "MONOCHROME2"
+    ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 0
+    shared = Dataset()
+    po = Dataset()
+    po.ImageOrientationPatient = [0, 1, 0, 0, 0, -1]  # sagittal
+    shared.PlaneOrientationSequence = Sequence([po])
+    pm = Dataset()
+    pm.PixelSpacing = [0.9, 0.7]
+    pm.SliceThickness = 1.2
+    shared.PixelMeasuresSequence = Sequence([pm])
+    ds.SharedFunctionalGroupsSequence = Sequence([shared])
+    per = []
+    for f in range(frames):
+        item = Dataset()
+        pp = Dataset()
+        pp.ImagePositionPatient = [-20.0 + 1.2 * z_order[f], 5.0, 30.0]
+        item.PlanePositionSequence = Sequence([pp])
+        pvt = Dataset()
+        pvt.RescaleSlope = slopes[f]
+        pvt.RescaleIntercept = 0
+        pvt.RescaleType = "US"
+        item.PixelValueTransformationSequence = Sequence([pvt])
+        per.append(item)
+    ds.PerFrameFunctionalGroupsSequence = Sequence(per)
+    ds.PixelData = pix.tobytes()
+    ds.save_as(path, enforce_file_format=True)
+    # Expected: frames sorted by position along the normal; real values as f32.
+    row, col = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, -1.0])
+    normal = np.cross(row, col)
+    order = sorted(range(frames), key=lambda f: float(np.dot(normal, [-20.0 + 1.2 * z_order[f], 5.0, 30.0])))
+    real = np.stack([pix[f].astype(np.float64) * slopes[f] for f in order])  # (k, rows, cols)
+    m = np.eye(4)
+    m[:3, 0] = row * 0.7
+    m[:3, 1] = col * 0.9
+    p0 = np.array([-20.0 + 1.2 * z_order[order[0]], 5.0, 30.0])
+    p1 = np.array([-20.0 + 1.2 * z_order[order[-1]], 5.0, 30.0])
+    m[:3, 2] = (p1 - p0) / (frames - 1)
+    m[:3, 3] = p0
+    m[0, :] *= -1
+    m[1, :] *= -1
+    record_volume("dicom/enhanced_multiframe.dcm", real.transpose(2, 1, 0), m, 1.0, 0.0, dtype="f32", modality="MR")
 
 
 # --- GeoTIFF -----------------------------------------------------------------------------
