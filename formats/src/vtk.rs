@@ -84,7 +84,11 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
             }
         }
     }
-    let notes = vec![format!("legacy VTK {:?}, {} points", vtk.version, positions.len())];
+    let version = match vtk.version {
+        vtkio::model::Version::Legacy { major, minor } => format!("{major}.{minor}"),
+        other => format!("{other:?}"),
+    };
+    let notes = vec![format!("legacy VTK {version}, {} points", positions.len())];
     ParticleSet::from_arrays(positions, arrays, names, notes).map_err(|m| FormatError::invalid(path, m))
 }
 

@@ -284,6 +284,21 @@ def geotiff_fixtures():
             "epsg": 32610, "geographic": False, "nodata_count": int(mask.sum()),
             "values": np.where(mask, np.nan, back).ravel().tolist(),
         }
+    # A reduced-resolution image first, the full-resolution one second: readers must pick
+    # the full one, not the first or the last directory.
+    full = values_for("int16", (h, w), 398)
+    path = os.path.join(OUT, "geotiff/overview_first.tif")
+    with tifffile.TiffWriter(path) as tw:
+        tw.write(full[::4, ::4].copy(), subfiletype=1, photometric="minisblack")
+        tw.write(full, photometric="minisblack", extratags=[
+            (33550, "d", 3, (30.0, 20.0, 0.0), True),
+            (33922, "d", 6, (0.0, 0.0, 0.0, 500000.0, 5200000.0, 0.0), True),
+            (34735, "H", len(geokeys_utm), geokeys_utm, True)])
+        tw.write(full[::2, ::2].copy(), subfiletype=1, photometric="minisblack")
+    EXPECT["geotiff/overview_first.tif"] = {
+        "kind": "heightfield", "dims": [w, h], "cell_size": [30.0, 20.0], "origin": [500015.0, 5199990.0],
+        "epsg": 32610, "geographic": False, "nodata_count": 0, "values": full.astype(np.float64).ravel().tolist(),
+    }
     # ModelTransformation + PixelIsPoint, geographic
     data = values_for("float32", (h, w), 399)
     keys = [1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 2, 2048, 0, 1, 4326]
