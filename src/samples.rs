@@ -35,6 +35,7 @@ impl SplitMix64 {
 pub const SCENES: &[(&str, &str)] = &[
     ("angio.toml", include_str!("../samples/angio.toml")),
     ("angio_mip.toml", include_str!("../samples/angio_mip.toml")),
+    ("angio_shear_warp.toml", include_str!("../samples/angio_shear_warp.toml")),
     ("terrain.toml", include_str!("../samples/terrain.toml")),
     ("terrain_png.toml", include_str!("../samples/terrain_png.toml")),
     ("smoke.toml", include_str!("../samples/smoke.toml")),

@@ -218,3 +218,14 @@ file = "p.vtp"
     assert!(rho.iter().all(|&x| x > 0.0 && x.is_finite()));
     assert_eq!(p.notes.iter().filter(|n| n.starts_with("no ")).count(), 3, "{:?}", p.notes);
 }
+
+/// samples/aneurysm.toml reads the real scan beside the repository.
+#[test]
+fn aneurysm_sample_scene_renders_the_shared_scan() {
+    if common::shared_data().is_none() {
+        return;
+    }
+    let s = Scene::load(&repo_path("samples/aneurysm.toml"), &["image.width=64".into(), "image.height=64".into()]).unwrap();
+    let f = render::render_scene(&s).unwrap();
+    assert!(f.rgba.iter().filter(|p| p[3] > 0.3).count() > 100, "the vessels are visible");
+}

@@ -4,6 +4,7 @@
 
 pub mod frame;
 pub mod reference_volume;
+pub mod shear_warp;
 
 pub use frame::{Frame, FrameStats};
 
@@ -13,7 +14,7 @@ use anyhow::{anyhow, bail, Context, Result};
 /// Renderers by name, with the node kinds they draw and whether they exist yet.
 pub const RENDERERS: &[(&str, NodeKind, bool)] = &[
     ("reference", NodeKind::Volume, true),
-    ("shear-warp", NodeKind::Volume, false),
+    ("shear-warp", NodeKind::Volume, true),
     ("terrain", NodeKind::Heightfield, false),
     ("smoke", NodeKind::Particles, false),
 ];
@@ -62,6 +63,14 @@ pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
             let vol = scene.volume(node)?;
             let input = reference_volume::VolumeInput { volume: &vol, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
             reference_volume::render(&input, &rays, &s)?
+        }
+        "shear-warp" => {
+            let s: shear_warp::Settings = settings(&desc.settings, &desc.name, name)?;
+            let tf = desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name))?;
+            let vol = scene.volume(node)?;
+            let prepared = shear_warp::Prepared::new(&vol);
+            let input = shear_warp::Input { prepared: &prepared, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
+            shear_warp::render(&input, &rays, &s)?
         }
         _ => unreachable!(),
     };

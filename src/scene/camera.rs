@@ -104,6 +104,9 @@ impl RayGenerator {
             Ray { origin: self.eye, dir: (self.forward + self.right * sx + self.up * sy).normalize() }
         }
     }
+    pub fn is_parallel(&self) -> bool {
+        self.parallel
+    }
     /// Image width and height in pixels.
     pub fn size(&self) -> (usize, usize) {
         (self.width, self.height)
