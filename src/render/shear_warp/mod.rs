@@ -21,8 +21,9 @@ use minmax::{OverlappedMap, ScanlineMap};
 use preint::PreintTable;
 use rayon::prelude::*;
 use serde::Deserialize;
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::OnceLock;
+use std::sync::{Arc, Mutex, OnceLock};
 use volterra_formats::Volume;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -63,8 +64,18 @@ impl Default for Settings {
 struct Axis {
     dims: [usize; 3],
     data: Vec<u16>,
-    overlapped: OnceLock<OverlappedMap>,
-    scanline: OnceLock<ScanlineMap>,
+    /// Min-max maps by block size n.
+    overlapped: Mutex<HashMap<usize, Arc<OverlappedMap>>>,
+    scanline: Mutex<HashMap<usize, Arc<ScanlineMap>>>,
+}
+
+impl Axis {
+    fn overlapped(&self, n: usize) -> Arc<OverlappedMap> {
+        self.overlapped.lock().unwrap().entry(n).or_insert_with(|| Arc::new(OverlappedMap::new(&self.data, self.dims, n))).clone()
+    }
+    fn scanline(&self, n: usize) -> Arc<ScanlineMap> {
+        self.scanline.lock().unwrap().entry(n).or_insert_with(|| Arc::new(ScanlineMap::new(&self.data, self.dims, n))).clone()
+    }
 }
 
 /// A volume prepared for shear-warp rendering. Everything here depends only on the
@@ -112,7 +123,7 @@ impl Prepared {
                     }
                 }
             });
-            Axis { dims: pd, data, overlapped: OnceLock::new(), scanline: OnceLock::new() }
+            Axis { dims: pd, data, overlapped: Mutex::default(), scanline: Mutex::default() }
         })
     }
 }
@@ -200,29 +211,10 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let mip = input.blend == BlendMode::Mip;
     let leaping = if mip && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
     let n = settings.block;
-    let over_map =
-        (leaping == Leaping::Overlapped && nz > 1).then(|| axis.overlapped.get_or_init(|| OverlappedMap::new(&axis.data, axis.dims, n)));
-    let scan_map =
-        (leaping == Leaping::MultiScanline && nz > 1).then(|| axis.scanline.get_or_init(|| ScanlineMap::new(&axis.data, axis.dims, n)));
-    // Maps built for another block size are rebuilt on the fly.
-    let over_map = over_map.filter(|m| m.n == n);
-    let scan_map = scan_map.filter(|m| m.n == n);
-    let owned_over;
-    let owned_scan;
-    let over_map = match (leaping, over_map) {
-        (Leaping::Overlapped, None) if nz > 1 => {
-            owned_over = OverlappedMap::new(&axis.data, axis.dims, n);
-            Some(&owned_over)
-        }
-        (_, m) => m,
-    };
-    let scan_map = match (leaping, scan_map) {
-        (Leaping::MultiScanline, None) if nz > 1 => {
-            owned_scan = ScanlineMap::new(&axis.data, axis.dims, n);
-            Some(&owned_scan)
-        }
-        (_, m) => m,
-    };
+    // Built once per volume, axis and block size; reused across views and transfer functions.
+    let over_map = (leaping == Leaping::Overlapped && nz > 1).then(|| axis.overlapped(n));
+    let scan_map = (leaping == Leaping::MultiScanline && nz > 1).then(|| axis.scanline(n));
+    let (over_map, scan_map) = (over_map.as_deref(), scan_map.as_deref());
 
     // View clipping: only intermediate pixels the final image can see.
     let (w, h) = rays.size();
