@@ -50,6 +50,20 @@ def main():
             committed = json.load(f)
         with open(os.path.join(scratch, "data/shared_data.json")) as f:
             same(committed, json.load(f), "shared_data", errors)
+        # VTK's renders of the comparison scenes.
+        import glob
+        import numpy as np
+        import OpenEXR
+        scenes = sorted(glob.glob(os.path.join(HERE, "scenes", "*.toml")))
+        subprocess.run([py, os.path.join(HERE, "vtk_volume.py"), os.path.join(scratch, "vtk")] + scenes, check=True,
+                       stderr=subprocess.DEVNULL)
+        for scene in scenes:
+            name = "vtk_" + os.path.splitext(os.path.basename(scene))[0] + ".exr"
+            a = OpenEXR.File(os.path.join(REPO, "tests/reference/data", name)).channels()["RGBA"].pixels
+            b = OpenEXR.File(os.path.join(scratch, "vtk", name)).channels()["RGBA"].pixels
+            diff = float(np.abs(a.astype(np.float64) - b).max())
+            if diff > 2e-3:
+                errors.append(f"{name}: VTK render differs from the committed one by {diff}")
     elif os.environ.get("CI") == "true":
         print(f"shared data not found at {shared} (CI=true: must not skip)", file=sys.stderr)
         sys.exit(1)

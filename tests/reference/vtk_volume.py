@@ -1,0 +1,99 @@
+#!/usr/bin/env python3
+"""Renders volume scenes (tests/reference/scenes/*.toml) with VTK's
+vtkFixedPointVolumeRayCastMapper — parallel projection, the scene's camera, transfer
+function and unit distance, linear interpolation, no shading, sample distance 1 — and
+writes each image as a float RGBA OpenEXR (colour over black, alpha = accumulated opacity).
+
+Usage: vtk_volume.py OUT_DIR SCENE.toml...
+"""
+import os
+import sys
+import tomllib
+
+import nibabel as nib
+import numpy as np
+import OpenEXR
+import vtk
+from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+
+
+def render(scene_path, out_path):
+    with open(scene_path, "rb") as f:
+        scene = tomllib.load(f)
+    node = scene["node"][0]
+    img = nib.load(os.path.join(os.path.dirname(scene_path), node["file"]))
+    data = np.asanyarray(img.dataobj).astype(np.float32)
+    if img.dataobj.slope is not None and img.dataobj.slope not in (0, 1):
+        data = data * img.dataobj.slope + (img.dataobj.inter or 0)
+    nx, ny, nz = data.shape
+    image = vtk.vtkImageData()
+    image.SetDimensions(nx, ny, nz)
+    image.SetSpacing(1, 1, 1)
+    image.SetOrigin(0, 0, 0)
+    arr = numpy_to_vtk(data.transpose(2, 1, 0).ravel(), deep=True)  # x fastest
+    image.GetPointData().SetScalars(arr)
+    # Voxel index → world (RAS mm) as the prop's matrix, so the camera is the scene's.
+    m = vtk.vtkMatrix4x4()
+    for r in range(4):
+        for c in range(4):
+            m.SetElement(r, c, float(img.affine[r, c]))
+    tf = node["transfer_function"]
+    opacity = vtk.vtkPiecewiseFunction()
+    for v, a in tf["scalar_opacity"]:
+        opacity.AddPoint(v, a)
+    color = vtk.vtkColorTransferFunction()
+    for v, r, g, b in tf["color"]:
+        color.AddRGBPoint(v, r, g, b)
+    prop = vtk.vtkVolumeProperty()
+    prop.SetScalarOpacity(opacity)
+    prop.SetColor(color)
+    prop.SetScalarOpacityUnitDistance(tf.get("scalar_opacity_unit_distance", 1.0))
+    prop.SetInterpolationTypeToLinear()
+    prop.ShadeOff()
+    mapper = vtk.vtkFixedPointVolumeRayCastMapper()
+    mapper.SetInputData(image)
+    mapper.SetAutoAdjustSampleDistances(0)
+    mapper.SetSampleDistance(1.0)
+    mapper.SetImageSampleDistance(1.0)
+    volume = vtk.vtkVolume()
+    volume.SetMapper(mapper)
+    volume.SetProperty(prop)
+    volume.SetUserMatrix(m)
+    ren = vtk.vtkRenderer()
+    ren.SetBackground(0, 0, 0)
+    ren.SetBackgroundAlpha(0.0)
+    ren.AddVolume(volume)
+    cam = ren.GetActiveCamera()
+    c = scene["camera"]
+    cam.SetPosition(*c["position"])
+    cam.SetFocalPoint(*c["focal_point"])
+    cam.SetViewUp(*c.get("view_up", [0, 0, 1]))
+    cam.SetParallelProjection(1)
+    cam.SetParallelScale(c["parallel_scale"])
+    ren.ResetCameraClippingRange()
+    w, h = scene["image"]["width"], scene["image"]["height"]
+    win = vtk.vtkRenderWindow()
+    win.SetOffScreenRendering(1)
+    win.SetAlphaBitPlanes(1)
+    win.SetMultiSamples(0)
+    win.AddRenderer(ren)
+    win.SetSize(w, h)
+    win.Render()
+    buf = vtk.vtkFloatArray()
+    win.GetRGBAPixelData(0, 0, w - 1, h - 1, 1, buf)
+    rgba = vtk_to_numpy(buf).reshape(h, w, 4)[::-1].astype(np.float32)  # row 0 at the top
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, {"RGBA": np.ascontiguousarray(rgba)}).write(out_path)
+
+
+def main():
+    out = sys.argv[1]
+    os.makedirs(out, exist_ok=True)
+    for scene in sys.argv[2:]:
+        name = os.path.splitext(os.path.basename(scene))[0]
+        render(scene, os.path.join(out, f"vtk_{name}.exr"))
+        print(f"rendered {name}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
