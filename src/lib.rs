@@ -10,6 +10,7 @@ pub mod info;
 
 pub use volterra_formats as formats;
 pub mod bench;
+pub mod bench_shear_warp;
 pub mod progress;
 pub mod render;
 pub mod samples;

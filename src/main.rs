@@ -111,10 +111,21 @@ enum Command {
         #[arg(long, default_value = "out")]
         out: PathBuf,
     },
-    /// Benchmarks: `formats` times loading against pydicom + numpy and nibabel.
+    /// Benchmarks: `formats` times loading against pydicom + numpy and nibabel;
+    /// `shear-warp` times the renderer's configurations and VTK's fixed-point mapper
+    /// against their error from the reference ray caster.
     Bench {
-        /// What to measure: formats.
+        /// What to measure: formats or shear-warp.
         what: String,
+        /// shear-warp: the scene (one volume, parallel camera).
+        #[arg(long, default_value = "samples/aneurysm.toml")]
+        scene: PathBuf,
+        /// shear-warp: print the rows as JSON.
+        #[arg(long)]
+        json: bool,
+        /// shear-warp: where to write the speed-against-error plot.
+        #[arg(long, default_value = "out/bench_shear_warp.png")]
+        plot: PathBuf,
         #[arg(long, default_value_t = 5)]
         runs: usize,
         /// Where the benchmark inputs are written (reused between runs).
@@ -163,9 +174,15 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Demo { out } => cmd_demo(&out),
-        Command::Bench { what, runs, work_dir, python } => match what.as_str() {
+        Command::Bench { what, runs, work_dir, python, scene, json, plot } => match what.as_str() {
             "formats" => volterra::bench::run(&volterra::bench::FormatsBench { work_dir, runs, python }),
-            other => bail!("bench {other}: known benchmarks: formats"),
+            "shear-warp" => {
+                if let Some(dir) = plot.parent().filter(|d| !d.as_os_str().is_empty()) {
+                    std::fs::create_dir_all(dir)?;
+                }
+                volterra::bench_shear_warp::run(&volterra::bench_shear_warp::ShearWarpBench { scene, runs, work_dir, python, json, plot })
+            }
+            other => bail!("bench {other}: known benchmarks: formats, shear-warp"),
         },
     }
 }

@@ -5,7 +5,12 @@ function and unit distance, linear interpolation, no shading, sample distance 1 
 writes each image as a float RGBA OpenEXR (colour over black, alpha = accumulated opacity).
 
 Usage: vtk_volume.py OUT_DIR SCENE.toml...
+       vtk_volume.py --bench SPEC.json   (for `volterra bench shear-warp`: renders each view
+       of one scene `runs` times after a warm-up, prints {"ms": [[per-run ms]...]} and
+       writes the images to the spec's paths)
 """
+import json
+import time
 import os
 import sys
 import tomllib
@@ -17,7 +22,7 @@ import vtk
 from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 
 
-def render(scene_path, out_path):
+def render(scene_path, out_path, views=None, runs=0):
     with open(scene_path, "rb") as f:
         scene = tomllib.load(f)
     node = scene["node"][0]
@@ -78,15 +83,35 @@ def render(scene_path, out_path):
     win.SetMultiSamples(0)
     win.AddRenderer(ren)
     win.SetSize(w, h)
-    win.Render()
-    buf = vtk.vtkFloatArray()
-    win.GetRGBAPixelData(0, 0, w - 1, h - 1, 1, buf)
-    rgba = vtk_to_numpy(buf).reshape(h, w, 4)[::-1].astype(np.float32)  # row 0 at the top
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    OpenEXR.File(header, {"RGBA": np.ascontiguousarray(rgba)}).write(out_path)
+    if views is None:
+        views = [(c["position"], out_path)]
+    timings = []
+    for position, path in views:
+        cam.SetPosition(*position)
+        ren.ResetCameraClippingRange()
+        win.Render()  # warm-up: the first render also builds VTK's tables
+        ms = []
+        for _ in range(runs):
+            t = time.perf_counter()
+            cam.Modified()
+            win.Render()
+            ms.append(1000 * (time.perf_counter() - t))
+        timings.append(ms)
+        buf = vtk.vtkFloatArray()
+        win.GetRGBAPixelData(0, 0, w - 1, h - 1, 1, buf)
+        rgba = vtk_to_numpy(buf).reshape(h, w, 4)[::-1].astype(np.float32)  # row 0 at the top
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        OpenEXR.File(header, {"RGBA": np.ascontiguousarray(rgba)}).write(path)
+    return timings
 
 
 def main():
+    if sys.argv[1] == "--bench":
+        with open(sys.argv[2]) as f:
+            spec = json.load(f)
+        ms = render(spec["scene"], None, [(v["position"], v["image"]) for v in spec["views"]], spec["runs"])
+        print(json.dumps({"ms": ms, "vtk": vtk.vtkVersion.GetVTKVersion()}))
+        return
     out = sys.argv[1]
     os.makedirs(out, exist_ok=True)
     for scene in sys.argv[2:]:

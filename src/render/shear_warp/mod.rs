@@ -439,6 +439,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             ("samples".into(), samples.load(Ordering::Relaxed) as f64),
             ("runs_leapt".into(), slabs_leapt.load(Ordering::Relaxed) as f64),
             ("supersampling".into(), fac.ratio),
+            ("intermediate_pixels".into(), ((u_clip_hi + 1 - u_clip_lo) * (v_clip_hi + 1 - v_clip_lo)) as f64),
             ("table_levels".into(), n_levels as f64),
             ("principal_axis".into(), fac.perm[2] as f64),
         ],

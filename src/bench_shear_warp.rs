@@ -1,0 +1,256 @@
+//! `volterra bench shear-warp`: speed against error, in one process. Our renderer with
+//! each leaping mode and supersampling ratio, MIP, and VTK's fixed-point ray caster
+//! (through Python in the same command), each as the median ms per frame over several
+//! views and the relative RMSE from the reference ray caster (cached per view).
+
+use crate::render::{reference_volume, shear_warp, Frame};
+use crate::scene::{BlendMode, Camera, Scene, TransferFunction};
+use anyhow::{bail, Context, Result};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub struct ShearWarpBench {
+    /// A scene with one volume node and a parallel camera (its view is the first of four).
+    pub scene: PathBuf,
+    pub runs: usize,
+    pub work_dir: PathBuf,
+    pub python: PathBuf,
+    pub json: bool,
+    pub plot: PathBuf,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Row {
+    pub config: String,
+    pub median_ms: f64,
+    pub rel_rmse: f64,
+    /// Median ms per million intermediate pixels (shear-warp only).
+    pub ms_per_mpixel: Option<f64>,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+fn rel_rmse(a: &[[f32; 4]], b: &[[f32; 4]]) -> f64 {
+    let (mut se, mut rs) = (0.0, 0.0);
+    for (p, q) in a.iter().zip(b) {
+        for k in 0..4 {
+            se += ((p[k] - q[k]) as f64).powi(2);
+            rs += (q[k] as f64).powi(2);
+        }
+    }
+    (se / rs.max(1e-300)).sqrt()
+}
+
+fn rgba_of(img: &volterra_formats::FloatImage) -> Vec<[f32; 4]> {
+    let ch: Vec<&[f32]> = ["R", "G", "B", "A"].iter().map(|c| img.channel(c).unwrap()).collect();
+    (0..img.width * img.height).map(|i| [ch[0][i], ch[1][i], ch[2][i], ch[3][i]]).collect()
+}
+
+/// The scene's view and three more: oblique, exactly 45° between two axes, and a second
+/// oblique from below.
+fn views(cam: &Camera) -> Vec<Camera> {
+    let fp = glam::DVec3::from(cam.focal_point);
+    let dist = (glam::DVec3::from(cam.position) - fp).length();
+    let mut out = vec![cam.clone()];
+    for dir in [[0.55, 0.75, 0.3], [1.0, 1.0, 0.0], [-0.6, 0.3, -0.7]] {
+        let d = glam::DVec3::from(dir).normalize() * dist;
+        let mut c = cam.clone();
+        c.position = (fp + d).to_array();
+        c.view_up = [0.0, 0.0, 1.0];
+        out.push(c);
+    }
+    out
+}
+
+pub fn run(b: &ShearWarpBench) -> Result<()> {
+    if b.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let scene = Scene::load(&b.scene, &[])?;
+    let node =
+        scene.nodes().iter().position(|n| n.kind == crate::scene::NodeKind::Volume).context("the bench scene needs a volume node")?;
+    let desc = &scene.nodes()[node];
+    let tf: &TransferFunction = desc.transfer_function.as_ref().context("the volume node needs a transfer_function")?;
+    if !scene.file.camera.parallel_projection {
+        bail!("{}: the bench needs a parallel camera (shear-warp is parallel-only)", b.scene.display());
+    }
+    let volume = scene.volume(node)?;
+    let to_world = scene.world_transform(node);
+    let (w, h) = (scene.file.image.width, scene.file.image.height);
+    let cams = views(&scene.file.camera);
+    std::fs::create_dir_all(&b.work_dir)?;
+    let prepared = shear_warp::Prepared::new(&volume);
+
+    // Reference images, cached by scene and view.
+    let key = format!("{:x}", fxhash(&(std::fs::read_to_string(&b.scene)?, w, h)));
+    let mut refs = Vec::new();
+    let mut refs_mip = Vec::new();
+    for (v, cam) in cams.iter().enumerate() {
+        for (blend, list) in [(BlendMode::Composite, &mut refs), (BlendMode::Mip, &mut refs_mip)] {
+            let path = b.work_dir.join(format!("ref_{key}_{v}_{blend:?}.exr"));
+            let img = match volterra_formats::exr_io::read_exr(&path) {
+                Ok(img) => img,
+                Err(_) => {
+                    eprintln!("rendering the reference for view {v} ({blend:?}), cached in {}", path.display());
+                    let input = reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend };
+                    let f = reference_volume::render(&input, &cam.rays(w, h), &Default::default())?;
+                    let img = f.to_image([0.0; 3]);
+                    volterra_formats::exr_io::write_exr(&path, &img)?;
+                    img
+                }
+            };
+            list.push(rgba_of(&img));
+        }
+    }
+
+    let mut rows = Vec::new();
+    let time_config = |name: String, blend: BlendMode, s: shear_warp::Settings| -> Result<Row> {
+        let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend };
+        let (mut ms, mut err, mut mpix) = (Vec::new(), Vec::new(), Vec::new());
+        for (v, cam) in cams.iter().enumerate() {
+            let rays = cam.rays(w, h);
+            let warm: Frame = shear_warp::render(&input, &rays, &s)?; // builds the axis copy and maps once
+            let reference = if blend == BlendMode::Mip { &refs_mip[v] } else { &refs[v] };
+            err.push(rel_rmse(&warm.rgba, reference));
+            let fac_pixels = intermediate_pixels(&warm);
+            for _ in 0..b.runs {
+                let t = Instant::now();
+                let f = shear_warp::render(&input, &rays, &s)?;
+                let dt = 1000.0 * t.elapsed().as_secs_f64();
+                ms.push(dt);
+                mpix.push(dt / (fac_pixels / 1e6));
+                drop(f);
+            }
+        }
+        let row = Row {
+            config: name,
+            median_ms: median(ms),
+            rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+            ms_per_mpixel: Some(median(mpix)),
+        };
+        if !b.json {
+            eprintln!("{:<34} {:>9.1} ms {:>8.2} %", row.config, row.median_ms, 100.0 * row.rel_rmse);
+        }
+        Ok(row)
+    };
+    for leaping in [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped] {
+        for ratio in [1.0, 1.13, 2.26] {
+            let name = format!("shear-warp {} ×{ratio}", leaping_name(leaping));
+            rows.push(time_config(
+                name,
+                BlendMode::Composite,
+                shear_warp::Settings { leaping, supersampling: ratio, ..Default::default() },
+            )?);
+        }
+    }
+    rows.push(time_config("shear-warp overlapped auto".into(), BlendMode::Composite, Default::default())?);
+    rows.push(time_config(
+        "shear-warp mip overlapped ×2.26".into(),
+        BlendMode::Mip,
+        shear_warp::Settings { supersampling: 2.26, ..Default::default() },
+    )?);
+    rows.push(time_config(
+        "shear-warp mip none ×2.26".into(),
+        BlendMode::Mip,
+        shear_warp::Settings { supersampling: 2.26, leaping: shear_warp::Leaping::None, ..Default::default() },
+    )?);
+
+    // VTK's fixed-point mapper through Python, same views, same reference.
+    match vtk_rows(b, &cams, &refs) {
+        Ok(r) => rows.extend(r),
+        Err(e) => eprintln!("VTK rows skipped: {e:#}"),
+    }
+
+    let rows_path = b.work_dir.join("shear_warp_rows.json");
+    std::fs::write(&rows_path, serde_json::to_string_pretty(&rows)?)?;
+    let plot = std::process::Command::new(&b.python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/plot_bench.py"))
+        .arg(&rows_path)
+        .arg(&b.plot)
+        .status();
+    match plot {
+        Ok(s) if s.success() => eprintln!("plot written to {}", b.plot.display()),
+        _ => eprintln!("plot skipped (needs matplotlib in {})", b.python.display()),
+    }
+    if b.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        println!("{w}×{h}, {} views, median of {} runs per view, {} threads", cams.len(), b.runs, rayon::current_num_threads());
+        println!("{:<34} {:>10} {:>10} {:>12}", "config", "median ms", "rel. RMSE", "ms/Mpixel");
+        for r in &rows {
+            let mp = r.ms_per_mpixel.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
+            println!("{:<34} {:>10.1} {:>9.2}% {:>12}", r.config, r.median_ms, 100.0 * r.rel_rmse, mp);
+        }
+    }
+    Ok(())
+}
+
+fn leaping_name(l: shear_warp::Leaping) -> &'static str {
+    match l {
+        shear_warp::Leaping::None => "none",
+        shear_warp::Leaping::MultiScanline => "multi-scanline",
+        shear_warp::Leaping::Overlapped => "overlapped",
+    }
+}
+
+/// Intermediate image pixels of a frame, from its statistics.
+fn intermediate_pixels(f: &Frame) -> f64 {
+    f.stats.counters.iter().find(|c| c.0 == "intermediate_pixels").map(|c| c.1).unwrap_or(1.0)
+}
+
+fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Result<Vec<Row>> {
+    let spec_views: Vec<serde_json::Value> = cams
+        .iter()
+        .enumerate()
+        .map(|(v, c)| serde_json::json!({"position": c.position, "image": b.work_dir.join(format!("vtk_{v}.exr"))}))
+        .collect();
+    let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs});
+    let spec_path = b.work_dir.join("vtk_spec.json");
+    std::fs::write(&spec_path, spec.to_string())?;
+    let out = std::process::Command::new(&b.python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/vtk_volume.py"))
+        .arg("--bench")
+        .arg(&spec_path)
+        .output()
+        .with_context(|| format!("cannot run {}", b.python.display()))?;
+    if !out.status.success() {
+        bail!("vtk_volume.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+    }
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    let ms: Vec<f64> = v["ms"]
+        .as_array()
+        .context("no timings")?
+        .iter()
+        .flat_map(|r| r.as_array().cloned().unwrap_or_default())
+        .filter_map(|x| x.as_f64())
+        .collect();
+    let mut err = Vec::new();
+    for (i, r) in refs.iter().enumerate() {
+        let img = volterra_formats::exr_io::read_exr(&b.work_dir.join(format!("vtk_{i}.exr")))?;
+        err.push(rel_rmse(&rgba_of(&img), r));
+    }
+    let row = Row {
+        config: format!("vtk fixed-point {}", v["vtk"].as_str().unwrap_or("")),
+        median_ms: median(ms),
+        rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+        ms_per_mpixel: None,
+    };
+    Ok(vec![row])
+}
+
+/// A stable hash for cache keys.
+fn fxhash<T: std::hash::Hash>(t: &T) -> u64 {
+    use std::hash::Hasher;
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    t.hash(&mut h);
+    h.finish()
+}
