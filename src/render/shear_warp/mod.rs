@@ -170,6 +170,30 @@ fn rows(y: f64, ny: usize) -> (usize, usize, f32) {
     (y0, y1, (yc - y0 as f64) as f32)
 }
 
+/// Per intermediate row: early-termination links, the previous slice's samples for
+/// pre-integration, and the running maximum for MIP.
+struct RowState {
+    /// links[u] == u while pixel u is live; otherwise it points further right.
+    links: Vec<u32>,
+    prev: Vec<f32>,
+    /// The slice index (in compositing order) each pixel's `prev` sample comes from.
+    stamp: Vec<u32>,
+    max_level: Vec<f32>,
+    max_z: Vec<f32>,
+}
+
+impl RowState {
+    fn new(iw: usize) -> RowState {
+        RowState {
+            links: (0..=iw as u32).collect(),
+            prev: vec![0.0; iw],
+            stamp: vec![u32::MAX; iw],
+            max_level: vec![f32::NEG_INFINITY; iw],
+            max_z: vec![0.0; iw],
+        }
+    }
+}
+
 /// Next live (not yet opaque) pixel at or after u, with path halving.
 #[inline]
 fn next_live(links: &mut [u32], mut u: usize) -> usize {
@@ -242,193 +266,205 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let slice_at = |zi: usize| if fac.z_forward { zi } else { nz - 1 - zi };
     let progress = crate::progress::bar((v_clip_hi + 1 - v_clip_lo) as u64, "shear-warp");
 
-    inter.rgba.par_chunks_mut(iw).zip(inter.depth.par_chunks_mut(iw)).enumerate().for_each(|(v, (row, depth))| {
-        if v < v_clip_lo || v > v_clip_hi {
-            return;
-        }
-        let vf = v as f64;
-        let mut links: Vec<u32> = (0..=iw as u32).collect();
-        let mut prev = vec![0f32; iw];
-        // The slice index (in compositing order) each pixel's `prev` sample comes from.
-        let mut stamp = vec![u32::MAX; iw];
-        let mut max_level = vec![f32::NEG_INFINITY; iw];
-        let mut max_z = vec![0f32; iw];
-        let mut n_samples = 0u64;
-        let mut n_leapt = 0u64;
-        // The pixel range where x lies inside the slice, at slice z (Mapping through the
-        // per-slice offset: U = ratio·x + Tz[z]).
-        let u_range = |z: usize| -> Option<(usize, usize)> {
-            let tz = -fac.ratio * (fac.umin + z as f64 * fac.sx);
-            let lo = (fac.ratio * x_lo + tz).ceil().max(u_clip_lo as f64);
-            let hi = (fac.ratio * x_hi + tz).floor().min(u_clip_hi as f64);
-            (lo <= hi).then_some((lo as usize, hi as usize))
-        };
-        // Inverse Mapping: x = U / ratio + Iz[z], one lookup (U/ratio) and one add.
-        let x_of = |u: usize, iz: f64| u as f64 * inv_ratio + iz;
-        let y_at = |z: usize| vf * inv_ratio + fac.vmin + z as f64 * fac.sy;
+    // Bands of intermediate rows, one task each; inside a band the slices come first
+    // (object order), so the slice rows that neighbouring intermediate rows read are
+    // still in cache.
+    const BAND: usize = 8;
+    inter.rgba.par_chunks_mut(iw * BAND).zip(inter.depth.par_chunks_mut(iw * BAND)).enumerate().for_each(
+        |(band, (band_rgba, band_depth))| {
+            let band_rows = band_rgba.len() / iw;
+            let v_first = band * BAND;
+            let mut states: Vec<RowState> = (0..band_rows).map(|_| RowState::new(iw)).collect();
+            let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r));
+            let mut n_samples = 0u64;
+            let mut n_leapt = 0u64;
+            // The pixel range where x lies inside the slice, at slice z (Mapping through the
+            // per-slice offset: U = ratio·x + Tz[z]).
+            let u_range = |z: usize| -> Option<(usize, usize)> {
+                let tz = -fac.ratio * (fac.umin + z as f64 * fac.sx);
+                let lo = (fac.ratio * x_lo + tz).ceil().max(u_clip_lo as f64);
+                let hi = (fac.ratio * x_hi + tz).floor().min(u_clip_hi as f64);
+                (lo <= hi).then_some((lo as usize, hi as usize))
+            };
+            // Inverse Mapping: x = U / ratio + Iz[z], one lookup (U/ratio) and one add.
+            let x_of = |u: usize, iz: f64| u as f64 * inv_ratio + iz;
+            let y_at = |vf: f64, z: usize| vf * inv_ratio + fac.vmin + z as f64 * fac.sy;
 
-        if nz == 1 {
-            // One slice: one slab of constant value, one voxel thick.
-            let y = y_at(0);
-            if y < y_lo || y > y_hi {
-                return;
-            }
-            let (y0, y1, wy) = rows(y, ny);
-            if let Some((ua, ub)) = u_range(0) {
-                let iz = fac.umin;
-                for u in ua..=ub {
-                    let s = bilinear(axis, 0, x_of(u, iz), y0, y1, wy) * q_to_level;
-                    n_samples += 1;
-                    if mip {
-                        max_level[u] = s;
-                    } else {
-                        let e = table.lookup(s, s);
-                        row[u] = [e.c[0], e.c[1], e.c[2], e.a];
-                        if e.a >= 0.5 {
-                            depth[u] = fac.depth(u as f64, vf, 0.0) as f32;
-                        }
-                    }
-                }
-            }
-        }
-
-        for zi in 0..nz {
-            let z = slice_at(zi);
-            let y = y_at(z);
-            if nz == 1 || y < y_lo || y > y_hi {
-                continue;
-            }
-            let Some((ua, ub)) = u_range(z) else { continue };
-            let (y0, y1, wy) = rows(y, ny);
-            let iz = fac.umin + z as f64 * fac.sx;
-            if mip {
-                // Sample every slice; skip runs whose block cannot raise any pixel's max.
-                let mut u = ua;
-                while u <= ub {
-                    let x = x_of(u, iz);
-                    let bx = ((x.max(0.0)) as usize) / n;
-                    let run_end = (((bx + 1) * n) as f64 * fac.ratio - fac.ratio * iz).ceil().max(u as f64 + 1.0) as usize;
-                    let run_end = run_end.min(ub + 1);
-                    if let Some(map) = over_map {
-                        let zs = if z + 1 < nz { z } else { z - 1 };
-                        let mm = map.get(zs, y0 as isize, 0, bx);
-                        let block_max = mm.max as f32 * q_to_level;
-                        let run_min = max_level[u..run_end].iter().cloned().fold(f32::INFINITY, f32::min);
-                        if block_max <= run_min {
-                            n_leapt += 1;
-                            u = run_end;
-                            continue;
-                        }
-                    }
-                    for uu in u..run_end {
-                        let s = bilinear(axis, z, x_of(uu, iz), y0, y1, wy) * q_to_level;
-                        n_samples += 1;
-                        if s > max_level[uu] {
-                            max_level[uu] = s;
-                            max_z[uu] = z as f32;
-                        }
-                    }
-                    u = run_end;
-                }
-                continue;
-            }
-            if zi == 0 {
-                continue; // the first slice only starts rays; its samples are taken below
-            }
-            let zp = slice_at(zi - 1);
-            let zs = z.min(zp);
-            let dz = zp as f64 - z as f64; // the front slice relative to this one
-            let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
-            let yp = y + dyo;
-            let front_rows = (yp >= y_lo && yp <= y_hi).then(|| rows(yp, ny));
-            let variant = usize::from(dxo < 0.0);
-            let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
-            let mut u = next_live(&mut links, ua);
-            while u <= ub {
-                let x = x_of(u, iz);
-                let bx = (x.max(0.0) as usize) / n;
-                // Pixels whose x falls in block bx: U < ratio·(n·(bx+1)) + Tz.
-                let run_end = ((((bx + 1) * n) as f64 - iz) * fac.ratio).ceil().max(u as f64 + 1.0) as usize;
-                let run_end = run_end.min(ub + 1);
-                let empty = match leaping {
-                    Leaping::None => false,
-                    Leaping::Overlapped => {
-                        let mm = over_map.unwrap().get(zs, row_start, variant, bx);
-                        mm.min > mm.max || table.transparent(mm.min as f32 * q_to_level, mm.max as f32 * q_to_level)
-                    }
-                    Leaping::MultiScanline => {
-                        let xl = (n * bx) as isize - variant as isize;
-                        let mm = scan_map.unwrap().region(xl, xl + n as isize + 1, row_start, row_start + 2, zs, zs + 1);
-                        mm.min > mm.max || table.transparent(mm.min as f32 * q_to_level, mm.max as f32 * q_to_level)
-                    }
-                };
-                if empty {
-                    n_leapt += 1;
-                    u = next_live(&mut links, run_end.min(iw));
+            for r in (0..band_rows).filter(|&r| nz == 1 && live(r)) {
+                // One slice: one slab of constant value, one voxel thick.
+                let vf = (v_first + r) as f64;
+                let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
+                let max_level = &mut states[r].max_level;
+                let y = y_at(vf, 0);
+                if y < y_lo || y > y_hi {
                     continue;
                 }
-                let mut uu = u;
-                while uu < run_end {
-                    let xb = x_of(uu, iz);
-                    let back = bilinear(axis, z, xb, y0, y1, wy) * q_to_level;
-                    n_samples += 1;
-                    let front = if stamp[uu] == (zi - 1) as u32 {
-                        Some(prev[uu])
-                    } else {
-                        let xf = xb + dxo;
-                        match front_rows {
-                            Some((f0, f1, fw)) if xf >= x_lo && xf <= x_hi => {
+                let (y0, y1, wy) = rows(y, ny);
+                if let Some((ua, ub)) = u_range(0) {
+                    let iz = fac.umin;
+                    for u in ua..=ub {
+                        let s = bilinear(axis, 0, x_of(u, iz), y0, y1, wy) * q_to_level;
+                        n_samples += 1;
+                        if mip {
+                            max_level[u] = s;
+                        } else {
+                            let e = table.lookup(s, s);
+                            row[u] = [e.c[0], e.c[1], e.c[2], e.a];
+                            if e.a >= 0.5 {
+                                depth[u] = fac.depth(u as f64, vf, 0.0) as f32;
+                            }
+                        }
+                    }
+                }
+            }
+
+            for zi in 0..nz {
+                for r in (0..band_rows).filter(|&r| live(r)) {
+                    let vf = (v_first + r) as f64;
+                    let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
+                    let RowState { links, prev, stamp, max_level, max_z } = &mut states[r];
+                    let z = slice_at(zi);
+                    let y = y_at(vf, z);
+                    if nz == 1 || y < y_lo || y > y_hi {
+                        continue;
+                    }
+                    let Some((ua, ub)) = u_range(z) else { continue };
+                    let (y0, y1, wy) = rows(y, ny);
+                    let iz = fac.umin + z as f64 * fac.sx;
+                    if mip {
+                        // Sample every slice; skip runs whose block cannot raise any pixel's max.
+                        let mut u = ua;
+                        while u <= ub {
+                            let x = x_of(u, iz);
+                            let bx = ((x.max(0.0)) as usize) / n;
+                            let run_end = (((bx + 1) * n) as f64 * fac.ratio - fac.ratio * iz).ceil().max(u as f64 + 1.0) as usize;
+                            let run_end = run_end.min(ub + 1);
+                            if let Some(map) = over_map {
+                                let zs = if z + 1 < nz { z } else { z - 1 };
+                                let mm = map.get(zs, y0 as isize, 0, bx);
+                                let block_max = mm.max as f32 * q_to_level;
+                                let run_min = max_level[u..run_end].iter().cloned().fold(f32::INFINITY, f32::min);
+                                if block_max <= run_min {
+                                    n_leapt += 1;
+                                    u = run_end;
+                                    continue;
+                                }
+                            }
+                            for uu in u..run_end {
+                                let s = bilinear(axis, z, x_of(uu, iz), y0, y1, wy) * q_to_level;
                                 n_samples += 1;
-                                Some(bilinear(axis, zp, xf, f0, f1, fw) * q_to_level)
+                                if s > max_level[uu] {
+                                    max_level[uu] = s;
+                                    max_z[uu] = z as f32;
+                                }
                             }
-                            _ => None, // the ray entered the volume between these slices
+                            u = run_end;
                         }
-                    };
-                    prev[uu] = back;
-                    stamp[uu] = zi as u32;
-                    if let Some(front) = front {
-                        let e = table.lookup(front, back);
-                        if e.a > 0.0 {
-                            let p = &mut row[uu];
-                            let t = 1.0 - p[3];
-                            let before = p[3];
-                            p[0] += t * e.c[0];
-                            p[1] += t * e.c[1];
-                            p[2] += t * e.c[2];
-                            p[3] += t * e.a;
-                            if before < 0.5 && p[3] >= 0.5 {
-                                // Where inside the slab opacity passed 0.5 (uniform extinction).
-                                let f = if e.a < 1.0 { ((0.5 / (1.0 - before)).ln() / (1.0 - e.a).ln()).clamp(0.0, 1.0) } else { 0.0 };
-                                let zf = zp as f64 + f as f64 * (z as f64 - zp as f64);
-                                depth[uu] = fac.depth(uu as f64, vf, zf) as f32;
+                        continue;
+                    }
+                    if zi == 0 {
+                        continue; // the first slice only starts rays; its samples are taken below
+                    }
+                    let zp = slice_at(zi - 1);
+                    let zs = z.min(zp);
+                    let dz = zp as f64 - z as f64; // the front slice relative to this one
+                    let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
+                    let yp = y + dyo;
+                    let front_rows = (yp >= y_lo && yp <= y_hi).then(|| rows(yp, ny));
+                    let variant = usize::from(dxo < 0.0);
+                    let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
+                    let mut u = next_live(links, ua);
+                    while u <= ub {
+                        let x = x_of(u, iz);
+                        let bx = (x.max(0.0) as usize) / n;
+                        // Pixels whose x falls in block bx: U < ratio·(n·(bx+1)) + Tz.
+                        let run_end = ((((bx + 1) * n) as f64 - iz) * fac.ratio).ceil().max(u as f64 + 1.0) as usize;
+                        let run_end = run_end.min(ub + 1);
+                        let empty = match leaping {
+                            Leaping::None => false,
+                            Leaping::Overlapped => {
+                                let mm = over_map.unwrap().get(zs, row_start, variant, bx);
+                                mm.min > mm.max || table.transparent(mm.min as f32 * q_to_level, mm.max as f32 * q_to_level)
                             }
-                            if p[3] >= termination {
-                                links[uu] = uu as u32 + 1; // early ray termination
+                            Leaping::MultiScanline => {
+                                let xl = (n * bx) as isize - variant as isize;
+                                let mm = scan_map.unwrap().region(xl, xl + n as isize + 1, row_start, row_start + 2, zs, zs + 1);
+                                mm.min > mm.max || table.transparent(mm.min as f32 * q_to_level, mm.max as f32 * q_to_level)
                             }
+                        };
+                        if empty {
+                            n_leapt += 1;
+                            u = next_live(links, run_end.min(iw));
+                            continue;
+                        }
+                        let mut uu = u;
+                        while uu < run_end {
+                            let xb = x_of(uu, iz);
+                            let back = bilinear(axis, z, xb, y0, y1, wy) * q_to_level;
+                            n_samples += 1;
+                            let front = if stamp[uu] == (zi - 1) as u32 {
+                                Some(prev[uu])
+                            } else {
+                                let xf = xb + dxo;
+                                match front_rows {
+                                    Some((f0, f1, fw)) if xf >= x_lo && xf <= x_hi => {
+                                        n_samples += 1;
+                                        Some(bilinear(axis, zp, xf, f0, f1, fw) * q_to_level)
+                                    }
+                                    _ => None, // the ray entered the volume between these slices
+                                }
+                            };
+                            prev[uu] = back;
+                            stamp[uu] = zi as u32;
+                            if let Some(front) = front {
+                                let e = table.lookup(front, back);
+                                if e.a > 0.0 {
+                                    let p = &mut row[uu];
+                                    let t = 1.0 - p[3];
+                                    let before = p[3];
+                                    p[0] += t * e.c[0];
+                                    p[1] += t * e.c[1];
+                                    p[2] += t * e.c[2];
+                                    p[3] += t * e.a;
+                                    if before < 0.5 && p[3] >= 0.5 {
+                                        // Where inside the slab opacity passed 0.5 (uniform extinction).
+                                        let f =
+                                            if e.a < 1.0 { ((0.5 / (1.0 - before)).ln() / (1.0 - e.a).ln()).clamp(0.0, 1.0) } else { 0.0 };
+                                        let zf = zp as f64 + f as f64 * (z as f64 - zp as f64);
+                                        depth[uu] = fac.depth(uu as f64, vf, zf) as f32;
+                                    }
+                                    if p[3] >= termination {
+                                        links[uu] = uu as u32 + 1; // early ray termination
+                                    }
+                                }
+                            }
+                            uu = next_live(links, uu + 1);
+                        }
+                        u = uu;
+                    }
+                }
+            }
+            for r in (0..band_rows).filter(|&r| mip && live(r)) {
+                let vf = (v_first + r) as f64;
+                let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
+                let RowState { max_level, max_z, .. } = &states[r];
+                for u in 0..iw {
+                    if max_level[u].is_finite() {
+                        let value = level_to_value(max_level[u]);
+                        let a = tf.opacity(value).min(1.0) as f32;
+                        let c = tf.color(value);
+                        row[u] = [c[0] as f32 * a, c[1] as f32 * a, c[2] as f32 * a, a];
+                        if a > 0.0 {
+                            depth[u] = fac.depth(u as f64, vf, max_z[u] as f64) as f32;
                         }
                     }
-                    uu = next_live(&mut links, uu + 1);
-                }
-                u = uu;
-            }
-        }
-        if mip {
-            for u in 0..iw {
-                if max_level[u].is_finite() {
-                    let value = level_to_value(max_level[u]);
-                    let a = tf.opacity(value).min(1.0) as f32;
-                    let c = tf.color(value);
-                    row[u] = [c[0] as f32 * a, c[1] as f32 * a, c[2] as f32 * a, a];
-                    if a > 0.0 {
-                        depth[u] = fac.depth(u as f64, vf, max_z[u] as f64) as f32;
-                    }
                 }
             }
-        }
-        samples.fetch_add(n_samples, Ordering::Relaxed);
-        slabs_leapt.fetch_add(n_leapt, Ordering::Relaxed);
-        progress.inc(1);
-    });
+            samples.fetch_add(n_samples, Ordering::Relaxed);
+            slabs_leapt.fetch_add(n_leapt, Ordering::Relaxed);
+            progress.inc(band_rows as u64);
+        },
+    );
     progress.finish_and_clear();
 
     let mut frame = warp(&inter, &fac, w, h);
