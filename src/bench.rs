@@ -56,7 +56,8 @@ fn prepare(dir: &Path) -> Result<(PathBuf, PathBuf)> {
     Ok((series, nii))
 }
 
-fn median(v: &mut [f64]) -> f64 {
+/// The median (sorts `v`).
+pub fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     let m = v.len() / 2;
     if v.len() % 2 == 1 {

@@ -3,6 +3,8 @@
 //! (through Python in the same command), each as the median ms per frame over several
 //! views and the relative RMSE from the reference ray caster (cached per view).
 
+use crate::bench::median;
+use crate::compare::{rgba_pixels as rgba_of, rgba_rel_rmse as rel_rmse};
 use crate::render::{reference_volume, shear_warp, Frame};
 use crate::scene::{BlendMode, Camera, Scene, TransferFunction};
 use anyhow::{bail, Context, Result};
@@ -27,32 +29,6 @@ pub struct Row {
     pub rel_rmse: f64,
     /// Median ms per million intermediate pixels (shear-warp only).
     pub ms_per_mpixel: Option<f64>,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    }
-}
-
-fn rel_rmse(a: &[[f32; 4]], b: &[[f32; 4]]) -> f64 {
-    let (mut se, mut rs) = (0.0, 0.0);
-    for (p, q) in a.iter().zip(b) {
-        for k in 0..4 {
-            se += ((p[k] - q[k]) as f64).powi(2);
-            rs += (q[k] as f64).powi(2);
-        }
-    }
-    (se / rs.max(1e-300)).sqrt()
-}
-
-fn rgba_of(img: &volterra_formats::FloatImage) -> Vec<[f32; 4]> {
-    let ch: Vec<&[f32]> = ["R", "G", "B", "A"].iter().map(|c| img.channel(c).unwrap()).collect();
-    (0..img.width * img.height).map(|i| [ch[0][i], ch[1][i], ch[2][i], ch[3][i]]).collect()
 }
 
 /// The scene's view and three more: oblique, exactly 45° between two axes, and a second
@@ -133,9 +109,9 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         let row = Row {
             config: name,
-            median_ms: median(ms),
+            median_ms: median(&mut ms),
             rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
-            ms_per_mpixel: Some(median(mpix)),
+            ms_per_mpixel: Some(median(&mut mpix)),
         };
         if !b.json {
             eprintln!("{:<34} {:>9.1} ms {:>8.2} %", row.config, row.median_ms, 100.0 * row.rel_rmse);
@@ -226,7 +202,7 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Resu
         bail!("vtk_volume.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
     }
     let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
-    let ms: Vec<f64> = v["ms"]
+    let mut ms: Vec<f64> = v["ms"]
         .as_array()
         .context("no timings")?
         .iter()
@@ -240,7 +216,7 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Resu
     }
     let row = Row {
         config: format!("vtk fixed-point {}", v["vtk"].as_str().unwrap_or("")),
-        median_ms: median(ms),
+        median_ms: median(&mut ms),
         rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
         ms_per_mpixel: None,
     };

@@ -81,3 +81,23 @@ pub fn compare(a: &FloatImage, b: &FloatImage) -> Result<Comparison, String> {
     };
     Ok(Comparison { width: a.width, height: a.height, channels, overall, coverage_mismatch })
 }
+
+/// Relative RMSE of premultiplied RGBA pixels, `b` the reference (its RMS is the scale).
+pub fn rgba_rel_rmse(a: &[[f32; 4]], b: &[[f32; 4]]) -> f64 {
+    let (mut se, mut rs) = (0.0, 0.0);
+    for (p, q) in a.iter().zip(b) {
+        for k in 0..4 {
+            se += ((p[k] - q[k]) as f64).powi(2);
+            rs += (q[k] as f64).powi(2);
+        }
+    }
+    (se / rs.max(1e-300)).sqrt()
+}
+
+/// An image's R, G, B, A channels as pixels (missing channels read as 0).
+pub fn rgba_pixels(img: &FloatImage) -> Vec<[f32; 4]> {
+    let n = img.width * img.height;
+    let zero = vec![0.0; n];
+    let ch: Vec<&[f32]> = ["R", "G", "B", "A"].iter().map(|c| img.channel(c).unwrap_or(&zero)).collect();
+    (0..n).map(|i| [ch[0][i], ch[1][i], ch[2][i], ch[3][i]]).collect()
+}

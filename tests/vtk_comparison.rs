@@ -6,26 +6,9 @@
 mod common;
 
 use common::repo_path;
+use volterra::compare::{rgba_pixels as rgba, rgba_rel_rmse as rel_rmse};
 use volterra::render::{self, Frame};
 use volterra::scene::Scene;
-use volterra_formats::FloatImage;
-
-/// Relative RMSE of RGBA, `b` the reference.
-fn rel_rmse(a: &[[f32; 4]], b: &[[f32; 4]]) -> f64 {
-    let (mut se, mut rs) = (0.0, 0.0);
-    for (p, q) in a.iter().zip(b) {
-        for k in 0..4 {
-            se += ((p[k] - q[k]) as f64).powi(2);
-            rs += (q[k] as f64).powi(2);
-        }
-    }
-    (se / rs).sqrt()
-}
-
-fn rgba(img: &FloatImage) -> Vec<[f32; 4]> {
-    let ch: Vec<&[f32]> = ["R", "G", "B", "A"].iter().map(|c| img.channel(c).unwrap()).collect();
-    (0..img.width * img.height).map(|i| [ch[0][i], ch[1][i], ch[2][i], ch[3][i]]).collect()
-}
 
 fn render_with(scene: &Scene, renderer: &str) -> Frame {
     let path = scene.source.clone();
