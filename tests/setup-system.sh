@@ -3,9 +3,11 @@
 # missing; uses sudo when not root.
 #   libcharls-dev   CharLS, the JPEG-LS decoder dicom-pixeldata links
 #   python3-venv    the venv for the reference readers (tests only)
+#   mesa-vulkan-drivers, libvulkan1  lavapipe, the software Vulkan adapter the terrain
+#                   ray-caster's tests run on where there is no GPU
 set -euo pipefail
 need=()
-for pkg in libcharls-dev python3-venv; do
+for pkg in libcharls-dev python3-venv mesa-vulkan-drivers libvulkan1; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

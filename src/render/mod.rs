@@ -5,6 +5,7 @@
 pub mod frame;
 pub mod reference_volume;
 pub mod shear_warp;
+pub mod terrain;
 
 pub use frame::{Frame, FrameStats};
 
@@ -15,7 +16,8 @@ use anyhow::{anyhow, bail, Context, Result};
 pub const RENDERERS: &[(&str, NodeKind, bool)] = &[
     ("reference", NodeKind::Volume, true),
     ("shear-warp", NodeKind::Volume, true),
-    ("terrain", NodeKind::Heightfield, false),
+    ("terrain", NodeKind::Heightfield, true),
+    ("terrain-reference", NodeKind::Heightfield, true),
     ("smoke", NodeKind::Particles, false),
 ];
 
@@ -71,6 +73,22 @@ pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
             let prepared = shear_warp::Prepared::new(&vol);
             let input = shear_warp::Input { prepared: &prepared, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
             shear_warp::render(&input, &rays, &s)?
+        }
+        "terrain" | "terrain-reference" => {
+            let s: terrain::Settings = settings(&desc.settings, &desc.name, name)?;
+            let hf = scene.heightfield(node)?;
+            let texture = scene.texture(node)?;
+            let input = terrain::TerrainInput {
+                heightfield: &hf,
+                texture: texture.as_deref(),
+                node_to_world: scene.world_transform(node),
+                lights: &scene.file.lights,
+            };
+            if name == "terrain" {
+                terrain::render(&input, &rays, &s)?
+            } else {
+                terrain::render_reference(&input, &rays, &s)?
+            }
         }
         _ => unreachable!(),
     };

@@ -114,6 +114,15 @@ impl RayGenerator {
     pub fn forward(&self) -> DVec3 {
         self.forward
     }
+    /// Eye, then the right and up unit vectors of the view plane.
+    pub fn basis(&self) -> (DVec3, DVec3, DVec3) {
+        (self.eye, self.right, self.up)
+    }
+    /// Half the view plane's width and height: at distance 1 (perspective) or in world
+    /// units (parallel).
+    pub fn half_extent(&self) -> (f64, f64) {
+        (self.half_w, self.half_h)
+    }
 }
 
 #[cfg(test)]

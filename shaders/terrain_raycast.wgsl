@@ -1,0 +1,394 @@
+// Per-pixel terrain ray casting over the max-quadtree (Park, Oh & Cho; pyramidal
+// displacement mapping with the lid map and exact bilinear patches).
+//
+// Grid space (see src/render/terrain/grid.rs): sample (i, j) at (i, j), j north, z in
+// metres relative to the middle of the elevation range; the ray parameter t is the world
+// distance. Pyramid level L, node (a, b) covers patches [a·2^L, (a+1)·2^L) on each axis
+// and holds the highest lid over them.
+
+const HOLE: f32 = -3.0e38;
+const BIG: f32 = 3.0e38;
+
+struct Params {
+    // xyz: eye (perspective) or camera-plane centre (parallel), grid space; w: 1 = parallel.
+    eye: vec4<f32>,
+    // Images of the camera's forward / right / up unit vectors in grid space;
+    // w: half width, half height (of the view plane at distance 1, or in world units when
+    // parallel), ambient.
+    fwd: vec4<f32>,
+    right: vec4<f32>,
+    up: vec4<f32>,
+    // Rows of the matrix that takes a local normal (metres) to world space.
+    normal_x: vec4<f32>,
+    normal_y: vec4<f32>,
+    normal_z: vec4<f32>,
+    // z_lo, z_hi (valid heights, grid space), cell size east, north (metres).
+    extent: vec4<f32>,
+    // width, height (pixels), cells east, cells north.
+    size: vec4<u32>,
+    // top level, step cap, traversal (0 quadtree, 1 quadtree without the raise, 2 linear),
+    // flags (1 shadows, 2 texture).
+    control: vec4<u32>,
+    // number of lights; shadow lift (metres, as f32 bits); unused.
+    misc: vec4<u32>,
+    // Per light: unit direction toward it (world), the same in grid space, colour × intensity.
+    light_world: array<vec4<f32>, 4>,
+    light_grid: array<vec4<f32>, 4>,
+    light_color: array<vec4<f32>, 4>,
+}
+
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var heights: texture_2d<f32>;
+@group(0) @binding(2) var pyramid: texture_2d<f32>;
+@group(0) @binding(3) var colour_map: texture_2d<f32>;
+@group(0) @binding(4) var colour_sampler: sampler;
+@group(0) @binding(5) var<storage, read_write> out_colour: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> out_depth: array<f32>;
+@group(0) @binding(7) var<storage, read_write> out_steps: array<u32>;
+// [0]: rays that hit the step cap.
+@group(0) @binding(8) var<storage, read_write> counters: array<atomic<u32>, 4>;
+
+struct Hit {
+    t: f32,
+    u: f32,
+    v: f32,
+    steps: u32,
+    cell: vec2<i32>,
+    found: bool,
+    capped: bool,
+}
+
+// Part [t0, t1] (t0 ≥ 0) of the ray inside the terrain's box; t0 > t1 when it misses.
+fn clip(o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
+    // The z slab is widened a little: a ray grazing the highest peak must not be clipped
+    // by f32 rounding of the box test.
+    let pad = 1e-4 * max(1.0, P.extent.y - P.extent.x);
+    let lo = vec3<f32>(0.0, 0.0, P.extent.x - pad);
+    let hi = vec3<f32>(f32(P.size.z), f32(P.size.w), P.extent.y + pad);
+    var t0 = 0.0;
+    var t1 = BIG;
+    for (var k = 0; k < 3; k++) {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return vec2<f32>(1.0, 0.0);
+            }
+        } else {
+            let a = (lo[k] - o[k]) / d[k];
+            let b = (hi[k] - o[k]) / d[k];
+            t0 = max(t0, min(a, b));
+            t1 = min(t1, max(a, b));
+        }
+    }
+    return vec2<f32>(t0, t1);
+}
+
+// z00, z10, z01, z11 of patch c.
+fn patch_heights(c: vec2<i32>) -> vec4<f32> {
+    return vec4<f32>(
+        textureLoad(heights, c, 0).r,
+        textureLoad(heights, c + vec2<i32>(1, 0), 0).r,
+        textureLoad(heights, c + vec2<i32>(0, 1), 0).r,
+        textureLoad(heights, c + vec2<i32>(1, 1), 0).r,
+    );
+}
+
+// First s in [0, len] where (u0, v0, z0) + s·d meets the patch from above; −1 if none.
+// f(s) = a s² + b s + c is the ray's height above the patch; stable roots q/a and c/q
+// (see intersect_patch in grid.rs for the derivation and the edge rules).
+// `first`: the ray's first cell, where starting below the surface is a hit (an eye under
+// the ground, or a ray entering through a side of the box); elsewhere only within the
+// edge tolerance (rounding at a shared edge), deeper means the ray came through a hole.
+fn intersect_patch(z: vec4<f32>, u0: f32, v0: f32, z0: f32, d: vec3<f32>, len: f32, first: bool) -> f32 {
+    let pa = z.w - z.y - z.z + z.x;
+    let pb = z.y - z.x;
+    let pc = z.z - z.x;
+    let c = z0 - (z.x + pb * u0 + pc * v0 + pa * u0 * v0);
+    let b = d.z - pb * d.x - pc * d.y - pa * (u0 * d.y + v0 * d.x);
+    let a = -pa * d.x * d.y;
+    if c < 0.0 {
+        // f32: heights carry about 1e-7 of the relief in rounding; allow 1e-5.
+        if first || c >= -1e-5 * max(P.extent.y - P.extent.x, 1.0) {
+            return 0.0;
+        }
+        return -1.0;
+    }
+    if c == 0.0 && (b < 0.0 || (b == 0.0 && a <= 0.0)) {
+        return 0.0;
+    }
+    // A root a hair past the far edge still belongs here (f32: a relative 1e-4 of the
+    // segment), so that no ray slips through the edge two cells share.
+    let limit = len * 1.0001 + 1e-7;
+    var s = BIG;
+    if a == 0.0 {
+        if b < 0.0 {
+            s = -c / b;
+        }
+    } else {
+        let disc = b * b - 4.0 * a * c;
+        if disc < 0.0 {
+            return -1.0;
+        }
+        let q = -0.5 * (b + select(-1.0, 1.0, b >= 0.0) * sqrt(disc));
+        let r1 = q / a;
+        if r1 >= 0.0 {
+            s = r1;
+        }
+        if q != 0.0 {
+            let r2 = c / q;
+            if r2 >= 0.0 {
+                s = min(s, r2);
+            }
+        }
+    }
+    if s <= limit {
+        return min(s, len);
+    }
+    return -1.0;
+}
+
+// The node index along one axis containing p at a level whose nodes are `size` cells wide;
+// on a node border, the node the ray goes into.
+fn node_index(p: f32, d: f32, size: f32, count: i32) -> i32 {
+    let s = p / size;
+    var f = floor(s);
+    if f == s && d < 0.0 {
+        f -= 1.0;
+    }
+    return clamp(i32(f), 0, count - 1);
+}
+
+fn node_count(level: u32) -> vec2<i32> {
+    let cells = P.size.zw;
+    let n = (cells + vec2<u32>((1u << level) - 1u)) >> vec2<u32>(level);
+    return vec2<i32>(n);
+}
+
+// Which child (0 or 1) along one axis the ray is in at time t. Decided by comparing t
+// with the time the ray crosses the midline — the same expression that gives the child's
+// exit — and not by the rounded position: a child chosen by position can lie behind the
+// ray, exit at once, and be chosen again after the raise, forever.
+fn child_bit(t: f32, o: f32, d: f32, mid: f32) -> i32 {
+    if d == 0.0 {
+        return select(0, 1, o >= mid);
+    }
+    let t_mid = (mid - o) / d;
+    if d > 0.0 {
+        return select(0, 1, t >= t_mid);
+    }
+    return select(1, 0, t >= t_mid);
+}
+
+// The first hit of o + t·d, t ∈ [t_start, t_end]. Descends on a possible hit, and after a
+// miss leaves the node through its exit face and (traversal 0) goes up one level. Node
+// indices only ever move in the ray's direction, so the walk cannot stall or loop; the
+// step cap is a guard whose hits are counted.
+fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
+    var h: Hit;
+    h.found = false;
+    h.capped = false;
+    h.steps = 0u;
+    h.t = t_end;
+    let top = P.control.x;
+    let cap = P.control.y;
+    let mode = P.control.z;
+    var level = top;
+    if mode == 2u {
+        level = 0u;
+    }
+    var t = t_start;
+    var size = f32(1u << level);
+    var count = node_count(level);
+    let p0 = o + t * d;
+    var node = vec2<i32>(node_index(p0.x, d.x, size, count.x), node_index(p0.y, d.y, size, count.y));
+    let step = vec2<i32>(select(-1, 1, d.x > 0.0), select(-1, 1, d.y > 0.0));
+    loop {
+        if h.steps >= cap {
+            h.capped = true;
+            break;
+        }
+        h.steps += 1u;
+        size = f32(1u << level);
+        count = node_count(level);
+        if node.x < 0 || node.y < 0 || node.x >= count.x || node.y >= count.y {
+            break;
+        }
+        let lo = vec2<f32>(node) * size;
+        let hi = lo + size;
+        var tx = BIG;
+        if d.x > 0.0 {
+            tx = (hi.x - o.x) / d.x;
+        } else if d.x < 0.0 {
+            tx = (lo.x - o.x) / d.x;
+        }
+        var ty = BIG;
+        if d.y > 0.0 {
+            ty = (hi.y - o.y) / d.y;
+        } else if d.y < 0.0 {
+            ty = (lo.y - o.y) / d.y;
+        }
+        let t_exit = max(min(min(tx, ty), t_end), t);
+        let zmax = textureLoad(pyramid, node, i32(level)).r;
+        let z_in = o.z + t * d.z;
+        let z_out = o.z + t_exit * d.z;
+        if min(z_in, z_out) <= zmax {
+            if level == 0u {
+                let pa = o + t * d;
+                let u0 = pa.x - lo.x;
+                let v0 = pa.y - lo.y;
+                let s = intersect_patch(patch_heights(node), u0, v0, pa.z, d, t_exit - t, t == t_start);
+                if s >= 0.0 {
+                    h.found = true;
+                    h.t = t + s;
+                    h.cell = node;
+                    h.u = clamp(u0 + s * d.x, 0.0, 1.0);
+                    h.v = clamp(v0 + s * d.y, 0.0, 1.0);
+                    break;
+                }
+            } else {
+                // Nothing in this node reaches above zmax: a downward ray can skip to
+                // where it crosses that plane before choosing the child.
+                if d.z < 0.0 && z_in > zmax {
+                    t = clamp((zmax - o.z) / d.z, t, t_exit);
+                }
+                level -= 1u;
+                let mid = lo + 0.5 * size;
+                node = node * 2 + vec2<i32>(child_bit(t, o.x, d.x, mid.x), child_bit(t, o.y, d.y, mid.y));
+                continue;
+            }
+        }
+        // Missed this node: move to its exit face and into the neighbour.
+        if t_exit >= t_end {
+            break;
+        }
+        t = t_exit;
+        if tx <= ty {
+            node.x += step.x;
+        } else {
+            node.y += step.y;
+        }
+        if mode == 0u && level < top {
+            level += 1u;
+            node = node >> vec2<u32>(1u);
+        }
+    }
+    return h;
+}
+
+// Hypsometric tints (keep in step with ELEVATION_RAMP in shading.rs).
+fn elevation_colour(f_in: f32) -> vec3<f32> {
+    let f = clamp(f_in, 0.0, 1.0);
+    let stops = array<f32, 5>(0.0, 0.30, 0.60, 0.85, 1.0);
+    let cols = array<vec3<f32>, 5>(
+        vec3<f32>(0.10, 0.28, 0.09),
+        vec3<f32>(0.36, 0.45, 0.16),
+        vec3<f32>(0.40, 0.27, 0.14),
+        vec3<f32>(0.45, 0.43, 0.40),
+        vec3<f32>(0.90, 0.90, 0.92),
+    );
+    for (var k = 0; k < 4; k++) {
+        if f <= stops[k + 1] {
+            let s = (f - stops[k]) / (stops[k + 1] - stops[k]);
+            return mix(cols[k], cols[k + 1], s);
+        }
+    }
+    return cols[4];
+}
+
+@compute @workgroup_size(8, 8)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let width = P.size.x;
+    let height = P.size.y;
+    if id.x >= width || id.y >= height {
+        return;
+    }
+    let pixel = id.y * width + id.x;
+    let sx = (2.0 * (f32(id.x) + 0.5) / f32(width) - 1.0) * P.fwd.w;
+    let sy = (1.0 - 2.0 * (f32(id.y) + 0.5) / f32(height)) * P.right.w;
+    var o = P.eye.xyz;
+    var d = P.fwd.xyz;
+    if P.eye.w > 0.5 {
+        o = o + P.right.xyz * sx + P.up.xyz * sy;
+    } else {
+        d = (P.fwd.xyz + P.right.xyz * sx + P.up.xyz * sy) / sqrt(1.0 + sx * sx + sy * sy);
+    }
+    var colour = vec4<f32>(0.0);
+    var depth = -1.0;
+    var steps = 0u;
+    let range = clip(o, d);
+    if range.x <= range.y {
+        let h = trace(o, d, range.x, range.y);
+        steps = h.steps;
+        if h.capped {
+            atomicAdd(&counters[0], 1u);
+        }
+        if h.found {
+            depth = h.t;
+            let z = patch_heights(h.cell);
+            let pa = z.w - z.y - z.z + z.x;
+            let pb = z.y - z.x;
+            let pc = z.z - z.x;
+            let zh = z.x + pb * h.u + pc * h.v + pa * h.u * h.v;
+            let gx = f32(h.cell.x) + h.u;
+            let gy = f32(h.cell.y) + h.v;
+            var base: vec3<f32>;
+            let ray_z = o.z + h.t * d.z;
+            if zh - ray_z > 1e-3 * max(P.extent.y - P.extent.x, 1.0) {
+                // The ray came in through a side of the box below the surface: the
+                // terrain's edge, drawn as a wall of soil (WALL_COLOUR in reference.rs).
+                var face = vec3<f32>(-1.0, 0.0, 0.0);
+                var dist = gx;
+                if f32(P.size.z) - gx < dist {
+                    dist = f32(P.size.z) - gx;
+                    face = vec3<f32>(1.0, 0.0, 0.0);
+                }
+                if gy < dist {
+                    dist = gy;
+                    face = vec3<f32>(0.0, -1.0, 0.0);
+                }
+                if f32(P.size.w) - gy < dist {
+                    face = vec3<f32>(0.0, 1.0, 0.0);
+                }
+                let wn = normalize(vec3<f32>(dot(P.normal_x.xyz, face), dot(P.normal_y.xyz, face), dot(P.normal_z.xyz, face)));
+                var we = vec3<f32>(P.up.w);
+                for (var k = 0u; k < P.misc.x; k++) {
+                    we += P.light_color[k].rgb * max(dot(wn, P.light_world[k].xyz), 0.0);
+                }
+                out_colour[pixel] = vec4<f32>(vec3<f32>(0.20, 0.14, 0.09) * we, 1.0);
+                out_depth[pixel] = depth;
+                out_steps[pixel] = steps;
+                return;
+            }
+            if (P.control.w & 2u) != 0u {
+                let st = vec2<f32>(gx / f32(P.size.z), 1.0 - gy / f32(P.size.w));
+                base = textureSampleLevel(colour_map, colour_sampler, st, 0.0).rgb;
+            } else {
+                base = elevation_colour((zh - P.extent.x) / max(P.extent.y - P.extent.x, 1e-9));
+            }
+            let local_n = vec3<f32>(-(pb + pa * h.v) / P.extent.z, -(pc + pa * h.u) / P.extent.w, 1.0);
+            let n = normalize(vec3<f32>(dot(P.normal_x.xyz, local_n), dot(P.normal_y.xyz, local_n), dot(P.normal_z.xyz, local_n)));
+            var e = vec3<f32>(P.up.w);
+            let lift = bitcast<f32>(P.misc.y);
+            for (var k = 0u; k < P.misc.x; k++) {
+                let cosine = dot(n, P.light_world[k].xyz);
+                if cosine > 0.0 {
+                    var lit = true;
+                    if (P.control.w & 1u) != 0u {
+                        let so = vec3<f32>(gx, gy, zh + lift);
+                        let sd = P.light_grid[k].xyz;
+                        let sr = clip(so, sd);
+                        if sr.x <= sr.y {
+                            lit = !trace(so, sd, sr.x, sr.y).found;
+                        }
+                    }
+                    if lit {
+                        e += P.light_color[k].rgb * cosine;
+                    }
+                }
+            }
+            colour = vec4<f32>(base * e, 1.0);
+        }
+    }
+    out_colour[pixel] = colour;
+    out_depth[pixel] = depth;
+    out_steps[pixel] = steps;
+}

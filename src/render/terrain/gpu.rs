@@ -1,0 +1,533 @@
+//! The terrain ray-caster on the GPU (wgpu): the heightfield as an R32Float texture, the
+//! lid map and max-quadtree built from it by compute passes (`shaders/terrain_pyramid.wgsl`),
+//! one compute invocation per pixel for the rays (`shaders/terrain_raycast.wgsl`).
+
+use super::grid::{TerrainGrid, HOLE};
+use super::shading::{Shading, MAX_LIGHTS};
+use super::Traversal;
+use crate::render::{Frame, FrameStats};
+use crate::scene::camera::RayGenerator;
+use anyhow::{anyhow, bail, Result};
+use std::sync::OnceLock;
+use std::time::Instant;
+use volterra_formats::RgbImage;
+
+/// One device for the process, opened on first use and shared by every render.
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    pipelines: Pipelines,
+}
+
+struct Pipelines {
+    lid_layout: wgpu::BindGroupLayout,
+    reduce_layout: wgpu::BindGroupLayout,
+    ray_layout: wgpu::BindGroupLayout,
+    lid: wgpu::ComputePipeline,
+    reduce: wgpu::ComputePipeline,
+    ray: wgpu::ComputePipeline,
+}
+
+static GPU: OnceLock<Result<Gpu, String>> = OnceLock::new();
+
+/// The shared GPU, or why there is none.
+pub fn gpu() -> Result<&'static Gpu> {
+    GPU.get_or_init(open).as_ref().map_err(|e| anyhow!("{e}"))
+}
+
+fn open() -> Result<Gpu, String> {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
+    let instance = wgpu::Instance::new(desc);
+    let ask = |fallback: bool| {
+        pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: fallback,
+            compatible_surface: None,
+            ..Default::default()
+        }))
+    };
+    let adapter = ask(false).or_else(|_| ask(true)).map_err(|e| {
+        format!(
+            "no GPU adapter for the terrain ray-caster ({e}); without a GPU, install a software \
+             Vulkan driver (Debian/Ubuntu: apt install mesa-vulkan-drivers)"
+        )
+    })?;
+    // Ask for everything the adapter offers: big heightfields need big textures.
+    let limits = adapter.limits();
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("volterra"),
+        required_limits: limits,
+        ..Default::default()
+    }))
+    .map_err(|e| format!("cannot open the GPU '{}': {e}", adapter.get_info().name))?;
+    let pipelines = Pipelines::new(&device);
+    Ok(Gpu { device, queue, info: adapter.get_info(), pipelines })
+}
+
+fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+fn storage_texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::StorageTexture {
+            access: wgpu::StorageTextureAccess::WriteOnly,
+            format: wgpu::TextureFormat::R32Float,
+            view_dimension: wgpu::TextureViewDimension::D2,
+        },
+        count: None,
+    }
+}
+
+fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
+        count: None,
+    }
+}
+
+impl Pipelines {
+    fn new(device: &wgpu::Device) -> Pipelines {
+        let storage = wgpu::BufferBindingType::Storage { read_only: false };
+        let layout = |label: &str, entries: &[wgpu::BindGroupLayoutEntry]| {
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries })
+        };
+        let lid_layout = layout("lid", &[texture_entry(0, false), storage_texture_entry(1), buffer_entry(2, wgpu::BufferBindingType::Uniform)]);
+        let reduce_layout = layout("reduce", &[texture_entry(0, false), storage_texture_entry(1)]);
+        let ray_layout = layout(
+            "raycast",
+            &[
+                buffer_entry(0, wgpu::BufferBindingType::Uniform),
+                texture_entry(1, false),
+                texture_entry(2, false),
+                texture_entry(3, true),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+                buffer_entry(5, storage),
+                buffer_entry(6, storage),
+                buffer_entry(7, storage),
+                buffer_entry(8, storage),
+            ],
+        );
+        let pyramid = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("terrain_pyramid.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("../../../shaders/terrain_pyramid.wgsl").into()),
+        });
+        let raycast = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("terrain_raycast.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("../../../shaders/terrain_raycast.wgsl").into()),
+        });
+        let pipeline = |layout: &wgpu::BindGroupLayout, module: &wgpu::ShaderModule, entry: &str| {
+            let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(entry),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pl),
+                module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        Pipelines {
+            lid: pipeline(&lid_layout, &pyramid, "build_lid"),
+            reduce: pipeline(&reduce_layout, &pyramid, "reduce"),
+            ray: pipeline(&ray_layout, &raycast, "main"),
+            lid_layout,
+            reduce_layout,
+            ray_layout,
+        }
+    }
+}
+
+/// The uniform block of terrain_raycast.wgsl, field for field (see `Params` there).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    eye: [f32; 4],
+    fwd: [f32; 4],
+    right: [f32; 4],
+    up: [f32; 4],
+    normal_x: [f32; 4],
+    normal_y: [f32; 4],
+    normal_z: [f32; 4],
+    extent: [f32; 4],
+    size: [u32; 4],
+    control: [u32; 4],
+    misc: [u32; 4],
+    light_world: [[f32; 4]; MAX_LIGHTS],
+    light_grid: [[f32; 4]; MAX_LIGHTS],
+    light_color: [[f32; 4]; MAX_LIGHTS],
+}
+
+fn v4(v: glam::DVec3, w: f64) -> [f32; 4] {
+    [v.x as f32, v.y as f32, v.z as f32, w as f32]
+}
+
+/// A heightfield resident on the GPU with its pyramid, ready to render any camera.
+pub struct GpuTerrain {
+    heights_view: wgpu::TextureView,
+    pyramid_view: wgpu::TextureView,
+    colour_view: wgpu::TextureView,
+    sampler: wgpu::Sampler,
+    has_texture: bool,
+    levels: u32,
+    cells: [u32; 2],
+    /// Seconds to build the lid map and the quadtree on the GPU (upload excluded).
+    pub build_seconds: f64,
+    /// Bytes of GPU memory held: heights, pyramid, colour texture.
+    pub gpu_bytes: u64,
+}
+
+/// Output buffers and the bind group for one image size.
+struct Target {
+    width: u32,
+    height: u32,
+    colour: wgpu::Buffer,
+    depth: wgpu::Buffer,
+    steps: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+}
+
+impl GpuTerrain {
+    pub fn new(gpu: &Gpu, grid: &TerrainGrid, texture: Option<&RgbImage>) -> Result<GpuTerrain> {
+        let device = &gpu.device;
+        let max_dim = device.limits().max_texture_dimension_2d as usize;
+        if grid.nx > max_dim || grid.ny > max_dim {
+            bail!("heightfield {}×{} exceeds the GPU's largest texture ({max_dim}²) on '{}'", grid.nx, grid.ny, gpu.info.name);
+        }
+        let [cx, cy] = grid.cells();
+        let pw = cx.next_power_of_two() as u32;
+        let ph = cy.next_power_of_two() as u32;
+        if pw as usize > max_dim || ph as usize > max_dim {
+            bail!("the quadtree over {cx}×{cy} patches needs a {pw}×{ph} texture, more than the GPU's {max_dim}²");
+        }
+        let levels = 32 - pw.max(ph).leading_zeros();
+
+        let heights = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("heights"),
+            size: wgpu::Extent3d { width: grid.nx as u32, height: grid.ny as u32, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R32Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let uploaded: Vec<f32> = grid.heights.iter().map(|&z| if z.is_finite() { z } else { HOLE }).collect();
+        gpu.queue.write_texture(
+            heights.as_image_copy(),
+            bytemuck::cast_slice(&uploaded),
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * grid.nx as u32), rows_per_image: None },
+            heights.size(),
+        );
+        let pyramid = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("lid pyramid"),
+            size: wgpu::Extent3d { width: pw, height: ph, depth_or_array_layers: 1 },
+            mip_level_count: levels,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R32Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING,
+            view_formats: &[],
+        });
+        let (colour, has_texture) = match texture {
+            Some(img) => (colour_texture(gpu, img, max_dim)?, true),
+            None => (colour_texture(gpu, &RgbImage { width: 1, height: 1, data: vec![255; 3] }, max_dim)?, false),
+        };
+        // Uploads first, so that the build time below is the compute passes alone.
+        gpu.queue.submit([]);
+        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU upload failed: {e}"))?;
+
+        let start = Instant::now();
+        let level_view = |level: u32| {
+            pyramid.create_view(&wgpu::TextureViewDescriptor { base_mip_level: level, mip_level_count: Some(1), ..Default::default() })
+        };
+        let cells_buf = uniform_buffer(gpu, bytemuck::cast_slice(&[cx as u32, cy as u32, 0, 0]));
+        let heights_view = heights.create_view(&Default::default());
+        let mut enc = device.create_command_encoder(&Default::default());
+        let groups = |w: u32, h: u32| (w.div_ceil(8), h.div_ceil(8));
+        {
+            let dst = level_view(0);
+            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("lid"),
+                layout: &gpu.pipelines.lid_layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&heights_view) },
+                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
+                    wgpu::BindGroupEntry { binding: 2, resource: cells_buf.as_entire_binding() },
+                ],
+            });
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&gpu.pipelines.lid);
+            pass.set_bind_group(0, &bg, &[]);
+            let (gx, gy) = groups(pw, ph);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        for level in 1..levels {
+            let (src, dst) = (level_view(level - 1), level_view(level));
+            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("reduce"),
+                layout: &gpu.pipelines.reduce_layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&src) },
+                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
+                ],
+            });
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&gpu.pipelines.reduce);
+            pass.set_bind_group(0, &bg, &[]);
+            let (gx, gy) = groups((pw >> level).max(1), (ph >> level).max(1));
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        gpu.queue.submit([enc.finish()]);
+        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU pyramid build failed: {e}"))?;
+        let build_seconds = start.elapsed().as_secs_f64();
+
+        let pyramid_bytes: u64 = (0..levels).map(|l| 4 * ((pw >> l).max(1) as u64) * ((ph >> l).max(1) as u64)).sum();
+        let gpu_bytes = 4 * (grid.nx * grid.ny) as u64 + pyramid_bytes + 4 * colour.width() as u64 * colour.height() as u64;
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("colour"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
+        Ok(GpuTerrain {
+            heights_view,
+            pyramid_view: pyramid.create_view(&Default::default()),
+            colour_view: colour.create_view(&Default::default()),
+            sampler,
+            has_texture,
+            levels,
+            cells: [cx as u32, cy as u32],
+            build_seconds,
+            gpu_bytes,
+        })
+    }
+
+    /// Pyramid levels, the lid map (level 0) included.
+    pub fn levels(&self) -> u32 {
+        self.levels
+    }
+
+    fn params(&self, grid: &TerrainGrid, rays: &RayGenerator, shading: &Shading, traversal: Traversal, max_steps: u32) -> Params {
+        let (w, h) = rays.size();
+        let (eye, right, up) = rays.basis();
+        let (half_w, half_h) = rays.half_extent();
+        let m = grid.world_to_grid;
+        let n = grid.normal_to_world;
+        let mut p = <Params as bytemuck::Zeroable>::zeroed();
+        p.eye = v4(m.transform_point3(eye), if rays.is_parallel() { 1.0 } else { 0.0 });
+        p.fwd = v4(m.transform_vector3(rays.forward()), half_w);
+        p.right = v4(m.transform_vector3(right), half_h);
+        p.up = v4(m.transform_vector3(up), shading.ambient);
+        p.normal_x = v4(n.row(0), 0.0);
+        p.normal_y = v4(n.row(1), 0.0);
+        p.normal_z = v4(n.row(2), 0.0);
+        p.extent = [grid.z_lo as f32, grid.z_hi as f32, grid.cell[0] as f32, grid.cell[1] as f32];
+        p.size = [w as u32, h as u32, self.cells[0], self.cells[1]];
+        let flags = shading.shadows as u32 | (self.has_texture as u32) << 1;
+        p.control = [self.levels - 1, max_steps, traversal as u32, flags];
+        p.misc = [shading.lights.len() as u32, (super::reference::shadow_lift(grid) as f32).to_bits(), 0, 0];
+        for (k, l) in shading.lights.iter().enumerate() {
+            p.light_world[k] = v4(l.to_light, 0.0);
+            p.light_grid[k] = v4(m.transform_vector3(l.to_light), 0.0);
+            p.light_color[k] = [l.radiance[0] as f32, l.radiance[1] as f32, l.radiance[2] as f32, 0.0];
+        }
+        p
+    }
+
+    fn target(&self, gpu: &Gpu, params: &Params) -> Result<Target> {
+        let device = &gpu.device;
+        let (width, height) = (params.size[0], params.size[1]);
+        let pixels = width as u64 * height as u64;
+        let limit = device.limits().max_storage_buffer_binding_size as u64;
+        if 16 * pixels > limit {
+            bail!("a {width}×{height} image needs {} MiB of colour buffer, more than the GPU binds ({} MiB)", 16 * pixels >> 20, limit >> 20);
+        }
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let buffer = |label: &str, size: u64| {
+            device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: size.max(16), usage, mapped_at_creation: false })
+        };
+        let colour = buffer("colour", 16 * pixels);
+        let depth = buffer("depth", 4 * pixels);
+        let steps = buffer("steps", 4 * pixels);
+        let counters = buffer("counters", 16);
+        let uniform = uniform_buffer(gpu, bytemuck::bytes_of(params));
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("raycast"),
+            layout: &gpu.pipelines.ray_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&self.heights_view) },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&self.pyramid_view) },
+                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&self.colour_view) },
+                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+                wgpu::BindGroupEntry { binding: 5, resource: colour.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: depth.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 7, resource: steps.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 8, resource: counters.as_entire_binding() },
+            ],
+        });
+        Ok(Target { width, height, colour, depth, steps, counters, bind_group })
+    }
+
+    fn dispatch(&self, gpu: &Gpu, target: &Target) -> Result<f64> {
+        let start = Instant::now();
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&target.counters, 0, None);
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&gpu.pipelines.ray);
+            pass.set_bind_group(0, &target.bind_group, &[]);
+            pass.dispatch_workgroups(target.width.div_ceil(8), target.height.div_ceil(8), 1);
+        }
+        gpu.queue.submit([enc.finish()]);
+        gpu.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU ray casting failed: {e}"))?;
+        Ok(start.elapsed().as_secs_f64())
+    }
+
+    /// Renders one frame and reads it back: colour, `Z` (world distance), `steps`.
+    pub fn render(&self, gpu: &Gpu, grid: &TerrainGrid, rays: &RayGenerator, shading: &Shading, traversal: Traversal, max_steps: u32) -> Result<Frame> {
+        let params = self.params(grid, rays, shading, traversal, max_steps);
+        let target = self.target(gpu, &params)?;
+        let seconds = self.dispatch(gpu, &target)?;
+        let colour: Vec<[f32; 4]> = read_buffer(gpu, &target.colour)?;
+        let depth: Vec<f32> = read_buffer(gpu, &target.depth)?;
+        let steps: Vec<u32> = read_buffer(gpu, &target.steps)?;
+        let counters: Vec<u32> = read_buffer(gpu, &target.counters)?;
+        let (w, h) = rays.size();
+        let mut frame = Frame::empty(w, h);
+        frame.rgba = colour[..w * h].to_vec();
+        frame.depth = depth[..w * h].iter().map(|&d| if d >= 0.0 { d } else { f32::INFINITY }).collect();
+        let stats = StepStats::new(&steps[..w * h]);
+        let hits = frame.depth.iter().filter(|d| d.is_finite()).count();
+        frame.stats = FrameStats {
+            renderer: "terrain".into(),
+            seconds,
+            counters: vec![
+                ("rays".into(), (w * h) as f64),
+                ("hits".into(), hits as f64),
+                ("rays at the step cap".into(), counters[0] as f64),
+                ("mean steps".into(), stats.mean),
+                ("p95 steps".into(), stats.p95 as f64),
+                ("max steps".into(), stats.max as f64),
+                ("pyramid build ms".into(), self.build_seconds * 1e3),
+            ],
+            notes: vec![format!("GPU: {} ({:?})", gpu.info.name, gpu.info.backend)],
+        };
+        if counters[0] > 0 {
+            frame.stats.notes.push(format!("{} rays stopped at the step cap of {max_steps}; raise settings.max_steps", counters[0]));
+        }
+        frame.extra.push(("steps".into(), steps[..w * h].iter().map(|&s| s as f32).collect()));
+        Ok(frame)
+    }
+
+    /// Seconds per frame for `runs` frames of the same view (dispatch and wait, no read-back).
+    pub fn time_frames(&self, gpu: &Gpu, grid: &TerrainGrid, rays: &RayGenerator, shading: &Shading, traversal: Traversal, max_steps: u32, runs: usize) -> Result<Vec<f64>> {
+        let params = self.params(grid, rays, shading, traversal, max_steps);
+        let target = self.target(gpu, &params)?;
+        self.dispatch(gpu, &target)?;
+        (0..runs).map(|_| self.dispatch(gpu, &target)).collect()
+    }
+}
+
+/// Mean, 95th percentile and maximum of per-ray step counts.
+#[derive(Debug, Clone, Copy)]
+pub struct StepStats {
+    pub mean: f64,
+    pub p95: u32,
+    pub max: u32,
+}
+
+impl StepStats {
+    pub fn new(steps: &[u32]) -> StepStats {
+        let mut sorted = steps.to_vec();
+        sorted.sort_unstable();
+        let n = sorted.len().max(1);
+        StepStats {
+            mean: steps.iter().map(|&s| s as f64).sum::<f64>() / n as f64,
+            p95: sorted.get(((n as f64 * 0.95).ceil() as usize).saturating_sub(1)).copied().unwrap_or(0),
+            max: sorted.last().copied().unwrap_or(0),
+        }
+    }
+}
+
+fn uniform_buffer(gpu: &Gpu, bytes: &[u8]) -> wgpu::Buffer {
+    let buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("uniform"),
+        size: bytes.len() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    gpu.queue.write_buffer(&buf, 0, bytes);
+    buf
+}
+
+fn colour_texture(gpu: &Gpu, img: &RgbImage, max_dim: usize) -> Result<wgpu::Texture> {
+    if img.width > max_dim || img.height > max_dim || img.width == 0 || img.height == 0 {
+        bail!("colour texture {}×{} does not fit the GPU's textures ({max_dim}²)", img.width, img.height);
+    }
+    let rgba: Vec<u8> = img.data.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+    let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("colour"),
+        size: wgpu::Extent3d { width: img.width as u32, height: img.height as u32, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba8UnormSrgb,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    gpu.queue.write_texture(
+        tex.as_image_copy(),
+        &rgba,
+        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * img.width as u32), rows_per_image: None },
+        tex.size(),
+    );
+    Ok(tex)
+}
+
+fn read_buffer<T: bytemuck::Pod>(gpu: &Gpu, src: &wgpu::Buffer) -> Result<Vec<T>> {
+    let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("read-back"),
+        size: src.size(),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    enc.copy_buffer_to_buffer(src, 0, &staging, 0, src.size());
+    gpu.queue.submit([enc.finish()]);
+    let (tx, rx) = std::sync::mpsc::channel();
+    staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    gpu.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+    rx.recv()?.map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+    let view = staging.slice(..).get_mapped_range().map_err(|e| anyhow!("GPU read-back failed: {e:?}"))?;
+    let out = bytemuck::cast_slice::<u8, T>(&view).to_vec();
+    Ok(out)
+}

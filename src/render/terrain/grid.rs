@@ -1,0 +1,232 @@
+//! The heightfield as both terrain renderers see it: "grid space", where sample (i, j)
+//! sits at (i, j) — i east, j north, j = 0 the southern row — and z is the elevation in
+//! metres relative to `z_ref`, the middle of the elevation range. Ray parameters stay
+//! world distances: a world ray o + t·d maps to grid space as o' + t·d' with d' not unit.
+//!
+//! Keeping positions in cells (≤ a few thousand) and heights relative to the middle of the
+//! range is what lets the GPU work in f32: a UTM eye at 5·10⁶ m, or a peak at 4000 m,
+//! would lose centimetres to f32 rounding if used directly.
+
+use crate::scene::camera::Ray;
+use anyhow::{bail, Result};
+use glam::{DMat3, DMat4, DVec3};
+use volterra_formats::Heightfield;
+
+/// Lid-map value of a patch that touches a NoData sample: lower than any ray.
+pub const HOLE: f32 = -3.0e38;
+
+#[derive(Debug, Clone)]
+pub struct TerrainGrid {
+    /// Samples east-west and south-north.
+    pub nx: usize,
+    pub ny: usize,
+    /// Heights relative to `z_ref`, `j * nx + i` with j = 0 the southern row; NoData = NaN.
+    pub heights: Vec<f32>,
+    pub z_ref: f64,
+    /// Range of valid heights relative to `z_ref` (0, 0 when every sample is NoData).
+    pub z_lo: f64,
+    pub z_hi: f64,
+    pub any_valid: bool,
+    /// Cell size in metres (east, north).
+    pub cell: [f64; 2],
+    pub world_to_grid: DMat4,
+    /// Takes a normal in the node's local frame (metres) to world space.
+    pub normal_to_world: DMat3,
+}
+
+/// The point where a ray meets the terrain: cell (i, j), position (u, v) ∈ [0, 1]² inside
+/// it, and the world distance `t` along the ray.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    pub t: f64,
+    pub cell: [usize; 2],
+    pub u: f64,
+    pub v: f64,
+}
+
+impl TerrainGrid {
+    pub fn new(hf: &Heightfield, node_to_world: DMat4) -> Result<TerrainGrid> {
+        let (nx, ny) = (hf.width, hf.height);
+        if nx < 2 || ny < 2 {
+            bail!("a terrain needs at least 2×2 samples (this heightfield has {nx}×{ny})");
+        }
+        let [cx, cy] = hf.cell_size;
+        if !(cx > 0.0 && cy > 0.0 && cx.is_finite() && cy.is_finite()) {
+            bail!("heightfield cell size {cx}×{cy} m is not positive");
+        }
+        if node_to_world.determinant().abs() < 1e-300 || !node_to_world.is_finite() {
+            bail!("the heightfield node's transform is not invertible");
+        }
+        let range = hf.range();
+        let (lo, hi) = range.map(|(a, b)| (a as f64, b as f64)).unwrap_or((0.0, 0.0));
+        let z_ref = 0.5 * (lo + hi);
+        let mut heights = vec![f32::NAN; nx * ny];
+        for row in 0..ny {
+            let j = ny - 1 - row;
+            for i in 0..nx {
+                let z = hf.elevations[row * nx + i];
+                if !hf.is_nodata(i, row) && z.is_finite() {
+                    heights[j * nx + i] = (z as f64 - z_ref) as f32;
+                }
+            }
+        }
+        let local_to_grid = DMat4::from_scale(DVec3::new(1.0 / cx, 1.0 / cy, 1.0)) * DMat4::from_translation(DVec3::new(0.0, 0.0, -z_ref));
+        let world_to_grid = local_to_grid * node_to_world.inverse();
+        let lin = DMat3::from_mat4(node_to_world);
+        Ok(TerrainGrid {
+            nx,
+            ny,
+            heights,
+            z_ref,
+            z_lo: lo - z_ref,
+            z_hi: hi - z_ref,
+            any_valid: range.is_some(),
+            cell: [cx, cy],
+            world_to_grid,
+            normal_to_world: lin.inverse().transpose(),
+        })
+    }
+
+    /// Number of patches (cells) east-west and south-north.
+    pub fn cells(&self) -> [usize; 2] {
+        [self.nx - 1, self.ny - 1]
+    }
+
+    pub fn height(&self, i: usize, j: usize) -> f32 {
+        self.heights[j * self.nx + i]
+    }
+
+    /// The patch's corner heights (z00, z10, z01, z11), or None where one is NoData.
+    pub fn patch(&self, i: usize, j: usize) -> Option<[f64; 4]> {
+        let z = [self.height(i, j), self.height(i + 1, j), self.height(i, j + 1), self.height(i + 1, j + 1)];
+        z.iter().all(|v| v.is_finite()).then(|| z.map(|v| v as f64))
+    }
+
+    /// A world ray in grid space (origin, direction); the parameter stays the world distance.
+    pub fn ray_to_grid(&self, ray: &Ray) -> (DVec3, DVec3) {
+        (self.world_to_grid.transform_point3(ray.origin), self.world_to_grid.transform_vector3(ray.dir))
+    }
+
+    /// The grid-space bounding box of the patches: [0, cells] × [z_lo, z_hi].
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        let [cx, cy] = self.cells();
+        (DVec3::new(0.0, 0.0, self.z_lo), DVec3::new(cx as f64, cy as f64, self.z_hi))
+    }
+
+    /// The part t ∈ [t0, t1], t0 ≥ 0, of a grid-space ray inside the bounding box.
+    pub fn clip(&self, o: DVec3, d: DVec3) -> Option<(f64, f64)> {
+        if !self.any_valid {
+            return None;
+        }
+        let (lo, hi) = self.bounds();
+        clip_box(o, d, lo, hi)
+    }
+
+    /// The surface height (metres, node frame) at local position (x east, y north) in
+    /// metres, bilinear in the patch; None outside the terrain or over NoData.
+    pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
+        let gx = x / self.cell[0];
+        let gy = y / self.cell[1];
+        let [cx, cy] = self.cells();
+        if !(gx >= 0.0 && gy >= 0.0 && gx <= cx as f64 && gy <= cy as f64) {
+            return None;
+        }
+        let i = (gx.floor() as usize).min(cx - 1);
+        let j = (gy.floor() as usize).min(cy - 1);
+        let z = self.patch(i, j)?;
+        Some(bilinear(z, gx - i as f64, gy - j as f64) + self.z_ref)
+    }
+
+    /// The unit world-space normal of the patch at (u, v).
+    /// How far below the surface a ray may be at a cell's entry and still count as having
+    /// crossed at the edge (metres): far above f64 rounding, far below anything visible.
+    pub fn edge_tolerance(&self) -> f64 {
+        1e-9 * (self.z_hi - self.z_lo).max(1.0)
+    }
+
+    pub fn world_normal(&self, z: [f64; 4], u: f64, v: f64) -> DVec3 {
+        let (a, b, c) = patch_coefficients(z);
+        let local = DVec3::new(-(b + a * v) / self.cell[0], -(c + a * u) / self.cell[1], 1.0);
+        (self.normal_to_world * local).normalize()
+    }
+}
+
+/// Slab test of o + t·d against the box [lo, hi]; the interval is clamped to t ≥ 0.
+pub fn clip_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
+    let mut t0 = 0.0f64;
+    let mut t1 = f64::INFINITY;
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return None;
+            }
+        } else {
+            let a = (lo[k] - o[k]) / d[k];
+            let b = (hi[k] - o[k]) / d[k];
+            t0 = t0.max(a.min(b));
+            t1 = t1.min(a.max(b));
+        }
+    }
+    (t0 <= t1).then_some((t0, t1))
+}
+
+/// z(u, v) = z00 + B u + C v + A u v, returned as (A, B, C).
+pub fn patch_coefficients(z: [f64; 4]) -> (f64, f64, f64) {
+    let [z00, z10, z01, z11] = z;
+    (z11 - z10 - z01 + z00, z10 - z00, z01 - z00)
+}
+
+pub fn bilinear(z: [f64; 4], u: f64, v: f64) -> f64 {
+    let (a, b, c) = patch_coefficients(z);
+    z[0] + b * u + c * v + a * u * v
+}
+
+/// The first s ∈ [0, len] where the ray (u0, v0, z0) + s·d, in the patch's own coordinates
+/// (u, v ∈ [0, 1] across the cell), meets the bilinear patch coming from above.
+///
+/// Along the ray, height above the patch is f(s) = a s² + b s + c with
+/// a = −A·dx·dy, b = dz − B·dx − C·dy − A·(u0·dy + v0·dx), c = z0 − z(u0, v0)
+/// (the paper's eq. 4 is typeset garbled; this is the derivation). The roots use the
+/// stable form q = −(b + sign(b)·√(b² − 4ac))/2, s ∈ {q/a, c/q}: c/q stays accurate as
+/// a → 0 (every planar cell, rays along an axis) and no root loses digits to cancellation.
+///
+/// Below the surface at the cell's entry (c < 0): at the ray's first cell (`first`: an eye
+/// under the ground, or a ray entering the terrain's box through a side) that is a hit at
+/// s = 0; elsewhere it is a hit at s = 0 only within `tolerance` — the crossing was at the
+/// shared edge and rounding put it here, so no crack opens between cells — and otherwise
+/// the ray has gone under the surface through a NoData hole and meets nothing here.
+pub fn intersect_patch(z: [f64; 4], u0: f64, v0: f64, z0: f64, d: DVec3, len: f64, first: bool, tolerance: f64) -> Option<f64> {
+    let (pa, pb, pc) = patch_coefficients(z);
+    let c = z0 - (z[0] + pb * u0 + pc * v0 + pa * u0 * v0);
+    let b = d.z - pb * d.x - pc * d.y - pa * (u0 * d.y + v0 * d.x);
+    let a = -pa * d.x * d.y;
+    if c < 0.0 {
+        return (first || c >= -tolerance).then_some(0.0);
+    }
+    if c == 0.0 && (b < 0.0 || (b == 0.0 && a <= 0.0)) {
+        return Some(0.0);
+    }
+    // Roots a hair past the far edge belong to this cell: the polynomial is smooth there,
+    // and rejecting them could let a ray through the shared edge of two cells.
+    let limit = len * (1.0 + 1e-12) + 1e-12;
+    let s = if a == 0.0 {
+        if b >= 0.0 {
+            return None;
+        }
+        -c / b
+    } else {
+        let disc = b * b - 4.0 * a * c;
+        if disc < 0.0 {
+            return None;
+        }
+        let q = -0.5 * (b + disc.sqrt().copysign(b));
+        let mut best = f64::INFINITY;
+        for r in [q / a, if q != 0.0 { c / q } else { f64::INFINITY }] {
+            if r >= 0.0 && r < best {
+                best = r;
+            }
+        }
+        best
+    };
+    (s <= limit).then(|| s.min(len))
+}

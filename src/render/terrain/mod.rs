@@ -1,0 +1,167 @@
+//! The terrain renderers for heightfield nodes: `terrain`, the GPU ray-caster over a
+//! max-quadtree with a lid map and exact bilinear patches (Park, Oh & Cho), and
+//! `terrain-reference`, the f64 cell-by-cell CPU reference it is measured against.
+//!
+//! - `grid`: the heightfield in grid space, and the exact ray/patch intersection;
+//! - `reference`: the CPU reference (2-D DDA over every cell);
+//! - `gpu`: wgpu resources, pyramid build, per-pixel ray casting;
+//! - `shading`: colour, texture and lights, identical on both paths.
+
+pub mod gpu;
+pub mod grid;
+pub mod reference;
+pub mod shading;
+
+use crate::render::Frame;
+use crate::scene::camera::RayGenerator;
+use crate::scene::Light;
+use anyhow::{bail, Result};
+use glam::DMat4;
+use serde::Deserialize;
+use volterra_formats::{Heightfield, RgbImage};
+
+/// How the GPU walks the pyramid. The last two are the baselines the benchmark measures
+/// the paper's choice against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+#[repr(u32)]
+pub enum Traversal {
+    /// Descend on a possible hit; after a miss, move to the node's exit and go up one level.
+    #[default]
+    Quadtree = 0,
+    /// As above but stay on the same level after a miss (plain pyramidal displacement mapping).
+    NoRaise = 1,
+    /// Every cell the ray crosses, in order (the lid map only).
+    Linear = 2,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Settings {
+    pub traversal: Traversal,
+    /// Hard shadows from a second ray toward each light.
+    pub shadows: bool,
+    /// Light reaching every point regardless of orientation, as a fraction of the base colour.
+    pub ambient: f64,
+    /// Per-ray cap on traversal steps; 0 picks 4 × (cells east + cells north) + 64, more
+    /// than any ray needs. Rays stopped by the cap are counted in the frame's statistics.
+    pub max_steps: u32,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings { traversal: Traversal::Quadtree, shadows: false, ambient: 0.25, max_steps: 0 }
+    }
+}
+
+impl Settings {
+    pub fn step_cap(&self, grid: &grid::TerrainGrid) -> u32 {
+        if self.max_steps > 0 {
+            return self.max_steps;
+        }
+        let [cx, cy] = grid.cells();
+        (4 * (cx + cy) + 64).min(u32::MAX as usize) as u32
+    }
+    fn check(&self) -> Result<()> {
+        if !(self.ambient >= 0.0 && self.ambient.is_finite()) {
+            bail!("terrain setting ambient = {} must be a non-negative number", self.ambient);
+        }
+        Ok(())
+    }
+}
+
+/// What the terrain renderers draw: one heightfield node.
+pub struct TerrainInput<'a> {
+    pub heightfield: &'a Heightfield,
+    pub texture: Option<&'a RgbImage>,
+    pub node_to_world: DMat4,
+    pub lights: &'a [Light],
+}
+
+impl TerrainInput<'_> {
+    fn prepare(&self, settings: &Settings) -> Result<(grid::TerrainGrid, shading::Shading)> {
+        settings.check()?;
+        let grid = grid::TerrainGrid::new(self.heightfield, self.node_to_world)?;
+        let shading = shading::Shading { lights: shading::sun_lights(self.lights)?, ambient: settings.ambient, shadows: settings.shadows };
+        Ok((grid, shading))
+    }
+}
+
+/// Renders with the GPU ray-caster.
+pub fn render(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
+    let (grid, shading) = input.prepare(settings)?;
+    let gpu = gpu::gpu()?;
+    let terrain = gpu::GpuTerrain::new(gpu, &grid, input.texture)?;
+    terrain.render(gpu, &grid, rays, &shading, settings.traversal, settings.step_cap(&grid))
+}
+
+/// Renders with the f64 CPU reference (`traversal` and `max_steps` do not apply).
+pub fn render_reference(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
+    let (grid, shading) = input.prepare(settings)?;
+    let texture = input.texture.map(shading::LinearTexture::new);
+    Ok(reference::render(&grid, texture.as_ref(), rays, &shading))
+}
+
+/// How closely two terrain renders agree on what they hit and how far away it is.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct DepthAgreement {
+    /// Pixels that hit in one image and not the other.
+    pub mismatched: usize,
+    /// ... of which not within one pixel of a silhouette of the reference.
+    pub mismatched_off_silhouette: usize,
+    /// Pixels that hit in both.
+    pub both_hit: usize,
+    /// Relative depth error |a − b| / b over pixels that hit in both.
+    pub median_rel: f64,
+    pub p999_rel: f64,
+    pub max_rel: f64,
+}
+
+/// Compares the depth of `a` against the reference `b`. A silhouette pixel of `b` is one
+/// whose 8 neighbours include a pixel of the other hit state, or one more than 5 % nearer
+/// or farther (a ridge in front of distant terrain).
+pub fn depth_agreement(a: &Frame, b: &Frame) -> DepthAgreement {
+    let (w, h) = (b.width, b.height);
+    let silhouette = |x: usize, y: usize| {
+        let z = b.depth[y * w + x];
+        for dy in -1i64..=1 {
+            for dx in -1i64..=1 {
+                let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+                if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+                    continue;
+                }
+                let n = b.depth[ny as usize * w + nx as usize];
+                if n.is_finite() != z.is_finite() || (z.is_finite() && (n - z).abs() > 0.05 * z.min(n)) {
+                    return true;
+                }
+            }
+        }
+        false
+    };
+    let mut out = DepthAgreement::default();
+    let mut rel = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let (za, zb) = (a.depth[y * w + x], b.depth[y * w + x]);
+            match (za.is_finite(), zb.is_finite()) {
+                (true, true) => rel.push(((za as f64 - zb as f64).abs() / (zb as f64).max(1e-30), silhouette(x, y))),
+                (false, false) => {}
+                _ => {
+                    out.mismatched += 1;
+                    if !silhouette(x, y) {
+                        out.mismatched_off_silhouette += 1;
+                    }
+                }
+            }
+        }
+    }
+    out.both_hit = rel.len();
+    let mut all: Vec<f64> = rel.iter().map(|r| r.0).collect();
+    all.sort_by(f64::total_cmp);
+    if !all.is_empty() {
+        out.median_rel = all[all.len() / 2];
+        out.p999_rel = all[((all.len() as f64 * 0.999).ceil() as usize).clamp(1, all.len()) - 1];
+        out.max_rel = all[all.len() - 1];
+    }
+    out
+}

@@ -1,0 +1,168 @@
+//! The CPU terrain reference: f64 throughout, no hierarchy. A 2-D DDA walks every cell a
+//! ray crosses, in order, and intersects each cell's bilinear patch exactly. It is slow
+//! and simple on purpose — the truth the GPU ray-caster's depth is measured against.
+
+use super::grid::{intersect_patch, Hit, TerrainGrid};
+use super::shading::{elevation_colour, shade, LinearTexture, Shading};
+use crate::render::{Frame, FrameStats};
+use crate::scene::camera::RayGenerator;
+use glam::DVec3;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// The first hit of the grid-space ray o + t·d for t ∈ [t0, t1], and the number of cells
+/// tested.
+pub fn trace(grid: &TerrainGrid, o: DVec3, d: DVec3, t0: f64, t1: f64) -> (Option<Hit>, u32) {
+    let [cx, cy] = grid.cells();
+    let p = o + t0 * d;
+    // The starting cell; on a cell border, the one the ray goes into.
+    let start = |p: f64, d: f64, n: usize| -> i64 {
+        let f = p.floor();
+        let i = if f == p && d < 0.0 { f - 1.0 } else { f };
+        (i as i64).clamp(0, n as i64 - 1)
+    };
+    let mut i = start(p.x, d.x, cx);
+    let mut j = start(p.y, d.y, cy);
+    let step_i: i64 = if d.x > 0.0 { 1 } else { -1 };
+    let step_j: i64 = if d.y > 0.0 { 1 } else { -1 };
+    let exit = |cell: i64, o: f64, d: f64| -> f64 {
+        if d > 0.0 {
+            (cell as f64 + 1.0 - o) / d
+        } else if d < 0.0 {
+            (cell as f64 - o) / d
+        } else {
+            f64::INFINITY
+        }
+    };
+    let mut t = t0;
+    let mut cells = 0u32;
+    loop {
+        cells += 1;
+        let tx = exit(i, o.x, d.x);
+        let ty = exit(j, o.y, d.y);
+        let t_next = tx.min(ty).min(t1).max(t);
+        if let Some(z) = grid.patch(i as usize, j as usize) {
+            let pa = o + t * d;
+            let (u0, v0) = (pa.x - i as f64, pa.y - j as f64);
+            if let Some(s) = intersect_patch(z, u0, v0, pa.z, d, t_next - t, t == t0, grid.edge_tolerance()) {
+                let hit = Hit {
+                    t: t + s,
+                    cell: [i as usize, j as usize],
+                    u: (u0 + s * d.x).clamp(0.0, 1.0),
+                    v: (v0 + s * d.y).clamp(0.0, 1.0),
+                };
+                return (Some(hit), cells);
+            }
+        }
+        if t_next >= t1 {
+            return (None, cells);
+        }
+        t = t_next;
+        if tx <= ty {
+            i += step_i;
+        } else {
+            j += step_j;
+        }
+        if i < 0 || j < 0 || i >= cx as i64 || j >= cy as i64 {
+            return (None, cells);
+        }
+    }
+}
+
+/// Traces a world-space ray; returns the hit and the cells tested.
+pub fn trace_world(grid: &TerrainGrid, ray: &crate::scene::camera::Ray) -> (Option<Hit>, u32) {
+    let (o, d) = grid.ray_to_grid(ray);
+    match grid.clip(o, d) {
+        Some((t0, t1)) => trace(grid, o, d, t0, t1),
+        None => (None, 0),
+    }
+}
+
+/// How far a shadow ray starts above the surface, in metres: clear of the f32 rounding of
+/// the GPU's heights, far below anything visible.
+pub fn shadow_lift(grid: &TerrainGrid) -> f64 {
+    1e-3 * grid.cell[0].max(grid.cell[1])
+}
+
+/// The shaded colour of a hit (linear RGB), with shadow rays where asked for. `ray_z` is
+/// the ray's grid-space height at the hit: a ray that meets the terrain below its surface
+/// came in through a side of the box — the terrain's edge is drawn as a wall of soil.
+pub fn hit_colour(grid: &TerrainGrid, texture: Option<&LinearTexture>, shading: &Shading, hit: &Hit, ray_z: f64) -> [f64; 3] {
+    let [i, j] = hit.cell;
+    let z = grid.patch(i, j).expect("a hit lies on a valid patch");
+    let gx = i as f64 + hit.u;
+    let gy = j as f64 + hit.v;
+    let [cx, cy] = grid.cells();
+    let surface = super::grid::bilinear(z, hit.u, hit.v);
+    if surface - ray_z > wall_tolerance(grid) {
+        let faces = [(gx, DVec3::NEG_X), (cx as f64 - gx, DVec3::X), (gy, DVec3::NEG_Y), (cy as f64 - gy, DVec3::Y)];
+        let face = faces.iter().min_by(|a, b| a.0.total_cmp(&b.0)).unwrap().1;
+        let normal = (grid.normal_to_world * face).normalize();
+        return shade(WALL_COLOUR, normal, shading, &|_| true);
+    }
+    let base = match texture {
+        Some(tex) => tex.sample(gx / cx as f64, 1.0 - gy / cy as f64),
+        None => {
+            let span = (grid.z_hi - grid.z_lo).max(1e-9);
+            elevation_colour((surface - grid.z_lo) / span)
+        }
+    };
+    let normal = grid.world_normal(z, hit.u, hit.v);
+    let lit = |k: usize| {
+        if !shading.shadows {
+            return true;
+        }
+        let o = DVec3::new(gx, gy, surface + shadow_lift(grid));
+        let d = grid.world_to_grid.transform_vector3(shading.lights[k].to_light);
+        match grid.clip(o, d) {
+            Some((t0, t1)) => trace(grid, o, d, t0, t1).0.is_none(),
+            None => true,
+        }
+    };
+    shade(base, normal, shading, &lit)
+}
+
+/// The colour of the terrain's sides (linear RGB).
+pub const WALL_COLOUR: [f64; 3] = [0.20, 0.14, 0.09];
+
+/// How far below the surface a hit must be to count as a wall hit, in metres.
+pub fn wall_tolerance(grid: &TerrainGrid) -> f64 {
+    1e-3 * (grid.z_hi - grid.z_lo).max(1.0)
+}
+
+/// Renders the terrain with the reference: colour, depth (`Z`, world distance along the
+/// ray) and `steps` (cells tested per ray).
+pub fn render(grid: &TerrainGrid, texture: Option<&LinearTexture>, rays: &RayGenerator, shading: &Shading) -> Frame {
+    let start = Instant::now();
+    let (w, h) = rays.size();
+    let mut frame = Frame::empty(w, h);
+    let mut steps = vec![0f32; w * h];
+    frame.rgba.par_chunks_mut(w).zip(frame.depth.par_chunks_mut(w)).zip(steps.par_chunks_mut(w)).enumerate().for_each(
+        |(y, ((rgba, depth), steps))| {
+            for x in 0..w {
+                let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
+                let (hit, n) = trace_world(grid, &ray);
+                steps[x] = n as f32;
+                if let Some(hit) = hit {
+                    let (o, d) = grid.ray_to_grid(&ray);
+                    let c = hit_colour(grid, texture, shading, &hit, o.z + hit.t * d.z);
+                    rgba[x] = [c[0] as f32, c[1] as f32, c[2] as f32, 1.0];
+                    depth[x] = hit.t as f32;
+                }
+            }
+        },
+    );
+    let hits = frame.depth.iter().filter(|d| d.is_finite()).count();
+    frame.stats = FrameStats {
+        renderer: "terrain-reference".into(),
+        seconds: start.elapsed().as_secs_f64(),
+        counters: vec![
+            ("rays".into(), (w * h) as f64),
+            ("hits".into(), hits as f64),
+            ("mean cells per ray".into(), steps.iter().map(|&s| s as f64).sum::<f64>() / (w * h) as f64),
+        ],
+        notes: vec![],
+    };
+    frame.extra.push(("steps".into(), steps));
+    frame
+}

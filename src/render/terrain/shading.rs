@@ -1,0 +1,130 @@
+//! How a terrain hit is coloured — the same rules in f64 here (for the CPU reference) and
+//! in `shaders/terrain_raycast.wgsl`: base colour from the draped texture (sRGB decoded,
+//! bilinear, UV = position / extent, v = 0 at the northern edge) or an elevation ramp;
+//! Lambert lighting from directional lights, an ambient term, optional hard shadows.
+
+use crate::scene::{Light, LightKind};
+use anyhow::{bail, Result};
+use glam::DVec3;
+use volterra_formats::RgbImage;
+
+/// The GPU shader has room for this many lights.
+pub const MAX_LIGHTS: usize = 4;
+
+#[derive(Debug, Clone, Copy)]
+pub struct SunLight {
+    /// Unit vector toward the light, world space.
+    pub to_light: DVec3,
+    /// Colour × intensity.
+    pub radiance: [f64; 3],
+}
+
+/// The scene's lights as the terrain renderer uses them: directional only. With none, the
+/// cartographers' hill-shade sun: from the north-west (azimuth 315°), 45° up.
+pub fn sun_lights(lights: &[Light]) -> Result<Vec<SunLight>> {
+    if lights.is_empty() {
+        let (az, alt) = (315f64.to_radians(), 45f64.to_radians());
+        return Ok(vec![SunLight { to_light: DVec3::new(az.sin() * alt.cos(), az.cos() * alt.cos(), alt.sin()), radiance: [1.0; 3] }]);
+    }
+    if lights.len() > MAX_LIGHTS {
+        bail!("the terrain renderer takes at most {MAX_LIGHTS} lights (the scene has {})", lights.len());
+    }
+    lights
+        .iter()
+        .map(|l| {
+            if l.kind != LightKind::Directional {
+                bail!("the terrain renderer lights with directional lights (suns) only, not {:?} lights", l.kind);
+            }
+            let dir = DVec3::from(l.direction.unwrap_or([0.0, 0.0, -1.0]));
+            if !(dir.length() > 0.0 && dir.is_finite()) {
+                bail!("a directional light needs a non-zero direction");
+            }
+            Ok(SunLight { to_light: -dir.normalize(), radiance: l.color.map(|c| c * l.intensity) })
+        })
+        .collect()
+}
+
+/// Hypsometric tints over the normalised elevation f ∈ [0, 1]: lowland green, upland
+/// ochre, rock brown-grey, snow. Linear RGB.
+pub const ELEVATION_RAMP: [(f64, [f64; 3]); 5] = [
+    (0.0, [0.10, 0.28, 0.09]),
+    (0.30, [0.36, 0.45, 0.16]),
+    (0.60, [0.40, 0.27, 0.14]),
+    (0.85, [0.45, 0.43, 0.40]),
+    (1.0, [0.90, 0.90, 0.92]),
+];
+
+pub fn elevation_colour(f: f64) -> [f64; 3] {
+    let f = f.clamp(0.0, 1.0);
+    for w in ELEVATION_RAMP.windows(2) {
+        let ((f0, c0), (f1, c1)) = (w[0], w[1]);
+        if f <= f1 {
+            let s = (f - f0) / (f1 - f0);
+            return [0, 1, 2].map(|k| c0[k] + s * (c1[k] - c0[k]));
+        }
+    }
+    ELEVATION_RAMP[ELEVATION_RAMP.len() - 1].1
+}
+
+/// The sRGB transfer function inverted (IEC 61966-2-1), as a GPU's `*Srgb` formats decode.
+pub fn srgb_to_linear(v: u8) -> f64 {
+    let c = v as f64 / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// A colour texture decoded to linear RGB, sampled bilinearly with clamp-to-edge as a
+/// GPU's linear sampler does.
+pub struct LinearTexture {
+    width: usize,
+    height: usize,
+    texels: Vec<[f64; 3]>,
+}
+
+impl LinearTexture {
+    pub fn new(img: &RgbImage) -> LinearTexture {
+        let lut: Vec<f64> = (0..=255u8).map(srgb_to_linear).collect();
+        let texels = img.data.chunks_exact(3).map(|p| [lut[p[0] as usize], lut[p[1] as usize], lut[p[2] as usize]]).collect();
+        LinearTexture { width: img.width, height: img.height, texels }
+    }
+
+    /// (s, t) ∈ [0, 1]²: s east, t south (t = 0 the top row).
+    pub fn sample(&self, s: f64, t: f64) -> [f64; 3] {
+        let x = s * self.width as f64 - 0.5;
+        let y = t * self.height as f64 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let texel = |xi: f64, yi: f64| {
+            let xi = (xi.max(0.0) as usize).min(self.width - 1);
+            let yi = (yi.max(0.0) as usize).min(self.height - 1);
+            self.texels[yi * self.width + xi]
+        };
+        let (a, b, c, d) = (texel(x0, y0), texel(x0 + 1.0, y0), texel(x0, y0 + 1.0), texel(x0 + 1.0, y0 + 1.0));
+        [0, 1, 2].map(|k| (1.0 - fy) * ((1.0 - fx) * a[k] + fx * b[k]) + fy * ((1.0 - fx) * c[k] + fx * d[k]))
+    }
+}
+
+/// Shading settings shared by the GPU renderer and the reference.
+#[derive(Debug, Clone)]
+pub struct Shading {
+    pub lights: Vec<SunLight>,
+    pub ambient: f64,
+    pub shadows: bool,
+}
+
+/// Lambert shading: base · (ambient + Σ radiance · max(0, n·l) · lit).
+pub fn shade(base: [f64; 3], normal: DVec3, shading: &Shading, lit: &dyn Fn(usize) -> bool) -> [f64; 3] {
+    let mut e = [shading.ambient; 3];
+    for (k, l) in shading.lights.iter().enumerate() {
+        let cos = normal.dot(l.to_light);
+        if cos > 0.0 && lit(k) {
+            for c in 0..3 {
+                e[c] += l.radiance[c] * cos;
+            }
+        }
+    }
+    [0, 1, 2].map(|c| base[c] * e[c])
+}
