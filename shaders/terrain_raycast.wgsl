@@ -97,8 +97,9 @@ fn patch_heights(c: vec2<i32>) -> vec4<f32> {
 // (see intersect_patch in grid.rs for the derivation and the edge rules).
 // `first`: the ray's first cell, where starting below the surface is a hit (an eye under
 // the ground, or a ray entering through a side of the box); elsewhere only within the
-// edge tolerance (rounding at a shared edge), deeper means the ray came through a hole.
-fn intersect_patch(z: vec4<f32>, u0: f32, v0: f32, z0: f32, d: vec3<f32>, len: f32, first: bool) -> f32 {
+// rounding of c (the crossing was at the shared edge), deeper means the ray came through
+// a hole. `reach` = |p| + |o| per axis: the magnitudes whose f32 rounding enters c.
+fn intersect_patch(z: vec4<f32>, u0: f32, v0: f32, z0: f32, d: vec3<f32>, len: f32, first: bool, reach: vec3<f32>) -> f32 {
     let pa = z.w - z.y - z.z + z.x;
     let pb = z.y - z.x;
     let pc = z.z - z.x;
@@ -106,8 +107,10 @@ fn intersect_patch(z: vec4<f32>, u0: f32, v0: f32, z0: f32, d: vec3<f32>, len: f
     let b = d.z - pb * d.x - pc * d.y - pa * (u0 * d.y + v0 * d.x);
     let a = -pa * d.x * d.y;
     if c < 0.0 {
-        // f32: heights carry about 1e-7 of the relief in rounding; allow 1e-5.
-        if first || c >= -1e-5 * max(P.extent.y - P.extent.x, 1.0) {
+        // Eight f32 ulps of everything c is made of: the ray's height, the corner height,
+        // and the slopes times the rounding of the position inside the cell.
+        let tolerance = 1e-6 * (reach.z + abs(z.x) + (abs(pb) + abs(pa)) * reach.x + (abs(pc) + abs(pa)) * reach.y);
+        if first || c >= -tolerance {
             return 0.0;
         }
         return -1.0;
@@ -235,7 +238,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
                 let pa = o + t * d;
                 let u0 = pa.x - lo.x;
                 let v0 = pa.y - lo.y;
-                let s = intersect_patch(patch_heights(node), u0, v0, pa.z, d, t_exit - t, t == t_start);
+                let s = intersect_patch(patch_heights(node), u0, v0, pa.z, d, t_exit - t, t == t_start, abs(pa) + abs(o));
                 if s >= 0.0 {
                     h.found = true;
                     h.t = t + s;
@@ -261,12 +264,17 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
             break;
         }
         t = t_exit;
+        // Did the step leave the parent node? (Into the sibling, the parent — already
+        // found possibly hit — has nothing new to say, and re-testing it costs a step.)
+        var left_parent: bool;
         if tx <= ty {
             node.x += step.x;
+            left_parent = (node.x & 1) == select(1, 0, step.x > 0);
         } else {
             node.y += step.y;
+            left_parent = (node.y & 1) == select(1, 0, step.y > 0);
         }
-        if mode == 0u && level < top {
+        if mode == 0u && level < top && left_parent {
             level += 1u;
             node = node >> vec2<u32>(1u);
         }

@@ -51,3 +51,21 @@ pub fn fingerprint(values: impl Iterator<Item = f64>) -> Fingerprint {
 pub fn close(a: f64, b: f64, rel: f64) -> bool {
     (a - b).abs() <= rel * a.abs().max(b.abs()).max(1e-300) || (a.is_nan() && b.is_nan())
 }
+
+/// true under CI (CI=true), where nothing may skip.
+pub fn under_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| v == "true" || v == "1")
+}
+
+/// The shared GPU (lavapipe where there is no hardware). Under CI a missing adapter is a
+/// failure; locally the test is skipped with a printed reason.
+pub fn gpu() -> Option<&'static volterra::render::terrain::gpu::Gpu> {
+    match volterra::render::terrain::gpu::gpu() {
+        Ok(g) => Some(g),
+        Err(e) if under_ci() => panic!("CI=true and no GPU adapter: {e}"),
+        Err(e) => {
+            eprintln!("SKIPPED: {e}");
+            None
+        }
+    }
+}

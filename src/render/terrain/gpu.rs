@@ -107,7 +107,8 @@ impl Pipelines {
         let layout = |label: &str, entries: &[wgpu::BindGroupLayoutEntry]| {
             device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries })
         };
-        let lid_layout = layout("lid", &[texture_entry(0, false), storage_texture_entry(1), buffer_entry(2, wgpu::BufferBindingType::Uniform)]);
+        let lid_layout =
+            layout("lid", &[texture_entry(0, false), storage_texture_entry(1), buffer_entry(2, wgpu::BufferBindingType::Uniform)]);
         let reduce_layout = layout("reduce", &[texture_entry(0, false), storage_texture_entry(1)]);
         let ray_layout = layout(
             "raycast",
@@ -366,7 +367,11 @@ impl GpuTerrain {
         let pixels = width as u64 * height as u64;
         let limit = device.limits().max_storage_buffer_binding_size as u64;
         if 16 * pixels > limit {
-            bail!("a {width}×{height} image needs {} MiB of colour buffer, more than the GPU binds ({} MiB)", 16 * pixels >> 20, limit >> 20);
+            bail!(
+                "a {width}×{height} image needs {} MiB of colour buffer, more than the GPU binds ({} MiB)",
+                16 * pixels >> 20,
+                limit >> 20
+            );
         }
         let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
         let buffer = |label: &str, size: u64| {
@@ -411,7 +416,15 @@ impl GpuTerrain {
     }
 
     /// Renders one frame and reads it back: colour, `Z` (world distance), `steps`.
-    pub fn render(&self, gpu: &Gpu, grid: &TerrainGrid, rays: &RayGenerator, shading: &Shading, traversal: Traversal, max_steps: u32) -> Result<Frame> {
+    pub fn render(
+        &self,
+        gpu: &Gpu,
+        grid: &TerrainGrid,
+        rays: &RayGenerator,
+        shading: &Shading,
+        traversal: Traversal,
+        max_steps: u32,
+    ) -> Result<Frame> {
         let params = self.params(grid, rays, shading, traversal, max_steps);
         let target = self.target(gpu, &params)?;
         let seconds = self.dispatch(gpu, &target)?;
@@ -447,7 +460,16 @@ impl GpuTerrain {
     }
 
     /// Seconds per frame for `runs` frames of the same view (dispatch and wait, no read-back).
-    pub fn time_frames(&self, gpu: &Gpu, grid: &TerrainGrid, rays: &RayGenerator, shading: &Shading, traversal: Traversal, max_steps: u32, runs: usize) -> Result<Vec<f64>> {
+    pub fn time_frames(
+        &self,
+        gpu: &Gpu,
+        grid: &TerrainGrid,
+        rays: &RayGenerator,
+        shading: &Shading,
+        traversal: Traversal,
+        max_steps: u32,
+        runs: usize,
+    ) -> Result<Vec<f64>> {
         let params = self.params(grid, rays, shading, traversal, max_steps);
         let target = self.target(gpu, &params)?;
         self.dispatch(gpu, &target)?;

@@ -107,10 +107,14 @@ impl TerrainGrid {
         (self.world_to_grid.transform_point3(ray.origin), self.world_to_grid.transform_vector3(ray.dir))
     }
 
-    /// The grid-space bounding box of the patches: [0, cells] × [z_lo, z_hi].
+    /// The grid-space bounding box of the patches: [0, cells] × [z_lo, z_hi], the z slab
+    /// widened by 1e-4 of the relief (at least 1e-4 m) so that a ray grazing the highest
+    /// peak, or crossing a perfectly flat terrain, is not clipped away by rounding. The
+    /// GPU pads the same way.
     pub fn bounds(&self) -> (DVec3, DVec3) {
         let [cx, cy] = self.cells();
-        (DVec3::new(0.0, 0.0, self.z_lo), DVec3::new(cx as f64, cy as f64, self.z_hi))
+        let pad = 1e-4 * (self.z_hi - self.z_lo).max(1.0);
+        (DVec3::new(0.0, 0.0, self.z_lo - pad), DVec3::new(cx as f64, cy as f64, self.z_hi + pad))
     }
 
     /// The part t ∈ [t0, t1], t0 ≥ 0, of a grid-space ray inside the bounding box.
