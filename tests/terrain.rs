@@ -282,3 +282,30 @@ fn shading_matches_the_reference_with_shadows_and_a_texture() {
         assert!(darker > 20, "only {darker} pixels in shadow");
     }
 }
+
+/// The proof on real data: the Puget Sound heightmap and the pysheds GeoTIFF,
+/// from above (fly-through) and from 2 m above the ground (walk-through).
+#[test]
+fn real_dems_fly_and_walk_agree_with_the_reference() {
+    let Some(data) = common::shared_data() else { return };
+    if common::gpu().is_none() {
+        return;
+    }
+    let opts = volterra::formats::png_height::PngHeightOptions { vertical_scale: 0.1, cell_size: 160.0, ..Default::default() };
+    let puget = volterra::formats::png_height::read_png_heightmap(&data.join("terrain/ps_height_1k.png"), &opts).unwrap();
+    let pysheds = volterra::formats::geotiff::read_geotiff(&data.join("terrain/pysheds_dem.tif")).unwrap();
+    for (name, hf) in [("puget sound", &puget), ("pysheds", &pysheds)] {
+        let grid = TerrainGrid::new(hf, DMat4::IDENTITY).unwrap();
+        let ex = grid.cell[0] * (hf.width - 1) as f64;
+        let ey = grid.cell[1] * (hf.height - 1) as f64;
+        let top = grid.z_ref + grid.z_hi;
+        let fly = perspective([-0.1 * ex, -0.2 * ey, top + 0.4 * ex.max(ey)], [0.55 * ex, 0.5 * ey, grid.z_ref], [0.0, 0.0, 1.0], 45.0);
+        let Some((gpu, reference)) = render_both(hf, &fly, (160, 100), &Settings::default()) else { return };
+        assert_agree(&format!("{name} fly"), &gpu, &reference);
+        let (x, y) = (0.45 * ex, 0.3 * ey);
+        let ground = grid.surface_height(x, y).unwrap();
+        let walk = perspective([x, y, ground + 2.0], [x + 0.2 * ex, y + 0.5 * ey, ground + 2.0], [0.0, 0.0, 1.0], 60.0);
+        let Some((gpu, reference)) = render_both(hf, &walk, (160, 100), &Settings::default()) else { return };
+        assert_agree(&format!("{name} walk"), &gpu, &reference);
+    }
+}

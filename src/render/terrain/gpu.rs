@@ -187,6 +187,16 @@ fn v4(v: glam::DVec3, w: f64) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, w as f32]
 }
 
+/// One view of a terrain: camera rays, lights, traversal and its step cap.
+#[derive(Clone, Copy)]
+pub struct View<'a> {
+    pub grid: &'a TerrainGrid,
+    pub rays: &'a RayGenerator,
+    pub shading: &'a Shading,
+    pub traversal: Traversal,
+    pub max_steps: u32,
+}
+
 /// A heightfield resident on the GPU with its pyramid, ready to render any camera.
 pub struct GpuTerrain {
     heights_view: wgpu::TextureView,
@@ -334,7 +344,8 @@ impl GpuTerrain {
         self.levels
     }
 
-    fn params(&self, grid: &TerrainGrid, rays: &RayGenerator, shading: &Shading, traversal: Traversal, max_steps: u32) -> Params {
+    fn params(&self, view: &View) -> Params {
+        let View { grid, rays, shading, traversal, max_steps } = *view;
         let (w, h) = rays.size();
         let (eye, right, up) = rays.basis();
         let (half_w, half_h) = rays.half_extent();
@@ -365,11 +376,11 @@ impl GpuTerrain {
         let device = &gpu.device;
         let (width, height) = (params.size[0], params.size[1]);
         let pixels = width as u64 * height as u64;
-        let limit = device.limits().max_storage_buffer_binding_size as u64;
+        let limit = device.limits().max_storage_buffer_binding_size;
         if 16 * pixels > limit {
             bail!(
                 "a {width}×{height} image needs {} MiB of colour buffer, more than the GPU binds ({} MiB)",
-                16 * pixels >> 20,
+                (16 * pixels) >> 20,
                 limit >> 20
             );
         }
@@ -416,16 +427,9 @@ impl GpuTerrain {
     }
 
     /// Renders one frame and reads it back: colour, `Z` (world distance), `steps`.
-    pub fn render(
-        &self,
-        gpu: &Gpu,
-        grid: &TerrainGrid,
-        rays: &RayGenerator,
-        shading: &Shading,
-        traversal: Traversal,
-        max_steps: u32,
-    ) -> Result<Frame> {
-        let params = self.params(grid, rays, shading, traversal, max_steps);
+    pub fn render(&self, gpu: &Gpu, view: &View) -> Result<Frame> {
+        let params = self.params(view);
+        let (rays, max_steps) = (view.rays, view.max_steps);
         let target = self.target(gpu, &params)?;
         let seconds = self.dispatch(gpu, &target)?;
         let colour: Vec<[f32; 4]> = read_buffer(gpu, &target.colour)?;
@@ -460,17 +464,8 @@ impl GpuTerrain {
     }
 
     /// Seconds per frame for `runs` frames of the same view (dispatch and wait, no read-back).
-    pub fn time_frames(
-        &self,
-        gpu: &Gpu,
-        grid: &TerrainGrid,
-        rays: &RayGenerator,
-        shading: &Shading,
-        traversal: Traversal,
-        max_steps: u32,
-        runs: usize,
-    ) -> Result<Vec<f64>> {
-        let params = self.params(grid, rays, shading, traversal, max_steps);
+    pub fn time_frames(&self, gpu: &Gpu, view: &View, runs: usize) -> Result<Vec<f64>> {
+        let params = self.params(view);
         let target = self.target(gpu, &params)?;
         self.dispatch(gpu, &target)?;
         (0..runs).map(|_| self.dispatch(gpu, &target)).collect()

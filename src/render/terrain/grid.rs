@@ -185,7 +185,7 @@ pub fn bilinear(z: [f64; 4], u: f64, v: f64) -> f64 {
     z[0] + b * u + c * v + a * u * v
 }
 
-/// The first s ∈ [0, len] where the ray (u0, v0, z0) + s·d, in the patch's own coordinates
+/// The first s ∈ [0, len] where the ray `start` + s·d, `start` = (u0, v0, z0) in the patch's own coordinates
 /// (u, v ∈ [0, 1] across the cell), meets the bilinear patch coming from above.
 ///
 /// Along the ray, height above the patch is f(s) = a s² + b s + c with
@@ -199,7 +199,8 @@ pub fn bilinear(z: [f64; 4], u: f64, v: f64) -> f64 {
 /// s = 0; elsewhere it is a hit at s = 0 only within `tolerance` — the crossing was at the
 /// shared edge and rounding put it here, so no crack opens between cells — and otherwise
 /// the ray has gone under the surface through a NoData hole and meets nothing here.
-pub fn intersect_patch(z: [f64; 4], u0: f64, v0: f64, z0: f64, d: DVec3, len: f64, first: bool, tolerance: f64) -> Option<f64> {
+pub fn intersect_patch(z: [f64; 4], start: DVec3, d: DVec3, len: f64, first: bool, tolerance: f64) -> Option<f64> {
+    let (u0, v0, z0) = (start.x, start.y, start.z);
     let (pa, pb, pc) = patch_coefficients(z);
     let c = z0 - (z[0] + pb * u0 + pc * v0 + pa * u0 * v0);
     let b = d.z - pb * d.x - pc * d.y - pa * (u0 * d.y + v0 * d.x);

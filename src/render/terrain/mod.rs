@@ -92,7 +92,8 @@ pub fn render(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) ->
     let (grid, shading) = input.prepare(settings)?;
     let gpu = gpu::gpu()?;
     let terrain = gpu::GpuTerrain::new(gpu, &grid, input.texture)?;
-    terrain.render(gpu, &grid, rays, &shading, settings.traversal, settings.step_cap(&grid))
+    let view = gpu::View { grid: &grid, rays, shading: &shading, traversal: settings.traversal, max_steps: settings.step_cap(&grid) };
+    terrain.render(gpu, &view)
 }
 
 /// Renders with the f64 CPU reference (`traversal` and `max_steps` do not apply).

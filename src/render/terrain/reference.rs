@@ -44,7 +44,7 @@ pub fn trace(grid: &TerrainGrid, o: DVec3, d: DVec3, t0: f64, t1: f64) -> (Optio
         if let Some(z) = grid.patch(i as usize, j as usize) {
             let pa = o + t * d;
             let (u0, v0) = (pa.x - i as f64, pa.y - j as f64);
-            if let Some(s) = intersect_patch(z, u0, v0, pa.z, d, t_next - t, t == t0, grid.edge_tolerance()) {
+            if let Some(s) = intersect_patch(z, DVec3::new(u0, v0, pa.z), d, t_next - t, t == t0, grid.edge_tolerance()) {
                 let hit =
                     Hit { t: t + s, cell: [i as usize, j as usize], u: (u0 + s * d.x).clamp(0.0, 1.0), v: (v0 + s * d.y).clamp(0.0, 1.0) };
                 return (Some(hit), cells);
