@@ -10,7 +10,7 @@ const HOLE: f32 = -3.0e38;
 const BIG: f32 = 3.0e38;
 
 struct Params {
-    // xyz: eye (perspective) or camera-plane centre (parallel), grid space; w: 1 = parallel.
+    // w: 1 = parallel projection (xyz unused: every position is relative to the eye).
     eye: vec4<f32>,
     // Images of the camera's forward / right / up unit vectors in grid space;
     // w: half width, half height (of the view plane at distance 1, or in world units when
@@ -22,7 +22,7 @@ struct Params {
     normal_x: vec4<f32>,
     normal_y: vec4<f32>,
     normal_z: vec4<f32>,
-    // z_lo, z_hi (valid heights, grid space), cell size east, north (metres).
+    // z_lo, z_hi (valid heights, relative to the eye), cell size east, north (metres).
     extent: vec4<f32>,
     // width, height (pixels), cells east, cells north.
     size: vec4<u32>,
@@ -31,6 +31,14 @@ struct Params {
     control: vec4<u32>,
     // number of lights; shadow lift (metres, as f32 bits); unused.
     misc: vec4<u32>,
+    // The eye (perspective) or the view plane's centre (parallel) in grid space, as a
+    // two-float sum hi + lo per axis. The shader works relative to it: near the eye —
+    // where a walk-through looks — positions and heights are small numbers and f32 keeps
+    // their differences to a fraction of a millimetre. (Absolute f32 positions lose
+    // 1e-4 of a 30 m cell at x = 500 cells, which on a slope moves an eye 2 m above the
+    // ground by 2e-4 of its height.)
+    eye_hi: vec4<f32>,
+    eye_lo: vec4<f32>,
     // Per light: unit direction toward it (world), the same in grid space, colour × intensity.
     light_world: array<vec4<f32>, 4>,
     light_grid: array<vec4<f32>, 4>,
@@ -63,8 +71,8 @@ fn clip(o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
     // The z slab is widened a little: a ray grazing the highest peak must not be clipped
     // by f32 rounding of the box test.
     let pad = 1e-4 * max(1.0, P.extent.y - P.extent.x);
-    let lo = vec3<f32>(0.0, 0.0, P.extent.x - pad);
-    let hi = vec3<f32>(f32(P.size.z), f32(P.size.w), P.extent.y + pad);
+    let lo = vec3<f32>(from_eye_xy(vec2<f32>(0.0)), P.extent.x - pad);
+    let hi = vec3<f32>(from_eye_xy(vec2<f32>(P.size.zw)), P.extent.y + pad);
     var t0 = 0.0;
     var t1 = BIG;
     for (var k = 0; k < 3; k++) {
@@ -82,13 +90,25 @@ fn clip(o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
     return vec2<f32>(t0, t1);
 }
 
-// z00, z10, z01, z11 of patch c.
+// A stored height (relative to the tile's middle) relative to the eye instead. The
+// first subtraction is exact for heights near the eye's (Sterbenz), and each step is
+// monotonic, so lid bounds stay bounds.
+fn from_eye(h: f32) -> f32 {
+    return (h - P.eye_hi.z) - P.eye_lo.z;
+}
+
+// A grid position (x, y in cells) relative to the eye; exact near it, as above.
+fn from_eye_xy(g: vec2<f32>) -> vec2<f32> {
+    return (g - P.eye_hi.xy) - P.eye_lo.xy;
+}
+
+// z00, z10, z01, z11 of patch c, relative to the eye.
 fn patch_heights(c: vec2<i32>) -> vec4<f32> {
     return vec4<f32>(
-        textureLoad(heights, c, 0).r,
-        textureLoad(heights, c + vec2<i32>(1, 0), 0).r,
-        textureLoad(heights, c + vec2<i32>(0, 1), 0).r,
-        textureLoad(heights, c + vec2<i32>(1, 1), 0).r,
+        from_eye(textureLoad(heights, c, 0).r),
+        from_eye(textureLoad(heights, c + vec2<i32>(1, 0), 0).r),
+        from_eye(textureLoad(heights, c + vec2<i32>(0, 1), 0).r),
+        from_eye(textureLoad(heights, c + vec2<i32>(1, 1), 0).r),
     );
 }
 
@@ -201,7 +221,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
     var t = t_start;
     var size = f32(1u << level);
     var count = node_count(level);
-    let p0 = o + t * d;
+    let p0 = o + t * d + P.eye_hi.xyz;
     var node = vec2<i32>(node_index(p0.x, d.x, size, count.x), node_index(p0.y, d.y, size, count.y));
     let step = vec2<i32>(select(-1, 1, d.x > 0.0), select(-1, 1, d.y > 0.0));
     loop {
@@ -215,8 +235,8 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
         if node.x < 0 || node.y < 0 || node.x >= count.x || node.y >= count.y {
             break;
         }
-        let lo = vec2<f32>(node) * size;
-        let hi = lo + size;
+        let lo = from_eye_xy(vec2<f32>(node) * size);
+        let hi = from_eye_xy(vec2<f32>(node + 1) * size);
         var tx = BIG;
         if d.x > 0.0 {
             tx = (hi.x - o.x) / d.x;
@@ -230,7 +250,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
             ty = (lo.y - o.y) / d.y;
         }
         let t_exit = max(min(min(tx, ty), t_end), t);
-        let zmax = textureLoad(pyramid, node, i32(level)).r;
+        let zmax = from_eye(textureLoad(pyramid, node, i32(level)).r);
         let z_in = o.z + t * d.z;
         let z_out = o.z + t_exit * d.z;
         if min(z_in, z_out) <= zmax {
@@ -254,7 +274,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
                     t = clamp((zmax - o.z) / d.z, t, t_exit);
                 }
                 level -= 1u;
-                let mid = lo + 0.5 * size;
+                let mid = from_eye_xy((vec2<f32>(node) + 0.5) * size);
                 node = node * 2 + vec2<i32>(child_bit(t, o.x, d.x, mid.x), child_bit(t, o.y, d.y, mid.y));
                 continue;
             }
@@ -381,7 +401,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
                 if cosine > 0.0 {
                     var lit = true;
                     if (P.control.w & 1u) != 0u {
-                        let so = vec3<f32>(gx, gy, zh + lift);
+                        let so = vec3<f32>(from_eye_xy(vec2<f32>(h.cell)) + vec2<f32>(h.u, h.v), zh + lift);
                         let sd = P.light_grid[k].xyz;
                         let sr = clip(so, sd);
                         if sr.x <= sr.y {

@@ -113,9 +113,11 @@ enum Command {
     },
     /// Benchmarks: `formats` times loading against pydicom + numpy and nibabel;
     /// `shear-warp` times the renderer's configurations and VTK's fixed-point mapper
-    /// against their error from the reference ray caster.
+    /// against their error from the reference ray caster; `terrain` times the GPU
+    /// ray-caster's traversals on 256²..4096² DEMs, fly- and walk-through, with steps per
+    /// ray and depth error against the f64 reference.
     Bench {
-        /// What to measure: formats or shear-warp.
+        /// What to measure: formats, shear-warp or terrain.
         what: String,
         /// shear-warp: the scene (one volume, parallel camera).
         #[arg(long, default_value = "samples/aneurysm.toml")]
@@ -123,9 +125,15 @@ enum Command {
         /// shear-warp: print the rows as JSON.
         #[arg(long)]
         json: bool,
-        /// shear-warp: where to write the speed-against-error plot.
-        #[arg(long, default_value = "out/bench_shear_warp.png")]
-        plot: PathBuf,
+        /// Where to write the plot (default out/bench_<what>.png).
+        #[arg(long)]
+        plot: Option<PathBuf>,
+        /// terrain: heightfield sizes (samples per side).
+        #[arg(long, value_delimiter = ',', default_values_t = [256usize, 512, 1024, 2048, 4096])]
+        sizes: Vec<usize>,
+        /// terrain: image size in pixels, WIDTHxHEIGHT.
+        #[arg(long, default_value = "1920x1080")]
+        image: String,
         #[arg(long, default_value_t = 5)]
         runs: usize,
         /// Where the benchmark inputs are written (reused between runs).
@@ -174,16 +182,44 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Demo { out } => cmd_demo(&out),
-        Command::Bench { what, runs, work_dir, python, scene, json, plot } => match what.as_str() {
-            "formats" => volterra::bench::run(&volterra::bench::FormatsBench { work_dir, runs, python }),
-            "shear-warp" => {
-                if let Some(dir) = plot.parent().filter(|d| !d.as_os_str().is_empty()) {
-                    std::fs::create_dir_all(dir)?;
-                }
-                volterra::bench_shear_warp::run(&volterra::bench_shear_warp::ShearWarpBench { scene, runs, work_dir, python, json, plot })
+        Command::Bench { what, runs, work_dir, python, scene, json, plot, sizes, image } => {
+            let plot = plot.unwrap_or_else(|| PathBuf::from(format!("out/bench_{}.png", what.replace('-', "_"))));
+            if let Some(dir) = plot.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)?;
             }
-            other => bail!("bench {other}: known benchmarks: formats, shear-warp"),
-        },
+            match what.as_str() {
+                "formats" => volterra::bench::run(&volterra::bench::FormatsBench { work_dir, runs, python }),
+                "shear-warp" => volterra::bench_shear_warp::run(&volterra::bench_shear_warp::ShearWarpBench {
+                    scene,
+                    runs,
+                    work_dir,
+                    python,
+                    json,
+                    plot,
+                }),
+                "terrain" => {
+                    let (width, height) = image
+                        .split_once('x')
+                        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+                        .filter(|&(w, h): &(usize, usize)| w > 0 && h > 0)
+                        .ok_or_else(|| anyhow!("--image {image}: expected WIDTHxHEIGHT, e.g. 1920x1080"))?;
+                    if let Some(&s) = sizes.iter().find(|&&s| s < 2) {
+                        bail!("--sizes: a heightfield needs at least 2 samples per side, not {s}");
+                    }
+                    volterra::bench_terrain::run(&volterra::bench_terrain::TerrainBench {
+                        sizes,
+                        width,
+                        height,
+                        runs,
+                        work_dir,
+                        python,
+                        json,
+                        plot,
+                    })
+                }
+                other => bail!("bench {other}: known benchmarks: formats, shear-warp, terrain"),
+            }
+        }
     }
 }
 

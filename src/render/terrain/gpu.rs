@@ -178,6 +178,8 @@ struct Params {
     size: [u32; 4],
     control: [u32; 4],
     misc: [u32; 4],
+    eye_hi: [f32; 4],
+    eye_lo: [f32; 4],
     light_world: [[f32; 4]; MAX_LIGHTS],
     light_grid: [[f32; 4]; MAX_LIGHTS],
     light_color: [[f32; 4]; MAX_LIGHTS],
@@ -352,14 +354,20 @@ impl GpuTerrain {
         let m = grid.world_to_grid;
         let n = grid.normal_to_world;
         let mut p = <Params as bytemuck::Zeroable>::zeroed();
-        p.eye = v4(m.transform_point3(eye), if rays.is_parallel() { 1.0 } else { 0.0 });
+        // The shader works relative to the eye, which it gets as an unevaluated sum of
+        // two floats per axis (see eye_hi in terrain_raycast.wgsl).
+        let eye_grid = m.transform_point3(eye);
+        let hi = eye_grid.as_vec3().as_dvec3();
+        p.eye_hi = v4(hi, 0.0);
+        p.eye_lo = v4(eye_grid - hi, 0.0);
+        p.eye = [0.0, 0.0, 0.0, if rays.is_parallel() { 1.0 } else { 0.0 }];
         p.fwd = v4(m.transform_vector3(rays.forward()), half_w);
         p.right = v4(m.transform_vector3(right), half_h);
         p.up = v4(m.transform_vector3(up), shading.ambient);
         p.normal_x = v4(n.row(0), 0.0);
         p.normal_y = v4(n.row(1), 0.0);
         p.normal_z = v4(n.row(2), 0.0);
-        p.extent = [grid.z_lo as f32, grid.z_hi as f32, grid.cell[0] as f32, grid.cell[1] as f32];
+        p.extent = [(grid.z_lo - eye_grid.z) as f32, (grid.z_hi - eye_grid.z) as f32, grid.cell[0] as f32, grid.cell[1] as f32];
         p.size = [w as u32, h as u32, self.cells[0], self.cells[1]];
         let flags = shading.shadows as u32 | (self.has_texture as u32) << 1;
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];

@@ -1,0 +1,213 @@
+//! `volterra bench terrain`: the GPU terrain ray-caster on fractal DEMs from 256² to 4096²
+//! (30 m cells, 4000 m of relief), for a fly-through camera (above the highest peak) and a
+//! walk-through camera (2 m above the ground): pyramid build time, median ms per frame,
+//! steps per ray, for the paper's traversal and the two baselines (no raise, linear
+//! march), and the depth error against the f64 reference.
+
+use crate::bench::median;
+use crate::render::terrain::gpu::{self, GpuTerrain, StepStats, View};
+use crate::render::terrain::grid::TerrainGrid;
+use crate::render::terrain::shading::{sun_lights, Shading};
+use crate::render::terrain::{depth_agreement, reference, Traversal};
+use crate::scene::camera::Camera;
+use anyhow::{bail, Result};
+use glam::DMat4;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use volterra_formats::{Crs, Heightfield};
+
+pub struct TerrainBench {
+    pub sizes: Vec<usize>,
+    pub width: usize,
+    pub height: usize,
+    pub runs: usize,
+    pub work_dir: PathBuf,
+    pub python: PathBuf,
+    pub json: bool,
+    pub plot: PathBuf,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Row {
+    pub config: String,
+    pub camera: String,
+    pub size: usize,
+    pub build_ms: f64,
+    pub median_ms: f64,
+    pub mean_steps: f64,
+    pub p95_steps: u32,
+    pub max_steps: u32,
+    pub capped_rays: u64,
+    /// Depth against the f64 reference on a smaller image of the same view.
+    pub median_rel_depth_error: f64,
+    pub p999_rel_depth_error: f64,
+    pub hit_mismatches_off_silhouette: usize,
+    pub gpu_mib: f64,
+}
+
+/// A size² DEM, 30 m cells, 0..4000 m: the built-in fractal terrain, cropped.
+pub fn bench_dem(size: usize) -> Heightfield {
+    let levels = size.next_power_of_two().trailing_zeros().max(1);
+    let dem = crate::samples::fractal_dem(levels, 30.0, 11);
+    let mut elevations = Vec::with_capacity(size * size);
+    let mut nodata = Vec::with_capacity(size * size);
+    for row in 0..size {
+        for col in 0..size {
+            let i = row * dem.width + col;
+            elevations.push(dem.elevations[i] * 1.6);
+            nodata.push(dem.nodata[i]);
+        }
+    }
+    Heightfield {
+        width: size,
+        height: size,
+        cell_size: [30.0; 2],
+        cell_size_native: [30.0; 2],
+        origin: [0.0, 0.0],
+        crs: Crs::local(),
+        elevations,
+        nodata,
+        nodata_value: None,
+        notes: vec![],
+    }
+}
+
+/// Fly: from beyond the south-west corner, above the highest peak, looking across.
+/// Walk: 2 m above the ground near the middle, looking north-east along the terrain.
+pub fn bench_cameras(grid: &TerrainGrid) -> Vec<(&'static str, Camera)> {
+    let ext = grid.cell[0] * grid.cells()[0] as f64;
+    let top = grid.z_ref + grid.z_hi;
+    let fly = Camera {
+        position: [-0.05 * ext, -0.05 * ext, top + 0.25 * ext],
+        focal_point: [0.5 * ext, 0.5 * ext, grid.z_ref],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 50.0,
+        parallel_projection: false,
+        parallel_scale: 1.0,
+    };
+    let (x, y) = (0.55 * ext, 0.45 * ext);
+    let ground = grid.surface_height(x, y).unwrap_or(grid.z_ref);
+    let walk = Camera {
+        position: [x, y, ground + 2.0],
+        focal_point: [x + 0.3 * ext, y + 0.4 * ext, ground + 2.0 + 0.02 * ext],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 60.0,
+        parallel_projection: false,
+        parallel_scale: 1.0,
+    };
+    vec![("fly", fly), ("walk", walk)]
+}
+
+fn traversal_name(t: Traversal) -> &'static str {
+    match t {
+        Traversal::Quadtree => "quadtree",
+        Traversal::NoRaise => "quadtree, no raise",
+        Traversal::Linear => "linear march",
+    }
+}
+
+pub fn run(b: &TerrainBench) -> Result<()> {
+    if b.runs == 0 || b.sizes.is_empty() {
+        bail!("--runs must be at least 1 and --sizes must name a size");
+    }
+    let gpu = gpu::gpu()?;
+    eprintln!("GPU: {} ({:?}, {:?})", gpu.info.name, gpu.info.backend, gpu.info.device_type);
+    std::fs::create_dir_all(&b.work_dir)?;
+    let shading = Shading { lights: sun_lights(&[])?, ambient: 0.25, shadows: false };
+    // The reference is f64 and cell by cell: its image is kept small.
+    let (rw, rh) = (192usize, (192 * b.height / b.width).max(1));
+    let mut rows = Vec::new();
+    let mut histograms = Vec::new();
+    let bar = crate::progress::bar(b.sizes.len() as u64 * 2, "terrain bench");
+    for &size in &b.sizes {
+        let hf = bench_dem(size);
+        let grid = TerrainGrid::new(&hf, DMat4::IDENTITY)?;
+        let mut builds = Vec::new();
+        let mut terrain = None;
+        for _ in 0..b.runs.min(3) {
+            let t = GpuTerrain::new(gpu, &grid, None)?;
+            builds.push(t.build_seconds);
+            terrain = Some(t);
+        }
+        let terrain = terrain.expect("built at least once");
+        let build_ms = 1e3 * median(&mut builds);
+        for (camera_name, cam) in bench_cameras(&grid) {
+            let small = cam.rays(rw, rh);
+            let truth = reference::render(&grid, None, &small, &shading);
+            for traversal in [Traversal::Quadtree, Traversal::NoRaise, Traversal::Linear] {
+                let cap = 4 * (grid.cells()[0] + grid.cells()[1]) as u32 + 64;
+                let rays = cam.rays(b.width, b.height);
+                let view = View { grid: &grid, rays: &rays, shading: &shading, traversal, max_steps: cap };
+                let mut times = terrain.time_frames(gpu, &view, b.runs)?;
+                let frame = terrain.render(gpu, &view)?;
+                let steps: Vec<u32> = frame.extra[0].1.iter().map(|&s| s as u32).collect();
+                let st = StepStats::new(&steps);
+                let capped = frame.stats.counters.iter().find(|c| c.0 == "rays at the step cap").map(|c| c.1 as u64).unwrap_or(0);
+                let check = terrain.render(gpu, &View { rays: &small, ..view })?;
+                let agree = depth_agreement(&check, &truth);
+                if traversal == Traversal::Quadtree && size == *b.sizes.iter().max().unwrap() {
+                    histograms.push(serde_json::json!({ "camera": camera_name, "size": size, "steps": steps }));
+                }
+                rows.push(Row {
+                    config: traversal_name(traversal).into(),
+                    camera: camera_name.into(),
+                    size,
+                    build_ms,
+                    median_ms: 1e3 * median(&mut times),
+                    mean_steps: st.mean,
+                    p95_steps: st.p95,
+                    max_steps: st.max,
+                    capped_rays: capped,
+                    median_rel_depth_error: agree.median_rel,
+                    p999_rel_depth_error: agree.p999_rel,
+                    hit_mismatches_off_silhouette: agree.mismatched_off_silhouette,
+                    gpu_mib: terrain.gpu_bytes as f64 / (1 << 20) as f64,
+                });
+            }
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+
+    let steps_path = b.work_dir.join("terrain_steps.json");
+    std::fs::write(&steps_path, serde_json::to_string(&histograms)?)?;
+    let plot = std::process::Command::new(&b.python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/plot_terrain_steps.py"))
+        .arg(&steps_path)
+        .arg(&b.plot)
+        .status();
+    match plot {
+        Ok(s) if s.success() => eprintln!("step histogram written to {}", b.plot.display()),
+        _ => eprintln!("plot skipped (needs matplotlib in {})", b.python.display()),
+    }
+    if b.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+        return Ok(());
+    }
+    println!(
+        "{}×{} image, median of {} frames; depth error on a {rw}×{rh} image against the f64 reference; GPU: {}",
+        b.width, b.height, b.runs, gpu.info.name
+    );
+    println!(
+        "{:>5} {:<5} {:<19} {:>9} {:>10} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5}",
+        "size", "cam", "traversal", "build ms", "ms/frame", "mean", "p95", "max", "capped", "med. err", "p99.9 err", "miss"
+    );
+    for r in &rows {
+        println!(
+            "{:>5} {:<5} {:<19} {:>9.2} {:>10.2} {:>7.1} {:>5} {:>6} {:>6} {:>10.1e} {:>10.1e} {:>5}",
+            r.size,
+            r.camera,
+            r.config,
+            r.build_ms,
+            r.median_ms,
+            r.mean_steps,
+            r.p95_steps,
+            r.max_steps,
+            r.capped_rays,
+            r.median_rel_depth_error,
+            r.p999_rel_depth_error,
+            r.hit_mismatches_off_silhouette
+        );
+    }
+    Ok(())
+}
