@@ -102,6 +102,10 @@ enum Command {
         /// `node.NAME.settings.step=0.25` (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
+        /// Render N frames along the scene's [[keyframe]]s (fly- or walk-through) into
+        /// OUTPUT_0000.exr, OUTPUT_0001.exr, … (and PNG_0000.png, …).
+        #[arg(long, value_name = "N")]
+        frames: Option<usize>,
     },
     /// Write the built-in sample data and a scene for each into DIR.
     Samples { dir: PathBuf },
@@ -175,7 +179,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::Info { path, json, read } => cmd_info(&path, json, &read),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read),
         Command::Compare { a, b, json } => cmd_compare(&a, &b, json),
-        Command::Render { scene, output, png, sets } => cmd_render(&scene, &output, png.as_deref(), &sets).map(|_| ()),
+        Command::Render { scene, output, png, sets, frames } => match frames {
+            None => cmd_render(&scene, &output, png.as_deref(), &sets),
+            Some(n) => cmd_render_frames(&scene, &output, png.as_deref(), &sets, n),
+        },
         Command::Samples { dir } => {
             volterra::samples::write_samples(&dir)?;
             eprintln!("wrote samples and scenes into {}", dir.display());
@@ -300,15 +307,47 @@ fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
     Ok(())
 }
 
-fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String]) -> Result<render::Frame> {
+fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String]) -> Result<()> {
     let scene = Scene::load(scene_path, sets)?;
-    let frame = render::render_scene(&scene)?;
+    write_frame(&scene, None, output, png)
+}
+
+fn write_frame(scene: &Scene, frame: Option<(usize, usize)>, output: &Path, png: Option<&Path>) -> Result<()> {
+    let image = render::render_scene(scene, frame)?;
     let bg = scene.file.image.background;
-    formats::exr_io::write_exr(output, &frame.to_image(bg))?;
+    formats::exr_io::write_exr(output, &image.to_image(bg))?;
     if let Some(p) = png {
-        formats::image::write_png_preview(p, frame.width, frame.height, &frame.preview_rgba(bg))?;
+        formats::image::write_png_preview(p, image.width, image.height, &image.preview_rgba(bg))?;
     }
-    Ok(frame)
+    Ok(())
+}
+
+/// `out.exr` → `out_0007.exr`.
+fn numbered(path: &Path, k: usize) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = match path.extension() {
+        Some(ext) => format!("{stem}_{k:04}.{}", ext.to_string_lossy()),
+        None => format!("{stem}_{k:04}"),
+    };
+    path.with_file_name(name)
+}
+
+fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], n: usize) -> Result<()> {
+    if n == 0 {
+        bail!("--frames must be at least 1");
+    }
+    let scene = Scene::load(scene_path, sets)?;
+    if scene.file.keyframes.is_empty() {
+        bail!("{}: --frames needs [[keyframe]]s in the scene (a camera path)", scene_path.display());
+    }
+    let bar = volterra::progress::bar(n as u64, "frames");
+    for k in 0..n {
+        write_frame(&scene, Some((k, n)), &numbered(output, k), png.map(|p| numbered(p, k)).as_deref())?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    eprintln!("wrote {n} frames: {} … {}", numbered(output, 0).display(), numbered(output, n - 1).display());
+    Ok(())
 }
 
 fn cmd_demo(out: &Path) -> Result<()> {

@@ -38,6 +38,7 @@ pub const SCENES: &[(&str, &str)] = &[
     ("angio_shear_warp.toml", include_str!("../samples/angio_shear_warp.toml")),
     ("terrain.toml", include_str!("../samples/terrain.toml")),
     ("terrain_png.toml", include_str!("../samples/terrain_png.toml")),
+    ("terrain_walk.toml", include_str!("../samples/terrain_walk.toml")),
     ("smoke.toml", include_str!("../samples/smoke.toml")),
 ];
 

@@ -101,3 +101,44 @@ fn render_then_compare_with_itself_and_with_a_coarser_render() {
     }
     assert!(img.channel("A").unwrap().iter().any(|&a| a > 0.5), "the phantom is visible");
 }
+
+/// `render --frames N` writes N numbered EXR and PNG files along the keyframes (needs the
+/// GPU for the terrain: lavapipe in CI).
+#[test]
+fn render_frames_writes_a_numbered_sequence() {
+    if common::gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(volterra(&["samples", d.to_str().unwrap()]).status.success());
+    let scene = d.join("terrain_walk.toml");
+    let out = d.join("walk.exr");
+    let png = d.join("walk.png");
+    let o = volterra(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+        "--frames",
+        "3",
+        "--set",
+        "image.width=64",
+        "--set",
+        "image.height=36",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in 0..3 {
+        assert!(d.join(format!("walk_{k:04}.exr")).exists() && d.join(format!("walk_{k:04}.png")).exists(), "frame {k}");
+        let img = volterra_formats::exr_io::read_exr(&d.join(format!("walk_{k:04}.exr"))).unwrap();
+        assert!(img.channel("steps").is_some());
+        assert!(img.channel("A").unwrap().iter().any(|&a| a > 0.5), "frame {k} sees the ground");
+    }
+    assert!(!d.join("walk_0003.exr").exists());
+    // A scene without keyframes: a clear error.
+    let o = volterra(&["render", d.join("terrain.toml").to_str().unwrap(), "-o", out.to_str().unwrap(), "--frames", "2"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("keyframe"));
+}

@@ -102,7 +102,7 @@ fn overrides_change_values_by_path_and_by_node_name() {
     assert!(Scene::load(&p, &["node.nobody.blend=mip".into()]).is_err());
     assert!(Scene::load(&p, &["node.vol.settings.stepp=0.5".into()]).is_ok(), "renderer settings are checked by the renderer");
     let s = Scene::load(&p, &["node.vol.settings.stepp=0.5".into()]).unwrap();
-    let e = format!("{:#}", render::render_scene(&s).err().unwrap());
+    let e = format!("{:#}", render::render_scene(&s, None).err().unwrap());
     assert!(e.contains("stepp"), "{e}");
 }
 
@@ -226,6 +226,39 @@ fn aneurysm_sample_scene_renders_the_shared_scan() {
         return;
     }
     let s = Scene::load(&repo_path("samples/aneurysm.toml"), &["image.width=64".into(), "image.height=64".into()]).unwrap();
-    let f = render::render_scene(&s).unwrap();
+    let f = render::render_scene(&s, None).unwrap();
     assert!(f.rgba.iter().filter(|p| p[3] > 0.3).count() > 100, "the vessels are visible");
+}
+
+/// [walk] puts the eye eye_height above the bilinear ground, and keyframed frames pass
+/// through every key.
+#[test]
+fn walk_keeps_the_eye_above_the_ground_and_frames_pass_through_the_keyframes() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra::samples::write_samples(dir.path()).unwrap();
+    let scene = Scene::load(&dir.path().join("terrain_walk.toml"), &[]).unwrap();
+    let dem = volterra::formats::geotiff::read_geotiff(&dir.path().join("fractal_dem.tif")).unwrap();
+    // The ground by hand: bilinear between the four samples around (x, y); rows run south.
+    let ground = |x: f64, y: f64| {
+        let (gx, gy) = (x / dem.cell_size[0], y / dem.cell_size[1]);
+        let (i, j) = (gx.floor() as usize, gy.floor() as usize);
+        let z = |c: usize, jj: usize| dem.elevations[(dem.height - 1 - jj) * dem.width + c] as f64;
+        let (u, v) = (gx - i as f64, gy - j as f64);
+        (1.0 - u) * (1.0 - v) * z(i, j) + u * (1.0 - v) * z(i + 1, j) + (1.0 - u) * v * z(i, j + 1) + u * v * z(i + 1, j + 1)
+    };
+    let cam = scene.camera(None).unwrap();
+    let g = ground(cam.position[0], cam.position[1]);
+    assert!((cam.position[2] - (g + 1.7)).abs() < 1e-6, "eye z {} vs ground {g} + 1.7", cam.position[2]);
+    assert!((cam.focal_point[2] - (120.0 + g + 1.7)).abs() < 1e-6, "the focal point rises with the eye");
+    let keys = &scene.file.keyframes;
+    for (k, n) in [(0usize, 5usize), (2, 5), (4, 5)] {
+        let c = scene.camera(Some((k, n))).unwrap();
+        let key = &keys[k / 2];
+        assert!((c.position[0] - key.position[0]).abs() < 1e-9 && (c.position[1] - key.position[1]).abs() < 1e-9, "frame {k}");
+        assert!((c.position[2] - (ground(c.position[0], c.position[1]) + 1.7)).abs() < 1e-6);
+    }
+    // Walking off the terrain is an error naming the problem.
+    let off = Scene::load(&dir.path().join("terrain_walk.toml"), &["camera.position=[-500.0, 100.0, 0.0]".into()]).unwrap();
+    let e = format!("{:#}", off.camera(None).unwrap_err());
+    assert!(e.contains("walk") && e.contains("not over the terrain"), "{e}");
 }

@@ -13,7 +13,7 @@ use volterra::scene::Scene;
 fn render_with(scene: &Scene, renderer: &str) -> Frame {
     let path = scene.source.clone();
     let s = Scene::load(&path, &[format!("node.aneurism.renderer={renderer}")]).unwrap();
-    render::render_scene(&s).unwrap()
+    render::render_scene(&s, None).unwrap()
 }
 
 #[test]

@@ -52,6 +52,29 @@ impl Heightfield {
     pub fn is_nodata(&self, col: usize, row: usize) -> bool {
         !self.nodata.is_empty() && self.nodata[row * self.width + col]
     }
+    /// The elevation (metres) at a point of the heightfield's local frame — x east, y north
+    /// in metres from the south-west sample's centre — bilinear between the four samples
+    /// around it. None outside the samples or where one of the four is NoData.
+    pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
+        let gx = x / self.cell_size[0];
+        let gy = y / self.cell_size[1];
+        let (cx, cy) = (self.width.checked_sub(1)?, self.height.checked_sub(1)?);
+        if !(gx >= 0.0 && gy >= 0.0 && gx <= cx as f64 && gy <= cy as f64) || cx == 0 || cy == 0 {
+            return None;
+        }
+        let i = (gx.floor() as usize).min(cx - 1);
+        let j = (gy.floor() as usize).min(cy - 1);
+        let (u, v) = (gx - i as f64, gy - j as f64);
+        // Row index from the north: j counts from the south.
+        let z = |col: usize, jj: usize| {
+            let row = self.height - 1 - jj;
+            let e = self.elevations[row * self.width + col];
+            (!self.is_nodata(col, row) && e.is_finite()).then_some(e as f64)
+        };
+        let (z00, z10, z01, z11) = (z(i, j)?, z(i + 1, j)?, z(i, j + 1)?, z(i + 1, j + 1)?);
+        Some((1.0 - u) * (1.0 - v) * z00 + u * (1.0 - v) * z10 + (1.0 - u) * v * z01 + u * v * z11)
+    }
+
     /// (min, max) elevation over valid samples.
     pub fn range(&self) -> Option<(f32, f32)> {
         let mut lo = f32::INFINITY;

@@ -9,7 +9,7 @@ pub mod terrain;
 
 pub use frame::{Frame, FrameStats};
 
-use crate::scene::{NodeKind, Scene};
+use crate::scene::{Camera, NodeKind, Scene};
 use anyhow::{anyhow, bail, Context, Result};
 
 /// Renderers by name, with the node kinds they draw and whether they exist yet.
@@ -35,8 +35,9 @@ fn settings<T: serde::de::DeserializeOwned + Default>(table: &toml::Table, node:
         .map_err(|e: toml::de::Error| anyhow!("node '{node}': settings for renderer '{renderer}': {}", e.message().trim()))
 }
 
-/// Renders one node. Returns None for nodes nothing is drawn for (groups, hidden nodes).
-pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
+/// Renders one node seen by `camera`. Returns None for nodes nothing is drawn for (groups,
+/// hidden nodes).
+pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option<Frame>> {
     let desc = &scene.nodes()[node];
     if !desc.visible || desc.kind == NodeKind::Group {
         return Ok(None);
@@ -57,7 +58,7 @@ pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
         bail!("node '{}': renderer '{name}' is not implemented yet", desc.name);
     }
     let (w, h) = (scene.file.image.width, scene.file.image.height);
-    let rays = scene.file.camera.rays(w, h);
+    let rays = camera.rays(w, h);
     let frame = match name {
         "reference" => {
             let s: reference_volume::Settings = settings(&desc.settings, &desc.name, name)?;
@@ -95,11 +96,13 @@ pub fn render_node(scene: &Scene, node: usize) -> Result<Option<Frame>> {
     Ok(Some(frame))
 }
 
-pub fn render_scene(scene: &Scene) -> Result<Frame> {
+/// Renders the scene's camera (or frame k of n along its keyframes).
+pub fn render_scene(scene: &Scene, frame: Option<(usize, usize)>) -> Result<Frame> {
     let (w, h) = (scene.file.image.width, scene.file.image.height);
+    let camera = scene.camera(frame)?;
     let mut layers = Vec::new();
     for i in 0..scene.nodes().len() {
-        if let Some(f) = render_node(scene, i).with_context(|| scene.source.display().to_string())? {
+        if let Some(f) = render_node(scene, i, &camera).with_context(|| scene.source.display().to_string())? {
             layers.push(f);
         }
     }

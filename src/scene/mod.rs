@@ -174,12 +174,39 @@ fn unit() -> f64 {
     1.0
 }
 
+/// Walk-through: the eye is kept `eye_height` metres above the ground of a heightfield node
+/// (the camera's and every keyframe's z is replaced; the focal point moves with it, so the
+/// view keeps its pitch).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Walk {
+    pub node: String,
+    #[serde(default = "default_eye_height")]
+    pub eye_height: f64,
+}
+
+fn default_eye_height() -> f64 {
+    1.7
+}
+
+/// A camera keyframe; `volterra render --frames N` renders N frames along a Catmull-Rom
+/// spline through them (view_up and the angle come from `[camera]`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Keyframe {
+    pub position: [f64; 3],
+    pub focal_point: [f64; 3],
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     #[serde(default)]
     pub image: ImageSettings,
     pub camera: Camera,
+    pub walk: Option<Walk>,
+    #[serde(default, rename = "keyframe")]
+    pub keyframes: Vec<Keyframe>,
     #[serde(default, rename = "light")]
     pub lights: Vec<Light>,
     #[serde(default, rename = "node")]
@@ -295,6 +322,19 @@ impl Scene {
                 tf.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
             }
         }
+        if let Some(w) = &file.walk {
+            let node = index.get(w.node.as_str()).ok_or_else(|| anyhow!("{src}: walk: no node named '{}'", w.node))?;
+            if file.nodes[*node].kind != NodeKind::Heightfield {
+                bail!("{src}: walk: node '{}' is not a heightfield", w.node);
+            }
+            if !(w.eye_height.is_finite() && w.eye_height >= 0.0) {
+                bail!("{src}: walk: eye_height {} must be a non-negative number of metres", w.eye_height);
+            }
+        }
+        for (k, key) in file.keyframes.iter().enumerate() {
+            let cam = Camera { position: key.position, focal_point: key.focal_point, ..file.camera.clone() };
+            cam.validate().map_err(|m| anyhow!("{src}: keyframe {}: {m}", k + 1))?;
+        }
         // World transforms, parents first; a cycle is an error.
         let mut world: Vec<Option<DMat4>> = vec![None; file.nodes.len()];
         for i in 0..file.nodes.len() {
@@ -329,6 +369,42 @@ impl Scene {
 
     pub fn nodes(&self) -> &[NodeDesc] {
         &self.file.nodes
+    }
+
+    /// The camera to render: `[camera]`, or frame `k` of `n` along the keyframes; with
+    /// `[walk]`, its eye put `eye_height` above the ground.
+    pub fn camera(&self, frame: Option<(usize, usize)>) -> Result<Camera> {
+        let mut cam = self.file.camera.clone();
+        if let Some((k, n)) = frame {
+            let keys = &self.file.keyframes;
+            if keys.is_empty() {
+                bail!("{}: rendering frames needs [[keyframe]]s in the scene", self.source.display());
+            }
+            let s = if n > 1 { k as f64 / (n - 1) as f64 } else { 0.0 };
+            cam.position = catmull_rom(&keys.iter().map(|k| k.position).collect::<Vec<_>>(), s);
+            cam.focal_point = catmull_rom(&keys.iter().map(|k| k.focal_point).collect::<Vec<_>>(), s);
+        }
+        if let Some(w) = &self.file.walk {
+            let node = self.file.nodes.iter().position(|n| n.name == w.node).expect("checked at load");
+            let hf = self.heightfield(node)?;
+            let m = self.world_transform(node);
+            let local = m.inverse().transform_point3(DVec3::new(cam.position[0], cam.position[1], 0.0));
+            let ground = hf.surface_height(local.x, local.y).ok_or_else(|| {
+                anyhow!(
+                    "{}: walk: the eye at ({:.1}, {:.1}) is not over the terrain of node '{}' (outside it, or over NoData)",
+                    self.source.display(),
+                    cam.position[0],
+                    cam.position[1],
+                    w.node
+                )
+            })?;
+            let z = m.transform_point3(DVec3::new(local.x, local.y, ground)).z + w.eye_height;
+            let lift = z - cam.position[2];
+            cam.position[2] = z;
+            cam.focal_point[2] += lift;
+        }
+        cam.validate().map_err(|m| anyhow!("{}: {m}", self.source.display()))?;
+        Ok(cam)
     }
 
     /// Node-local → world transform (parents applied).
@@ -404,4 +480,21 @@ impl Scene {
     pub fn is_loaded(&self, node: usize) -> bool {
         self.data[node].get().is_some()
     }
+}
+
+/// The point at s ∈ [0, 1] on a uniform Catmull-Rom spline through `points` (ends
+/// repeated), so that every key is passed through at s = i / (len − 1).
+fn catmull_rom(points: &[[f64; 3]], s: f64) -> [f64; 3] {
+    let n = points.len();
+    if n == 1 {
+        return points[0];
+    }
+    let u = s.clamp(0.0, 1.0) * (n - 1) as f64;
+    let i = (u.floor() as usize).min(n - 2);
+    let f = u - i as f64;
+    let p = |k: i64| DVec3::from(points[k.clamp(0, n as i64 - 1) as usize]);
+    let (p0, p1, p2, p3) = (p(i as i64 - 1), p(i as i64), p(i as i64 + 1), p(i as i64 + 2));
+    let v =
+        0.5 * ((2.0 * p1) + (p2 - p0) * f + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * f * f + (3.0 * p1 - p0 - 3.0 * p2 + p3) * f * f * f);
+    v.to_array()
 }
