@@ -64,6 +64,21 @@ def main():
             diff = float(np.abs(a.astype(np.float64) - b).max())
             if diff > 2e-3:
                 errors.append(f"{name}: VTK render differs from the committed one by {diff}")
+        # VTK's triangle-mesh depth of the terrain comparison scenes.
+        scenes = sorted(glob.glob(os.path.join(HERE, "terrain_scenes", "*.toml")))
+        subprocess.run([py, os.path.join(HERE, "vtk_terrain.py"), os.path.join(scratch, "vtk")] + scenes, check=True,
+                       stderr=subprocess.DEVNULL)
+        for scene in scenes:
+            name = "vtk_terrain_" + os.path.splitext(os.path.basename(scene))[0] + ".exr"
+            a = OpenEXR.File(os.path.join(REPO, "tests/reference/data", name)).channels()["Z"].pixels.astype(np.float64)
+            b = OpenEXR.File(os.path.join(scratch, "vtk", name)).channels()["Z"].pixels.astype(np.float64)
+            fa, fb = np.isfinite(a), np.isfinite(b)
+            if (fa != fb).sum() > 0.001 * a.size:
+                errors.append(f"{name}: VTK depth covers {(fa != fb).sum()} pixels differently from the committed one")
+            both = fa & fb
+            rel = float(np.median(np.abs(a[both] - b[both]) / b[both])) if both.any() else 0.0
+            if rel > 1e-4:
+                errors.append(f"{name}: VTK depth differs from the committed one by {rel} (median relative)")
     elif os.environ.get("CI") == "true":
         print(f"shared data not found at {shared} (CI=true: must not skip)", file=sys.stderr)
         sys.exit(1)

@@ -235,3 +235,53 @@ pub fn intersect_patch(z: [f64; 4], start: DVec3, d: DVec3, len: f64, first: boo
     };
     (s <= limit).then(|| s.min(len))
 }
+
+/// As [`intersect_patch`], for the cell split into the two triangles (00, 10, 11) and
+/// (00, 11, 01) — the diagonal from the south-west to the north-east corner — the surface
+/// a triangle mesh of the heightfield has. For comparing with mesh renderers (VTK).
+pub fn intersect_triangles(z: [f64; 4], start: DVec3, d: DVec3, len: f64, first: bool, tolerance: f64) -> Option<f64> {
+    let [z00, z10, z01, z11] = z;
+    // Height above the triangle's plane along the ray: linear in s.
+    let above = |s: f64| {
+        let (u, v) = (start.x + d.x * s, start.y + d.y * s);
+        let ground = if u >= v { z00 + (z10 - z00) * u + (z11 - z10) * v } else { z00 + (z11 - z01) * u + (z01 - z00) * v };
+        start.z + d.z * s - ground
+    };
+    let slope = |s: f64| {
+        let (u, v) = (start.x + d.x * s, start.y + d.y * s);
+        let (gu, gv) = if u >= v { (z10 - z00, z11 - z10) } else { (z11 - z01, z01 - z00) };
+        d.z - gu * d.x - gv * d.y
+    };
+    let c = above(0.0);
+    if c < 0.0 {
+        return (first || c >= -tolerance).then_some(0.0);
+    }
+    if c == 0.0 && slope(0.0) <= 0.0 {
+        return Some(0.0);
+    }
+    // The segment in pieces, cut where it crosses the diagonal u = v.
+    let mut cuts = vec![0.0];
+    if d.x != d.y {
+        let s = (start.y - start.x) / (d.x - d.y);
+        if s > 0.0 && s < len {
+            cuts.push(s);
+        }
+    }
+    cuts.push(len);
+    for w in cuts.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let mid = 0.5 * (a + b);
+        let k = slope(mid);
+        let fa = above(a);
+        if fa <= 0.0 {
+            return Some(a);
+        }
+        if k < 0.0 {
+            let s = a - fa / k;
+            if s <= b * (1.0 + 1e-12) + 1e-12 {
+                return Some(s.min(len));
+            }
+        }
+    }
+    None
+}

@@ -2,7 +2,7 @@
 //! ray crosses, in order, and intersects each cell's bilinear patch exactly. It is slow
 //! and simple on purpose — the truth the GPU ray-caster's depth is measured against.
 
-use super::grid::{intersect_patch, Hit, TerrainGrid};
+use super::grid::{intersect_patch, intersect_triangles, Hit, TerrainGrid};
 use super::shading::{elevation_colour, shade, LinearTexture, Shading};
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
@@ -10,9 +10,22 @@ use glam::DVec3;
 use rayon::prelude::*;
 use std::time::Instant;
 
+/// The surface each cell holds: the bilinear patch (what `terrain` draws), or two
+/// triangles (what a mesh renderer draws; for comparisons with VTK).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Surface {
+    #[default]
+    Bilinear,
+    Triangles,
+}
+
 /// The first hit of the grid-space ray o + t·d for t ∈ [t0, t1], and the number of cells
 /// tested.
 pub fn trace(grid: &TerrainGrid, o: DVec3, d: DVec3, t0: f64, t1: f64) -> (Option<Hit>, u32) {
+    trace_surface(grid, o, d, t0, t1, Surface::Bilinear)
+}
+
+pub fn trace_surface(grid: &TerrainGrid, o: DVec3, d: DVec3, t0: f64, t1: f64, surface: Surface) -> (Option<Hit>, u32) {
     let [cx, cy] = grid.cells();
     let p = o + t0 * d;
     // The starting cell; on a cell border, the one the ray goes into.
@@ -44,7 +57,12 @@ pub fn trace(grid: &TerrainGrid, o: DVec3, d: DVec3, t0: f64, t1: f64) -> (Optio
         if let Some(z) = grid.patch(i as usize, j as usize) {
             let pa = o + t * d;
             let (u0, v0) = (pa.x - i as f64, pa.y - j as f64);
-            if let Some(s) = intersect_patch(z, DVec3::new(u0, v0, pa.z), d, t_next - t, t == t0, grid.edge_tolerance()) {
+            let start = DVec3::new(u0, v0, pa.z);
+            let found = match surface {
+                Surface::Bilinear => intersect_patch(z, start, d, t_next - t, t == t0, grid.edge_tolerance()),
+                Surface::Triangles => intersect_triangles(z, start, d, t_next - t, t == t0, grid.edge_tolerance()),
+            };
+            if let Some(s) = found {
                 let hit =
                     Hit { t: t + s, cell: [i as usize, j as usize], u: (u0 + s * d.x).clamp(0.0, 1.0), v: (v0 + s * d.y).clamp(0.0, 1.0) };
                 return (Some(hit), cells);
@@ -66,10 +84,10 @@ pub fn trace(grid: &TerrainGrid, o: DVec3, d: DVec3, t0: f64, t1: f64) -> (Optio
 }
 
 /// Traces a world-space ray; returns the hit and the cells tested.
-pub fn trace_world(grid: &TerrainGrid, ray: &crate::scene::camera::Ray) -> (Option<Hit>, u32) {
+pub fn trace_world(grid: &TerrainGrid, ray: &crate::scene::camera::Ray, surface: Surface) -> (Option<Hit>, u32) {
     let (o, d) = grid.ray_to_grid(ray);
     match grid.clip(o, d) {
-        Some((t0, t1)) => trace(grid, o, d, t0, t1),
+        Some((t0, t1)) => trace_surface(grid, o, d, t0, t1, surface),
         None => (None, 0),
     }
 }
@@ -129,25 +147,48 @@ pub fn wall_tolerance(grid: &TerrainGrid) -> f64 {
 /// Renders the terrain with the reference: colour, depth (`Z`, world distance along the
 /// ray) and `steps` (cells tested per ray).
 pub fn render(grid: &TerrainGrid, texture: Option<&LinearTexture>, rays: &RayGenerator, shading: &Shading) -> Frame {
+    render_surface(grid, texture, rays, shading, Surface::Bilinear)
+}
+
+/// [`render`] with a choice of surface; with triangles only the depth is exact (colour is
+/// still the bilinear patch's).
+pub fn render_surface(
+    grid: &TerrainGrid,
+    texture: Option<&LinearTexture>,
+    rays: &RayGenerator,
+    shading: &Shading,
+    surface: Surface,
+) -> Frame {
     let start = Instant::now();
     let (w, h) = rays.size();
     let mut frame = Frame::empty(w, h);
     let mut steps = vec![0f32; w * h];
-    frame.rgba.par_chunks_mut(w).zip(frame.depth.par_chunks_mut(w)).zip(steps.par_chunks_mut(w)).enumerate().for_each(
-        |(y, ((rgba, depth), steps))| {
+    let mut walls = vec![0f32; w * h];
+    frame
+        .rgba
+        .par_chunks_mut(w)
+        .zip(frame.depth.par_chunks_mut(w))
+        .zip(steps.par_chunks_mut(w))
+        .zip(walls.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (((rgba, depth), steps), walls))| {
             for x in 0..w {
                 let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
-                let (hit, n) = trace_world(grid, &ray);
+                let (hit, n) = trace_world(grid, &ray, surface);
                 steps[x] = n as f32;
                 if let Some(hit) = hit {
                     let (o, d) = grid.ray_to_grid(&ray);
-                    let c = hit_colour(grid, texture, shading, &hit, o.z + hit.t * d.z);
+                    let ray_z = o.z + hit.t * d.z;
+                    let z = grid.patch(hit.cell[0], hit.cell[1]).expect("a hit lies on a valid patch");
+                    if super::grid::bilinear(z, hit.u, hit.v) - ray_z > wall_tolerance(grid) {
+                        walls[x] = 1.0;
+                    }
+                    let c = hit_colour(grid, texture, shading, &hit, ray_z);
                     rgba[x] = [c[0] as f32, c[1] as f32, c[2] as f32, 1.0];
                     depth[x] = hit.t as f32;
                 }
             }
-        },
-    );
+        });
     let hits = frame.depth.iter().filter(|d| d.is_finite()).count();
     frame.stats = FrameStats {
         renderer: "terrain-reference".into(),
@@ -160,5 +201,7 @@ pub fn render(grid: &TerrainGrid, texture: Option<&LinearTexture>, rays: &RayGen
         notes: vec![],
     };
     frame.extra.push(("steps".into(), steps));
+    // 1 where the ray met a side of the terrain's box (a wall), not its surface.
+    frame.extra.push(("wall".into(), walls));
     frame
 }
