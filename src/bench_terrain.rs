@@ -27,22 +27,26 @@ pub struct TerrainBench {
     pub plot: PathBuf,
 }
 
+/// One configuration on one heightfield and camera. Steps and errors are absent for VTK.
 #[derive(Debug, Clone, Serialize)]
 pub struct Row {
     pub config: String,
     pub camera: String,
     pub size: usize,
+    /// Lid map + quadtree on the GPU (ours); building the triangle mesh (VTK).
     pub build_ms: f64,
     pub median_ms: f64,
-    pub mean_steps: f64,
-    pub p95_steps: u32,
-    pub max_steps: u32,
-    pub capped_rays: u64,
+    pub mean_steps: Option<f64>,
+    pub p95_steps: Option<u32>,
+    pub max_steps: Option<u32>,
+    pub capped_rays: Option<u64>,
     /// Depth against the f64 reference on a smaller image of the same view.
-    pub median_rel_depth_error: f64,
-    pub p999_rel_depth_error: f64,
-    pub hit_mismatches_off_silhouette: usize,
-    pub gpu_mib: f64,
+    pub median_rel_depth_error: Option<f64>,
+    pub p999_rel_depth_error: Option<f64>,
+    pub hit_mismatches_off_silhouette: Option<usize>,
+    /// Ours: GPU memory held (heights, pyramid). VTK: resident memory its mesh and
+    /// rendering added to the process (software OpenGL keeps GPU buffers there too).
+    pub memory_mib: f64,
 }
 
 /// A size² DEM, 30 m cells, 0..4000 m: the built-in fractal terrain, cropped.
@@ -122,6 +126,11 @@ pub fn run(b: &TerrainBench) -> Result<()> {
     for &size in &b.sizes {
         let hf = bench_dem(size);
         let grid = TerrainGrid::new(&hf, DMat4::IDENTITY)?;
+        // The same DEM and cameras for VTK.
+        write_npy(&b.work_dir.join(format!("dem_{size}.npy")), size, size, &hf.elevations)?;
+        let cams: serde_json::Map<String, serde_json::Value> =
+            bench_cameras(&grid).into_iter().map(|(n, c)| (n.to_string(), serde_json::to_value(c).unwrap())).collect();
+        std::fs::write(b.work_dir.join(format!("cams_{size}.json")), serde_json::to_string(&cams)?)?;
         let mut builds = Vec::new();
         let mut terrain = None;
         for _ in 0..b.runs.min(3) {
@@ -154,20 +163,24 @@ pub fn run(b: &TerrainBench) -> Result<()> {
                     size,
                     build_ms,
                     median_ms: 1e3 * median(&mut times),
-                    mean_steps: st.mean,
-                    p95_steps: st.p95,
-                    max_steps: st.max,
-                    capped_rays: capped,
-                    median_rel_depth_error: agree.median_rel,
-                    p999_rel_depth_error: agree.p999_rel,
-                    hit_mismatches_off_silhouette: agree.mismatched_off_silhouette,
-                    gpu_mib: terrain.gpu_bytes as f64 / (1 << 20) as f64,
+                    mean_steps: Some(st.mean),
+                    p95_steps: Some(st.p95),
+                    max_steps: Some(st.max),
+                    capped_rays: Some(capped),
+                    median_rel_depth_error: Some(agree.median_rel),
+                    p999_rel_depth_error: Some(agree.p999_rel),
+                    hit_mismatches_off_silhouette: Some(agree.mismatched_off_silhouette),
+                    memory_mib: terrain.gpu_bytes as f64 / (1 << 20) as f64,
                 });
             }
             bar.inc(1);
         }
     }
     bar.finish_and_clear();
+    match vtk_rows(b) {
+        Ok(r) => rows.extend(r),
+        Err(e) => eprintln!("VTK rows skipped: {e:#}"),
+    }
 
     let steps_path = b.work_dir.join("terrain_steps.json");
     std::fs::write(&steps_path, serde_json::to_string(&histograms)?)?;
@@ -189,25 +202,82 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         b.width, b.height, b.runs, gpu.info.name
     );
     println!(
-        "{:>5} {:<5} {:<19} {:>9} {:>10} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5}",
-        "size", "cam", "traversal", "build ms", "ms/frame", "mean", "p95", "max", "capped", "med. err", "p99.9 err", "miss"
+        "{:>5} {:<5} {:<19} {:>9} {:>10} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>8}",
+        "size", "cam", "config", "build ms", "ms/frame", "mean", "p95", "max", "capped", "med. err", "p99.9 err", "miss", "MiB"
     );
+    let opt = |v: Option<String>| v.unwrap_or_else(|| "-".into());
     for r in &rows {
         println!(
-            "{:>5} {:<5} {:<19} {:>9.2} {:>10.2} {:>7.1} {:>5} {:>6} {:>6} {:>10.1e} {:>10.1e} {:>5}",
+            "{:>5} {:<5} {:<19} {:>9.2} {:>10.2} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>8.0}",
             r.size,
             r.camera,
             r.config,
             r.build_ms,
             r.median_ms,
-            r.mean_steps,
-            r.p95_steps,
-            r.max_steps,
-            r.capped_rays,
-            r.median_rel_depth_error,
-            r.p999_rel_depth_error,
-            r.hit_mismatches_off_silhouette
+            opt(r.mean_steps.map(|v| format!("{v:.1}"))),
+            opt(r.p95_steps.map(|v| v.to_string())),
+            opt(r.max_steps.map(|v| v.to_string())),
+            opt(r.capped_rays.map(|v| v.to_string())),
+            opt(r.median_rel_depth_error.map(|v| format!("{v:.1e}"))),
+            opt(r.p999_rel_depth_error.map(|v| format!("{v:.1e}"))),
+            opt(r.hit_mismatches_off_silhouette.map(|v| v.to_string())),
+            r.memory_mib
         );
     }
+    Ok(())
+}
+
+/// VTK/pyvista's way: the same DEMs as triangle meshes, same cameras and image size.
+fn vtk_rows(b: &TerrainBench) -> Result<Vec<Row>> {
+    use anyhow::Context;
+    let sizes: Vec<String> = b.sizes.iter().map(|s| s.to_string()).collect();
+    let out = std::process::Command::new(&b.python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/vtk_terrain.py"))
+        .args(["--bench", &sizes.join(","), &b.width.to_string(), &b.height.to_string(), &b.runs.to_string()])
+        .arg(&b.work_dir)
+        .output()
+        .with_context(|| format!("cannot run {}", b.python.display()))?;
+    if !out.status.success() {
+        bail!("vtk_terrain.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+    }
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    let version = v["vtk"].as_str().unwrap_or("").to_string();
+    let rows = v["rows"].as_array().context("no VTK rows")?;
+    Ok(rows
+        .iter()
+        .map(|r| Row {
+            config: format!("vtk mesh {version}"),
+            camera: r["camera"].as_str().unwrap_or("").into(),
+            size: r["size"].as_u64().unwrap_or(0) as usize,
+            build_ms: r["build_ms"].as_f64().unwrap_or(f64::NAN),
+            median_ms: r["median_ms"].as_f64().unwrap_or(f64::NAN),
+            mean_steps: None,
+            p95_steps: None,
+            max_steps: None,
+            capped_rays: None,
+            median_rel_depth_error: None,
+            p999_rel_depth_error: None,
+            hit_mismatches_off_silhouette: None,
+            memory_mib: r["added_rss_mib"].as_f64().unwrap_or(f64::NAN),
+        })
+        .collect())
+}
+
+/// A little-endian f32 array as a .npy file (NPY format 1.0), rows × cols, C order.
+fn write_npy(path: &Path, rows: usize, cols: usize, values: &[f32]) -> Result<()> {
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+    // Magic (6) + version (2) + length (2) + header + '\n' is padded to a multiple of 64.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + 4 * values.len());
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for v in values {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    volterra_formats::atomic::write_bytes_atomically(path, &bytes)?;
     Ok(())
 }

@@ -6,13 +6,13 @@ scene's camera. Writes each image's depth as an OpenEXR channel Z: the distance 
 pixel's ray, recovered from VTK's z-buffer and clipping range (+inf where nothing).
 
 Usage: vtk_terrain.py OUT_DIR SCENE.toml...
-       vtk_terrain.py --bench SIZES W H RUNS   (times VTK's mesh rendering of the bench DEM
-       sizes read from target/bench-data/dem_SIZE.npy; prints JSON)
+       vtk_terrain.py --bench SIZES W H RUNS DIR   (for `volterra bench terrain`: times VTK's
+       mesh rendering of the DEMs DIR/dem_SIZE.npy (30 m cells) seen by the cameras in
+       DIR/cams_SIZE.json; prints JSON rows with median ms and added resident memory)
 """
 import json
 import math
 import os
-import resource
 import sys
 import time
 import tomllib
@@ -116,6 +116,15 @@ def render(scene_path, out_path):
     OpenEXR.File(header, {"Z": np.ascontiguousarray(depth)}).write(out_path)
 
 
+def rss_mib():
+    """Resident memory of this process now (MiB)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
 def bench(sizes, w, h, runs, work_dir):
     """Median ms per frame and resident memory added, VTK mesh rendering of each DEM."""
     rows = []
@@ -123,8 +132,10 @@ def bench(sizes, w, h, runs, work_dir):
         z = np.load(os.path.join(work_dir, f"dem_{size}.npy")).astype(np.float64)
         with open(os.path.join(work_dir, f"cams_{size}.json")) as f:
             cams = json.load(f)
-        before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        before = rss_mib()
+        t = time.perf_counter()
         poly = mesh(z, 30.0, 30.0)
+        build_ms = 1000 * (time.perf_counter() - t)
         for name, cam_spec in cams.items():
             win, ren, cam = window(poly, cam_spec, w, h)
             t = time.perf_counter()
@@ -136,9 +147,9 @@ def bench(sizes, w, h, runs, work_dir):
                 cam.Modified()
                 win.Render()
                 ms.append(1000 * (time.perf_counter() - t))
-            peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            now = rss_mib()
             rows.append({"size": size, "camera": name, "median_ms": float(np.median(ms)), "first_frame_ms": first_ms,
-                         "peak_rss_mib": peak / 1024, "added_rss_mib": (peak - before) / 1024,
+                         "build_ms": build_ms, "rss_mib": now, "added_rss_mib": now - before,
                          "triangles": poly.GetNumberOfPolys()})
             win.Finalize()
             del win, ren

@@ -226,7 +226,13 @@ struct Target {
 }
 
 impl GpuTerrain {
+    /// Uploads the heightfield (and texture) and builds the pyramid. GPU errors — out of
+    /// memory above all — come back as errors, not the panic wgpu's default handler gives.
     pub fn new(gpu: &Gpu, grid: &TerrainGrid, texture: Option<&RgbImage>) -> Result<GpuTerrain> {
+        guarded(gpu, "uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture))
+    }
+
+    fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<&RgbImage>) -> Result<GpuTerrain> {
         let device = &gpu.device;
         let max_dim = device.limits().max_texture_dimension_2d as usize;
         if grid.nx > max_dim || grid.ny > max_dim {
@@ -438,8 +444,11 @@ impl GpuTerrain {
     pub fn render(&self, gpu: &Gpu, view: &View) -> Result<Frame> {
         let params = self.params(view);
         let (rays, max_steps) = (view.rays, view.max_steps);
-        let target = self.target(gpu, &params)?;
-        let seconds = self.dispatch(gpu, &target)?;
+        let (target, seconds) = guarded(gpu, "ray casting the terrain on the GPU", || {
+            let target = self.target(gpu, &params)?;
+            let seconds = self.dispatch(gpu, &target)?;
+            Ok((target, seconds))
+        })?;
         let colour: Vec<[f32; 4]> = read_buffer(gpu, &target.colour)?;
         let depth: Vec<f32> = read_buffer(gpu, &target.depth)?;
         let steps: Vec<u32> = read_buffer(gpu, &target.steps)?;
@@ -474,7 +483,7 @@ impl GpuTerrain {
     /// Seconds per frame for `runs` frames of the same view (dispatch and wait, no read-back).
     pub fn time_frames(&self, gpu: &Gpu, view: &View, runs: usize) -> Result<Vec<f64>> {
         let params = self.params(view);
-        let target = self.target(gpu, &params)?;
+        let target = guarded(gpu, "allocating the frame on the GPU", || self.target(gpu, &params))?;
         self.dispatch(gpu, &target)?;
         (0..runs).map(|_| self.dispatch(gpu, &target)).collect()
     }
@@ -499,6 +508,23 @@ impl StepStats {
             max: sorted.last().copied().unwrap_or(0),
         }
     }
+}
+
+/// Runs `f` inside GPU error scopes (they are per thread), so that out-of-memory and
+/// validation errors are returned, naming `what`.
+fn guarded<T>(gpu: &Gpu, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    let oom = gpu.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+    let invalid = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let result = f();
+    let invalid = pollster::block_on(invalid.pop());
+    let oom = pollster::block_on(oom.pop());
+    if let Some(e) = oom {
+        bail!("{what}: the GPU '{}' is out of memory ({e})", gpu.info.name);
+    }
+    if let Some(e) = invalid {
+        bail!("{what}: {e}");
+    }
+    result
 }
 
 fn uniform_buffer(gpu: &Gpu, bytes: &[u8]) -> wgpu::Buffer {
