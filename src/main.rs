@@ -314,6 +314,13 @@ fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[Stri
 
 fn write_frame(scene: &Scene, frame: Option<(usize, usize)>, output: &Path, png: Option<&Path>) -> Result<()> {
     let image = render::render_scene(scene, frame)?;
+    if frame.is_none() {
+        let counters: Vec<String> = image.stats.counters.iter().map(|(k, v)| format!("{k} {}", short(*v))).collect();
+        eprintln!("{}: {}", image.stats.renderer, counters.join(", "));
+        for n in &image.stats.notes {
+            eprintln!("  {n}");
+        }
+    }
     let bg = scene.file.image.background;
     formats::exr_io::write_exr(output, &image.to_image(bg))?;
     if let Some(p) = png {
@@ -374,4 +381,13 @@ fn cmd_demo(out: &Path) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// A statistic for a one-line summary: integers as such, others to 4 significant digits.
+fn short(v: f64) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e15 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.4}")
+    }
 }

@@ -5,6 +5,7 @@
 pub mod frame;
 pub mod reference_volume;
 pub mod shear_warp;
+pub mod smoke;
 pub mod terrain;
 
 pub use frame::{Frame, FrameStats};
@@ -18,7 +19,7 @@ pub const RENDERERS: &[(&str, NodeKind, bool)] = &[
     ("shear-warp", NodeKind::Volume, true),
     ("terrain", NodeKind::Heightfield, true),
     ("terrain-reference", NodeKind::Heightfield, true),
-    ("smoke", NodeKind::Particles, false),
+    ("smoke", NodeKind::Particles, true),
 ];
 
 /// The renderer a node uses when it names none: the best one available for its kind.
@@ -90,6 +91,16 @@ pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option
             } else {
                 terrain::render_reference(&input, &rays, &s)?
             }
+        }
+        "smoke" => {
+            let s: smoke::Settings = settings(&desc.settings, &desc.name, name)?;
+            let medium = desc
+                .medium
+                .as_ref()
+                .ok_or_else(|| anyhow!("node '{}': a particle node needs medium = {{ c_ext = …, albedo = …, g = … }}", desc.name))?;
+            let particles = scene.particles(node)?;
+            let input = smoke::SmokeInput { particles: &particles, node_to_world: scene.world_transform(node), medium, lights: &scene.file.lights };
+            smoke::render(&input, &rays, &s).with_context(|| format!("node '{}'", desc.name))?
         }
         _ => unreachable!(),
     };

@@ -1,0 +1,121 @@
+//! The scene's lights as the smoke renderer uses them, in the scene's units: a directional
+//! light's `intensity` is irradiance E (W/m²) on a surface facing it, a point or spot
+//! light's is radiant intensity I (W/sr). Emitted power: directional E·πR² over the disc of
+//! radius R that covers the smoke's bounding sphere; point 4π·I; spot 2π(1 − cos θc)·I.
+
+use super::rng::Rng;
+use crate::scene::{Light, LightKind};
+use anyhow::{bail, Result};
+use glam::DVec3;
+use std::f64::consts::PI;
+
+#[derive(Debug, Clone)]
+pub enum Emitter {
+    Directional { dir: DVec3, irradiance: [f64; 3], centre: DVec3, radius: f64 },
+    Point { position: DVec3, intensity: [f64; 3] },
+    Spot { position: DVec3, dir: DVec3, cos_cone: f64, intensity: [f64; 3] },
+}
+
+impl Emitter {
+    /// The scene's lights around a medium with bounds (lo, hi).
+    pub fn from_scene(lights: &[Light], lo: DVec3, hi: DVec3) -> Result<Vec<Emitter>> {
+        if lights.is_empty() {
+            bail!("the smoke renderer needs at least one light in the scene");
+        }
+        let centre = 0.5 * (lo + hi);
+        let radius = 0.5 * (hi - lo).length();
+        lights
+            .iter()
+            .map(|l| {
+                let rgb = l.color.map(|c| c * l.intensity);
+                if rgb.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+                    bail!("light colour × intensity must be non-negative numbers, not {rgb:?}");
+                }
+                let dir = || -> Result<DVec3> {
+                    let d = DVec3::from(l.direction.unwrap_or([0.0, 0.0, -1.0]));
+                    if !(d.length() > 0.0 && d.is_finite()) {
+                        bail!("a {:?} light needs a non-zero direction", l.kind);
+                    }
+                    Ok(d.normalize())
+                };
+                let position = || -> Result<DVec3> {
+                    let p = l.position.map(DVec3::from).filter(|p| p.is_finite());
+                    p.ok_or_else(|| anyhow::anyhow!("a {:?} light needs a position", l.kind))
+                };
+                Ok(match l.kind {
+                    LightKind::Directional => Emitter::Directional { dir: dir()?, irradiance: rgb, centre, radius },
+                    LightKind::Point => Emitter::Point { position: position()?, intensity: rgb },
+                    LightKind::Spot => {
+                        let angle = l.cone_angle.unwrap_or(30.0);
+                        if !(angle > 0.0 && angle <= 180.0) {
+                            bail!("spot cone_angle {angle} must be in (0, 180] degrees");
+                        }
+                        Emitter::Spot { position: position()?, dir: dir()?, cos_cone: angle.to_radians().cos(), intensity: rgb }
+                    }
+                })
+            })
+            .collect()
+    }
+
+    /// Emitted power (W, RGB).
+    pub fn power(&self) -> [f64; 3] {
+        match *self {
+            Emitter::Directional { irradiance, radius, .. } => irradiance.map(|e| e * PI * radius * radius),
+            Emitter::Point { intensity, .. } => intensity.map(|i| 4.0 * PI * i),
+            Emitter::Spot { intensity, cos_cone, .. } => intensity.map(|i| 2.0 * PI * (1.0 - cos_cone) * i),
+        }
+    }
+
+    /// The share of photons this light gets is proportional to this.
+    pub fn power_weight(&self) -> f64 {
+        self.power().iter().sum::<f64>() / 3.0
+    }
+
+    /// A photon: start, unit direction, power = this light's power × `share`.
+    pub fn emit(&self, rng: &mut Rng, share: f64) -> (DVec3, DVec3, [f64; 3]) {
+        let power = self.power().map(|p| p * share);
+        match *self {
+            Emitter::Directional { dir, centre, radius, .. } => {
+                let (u, v) = super::phase::orthonormal(dir);
+                let r = radius * rng.uniform().sqrt();
+                let phi = 2.0 * PI * rng.uniform();
+                let start = centre - dir * (1.01 * radius) + u * (r * phi.cos()) + v * (r * phi.sin());
+                (start, dir, power)
+            }
+            Emitter::Point { position, .. } => (position, uniform_sphere(rng), power),
+            Emitter::Spot { position, dir, cos_cone, .. } => {
+                let cos = 1.0 - rng.uniform() * (1.0 - cos_cone);
+                let sin = (1.0 - cos * cos).max(0.0).sqrt();
+                let phi = 2.0 * PI * rng.uniform();
+                let (u, v) = super::phase::orthonormal(dir);
+                (position, (u * (sin * phi.cos()) + v * (sin * phi.sin()) + dir * cos).normalize(), power)
+            }
+        }
+    }
+
+    /// Light arriving at `x` unoccluded: unit direction of propagation (from the light to
+    /// x), distance to the light (∞ for directional) and irradiance on a surface facing it.
+    pub fn incident(&self, x: DVec3) -> Option<(DVec3, f64, [f64; 3])> {
+        match *self {
+            Emitter::Directional { dir, irradiance, .. } => Some((dir, f64::INFINITY, irradiance)),
+            Emitter::Point { position, intensity } => {
+                let v = x - position;
+                let r2 = v.length_squared();
+                (r2 > 0.0).then(|| (v / r2.sqrt(), r2.sqrt(), intensity.map(|i| i / r2)))
+            }
+            Emitter::Spot { position, dir, cos_cone, intensity } => {
+                let v = x - position;
+                let r2 = v.length_squared();
+                let d = v / r2.sqrt();
+                (r2 > 0.0 && d.dot(dir) >= cos_cone).then(|| (d, r2.sqrt(), intensity.map(|i| i / r2)))
+            }
+        }
+    }
+}
+
+fn uniform_sphere(rng: &mut Rng) -> DVec3 {
+    let z = 1.0 - 2.0 * rng.uniform();
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = 2.0 * PI * rng.uniform();
+    DVec3::new(r * phi.cos(), r * phi.sin(), z)
+}

@@ -1,0 +1,299 @@
+//! The participating medium the smoke renderer sees: a density field ρ(x) (kg/m³) with
+//! σ_t = c_ext·ρ and σ_s = albedo·σ_t, a box outside which it is zero, and a coarse grid of
+//! density upper bounds (majorants) for unbiased free-flight sampling and transmittance
+//! estimation (delta and ratio tracking) in a heterogeneous medium.
+//!
+//! Two media: [`SphMedium`], the SPH density of a particle set
+//! (ρ(x) = Σ m_i W(|x − x_i|, h_i)), and [`Homogeneous`], a box or sphere of constant
+//! density, for the closed-form checks.
+
+use glam::DVec3;
+use volterra_formats::sph::{cubic_spline, PointGrid};
+
+/// The SPH smoothing kernel. Both have support 2h and integrate to 1 over space.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Kernel {
+    /// The normalised cubic spline (M4, "spline Gaussian").
+    #[default]
+    CubicSpline,
+    /// Müller et al.'s poly6, 315/(64π H⁹)·(H² − r²)³ with H = 2h.
+    Poly6,
+}
+
+impl Kernel {
+    #[inline]
+    pub fn eval(self, r: f64, h: f64) -> f64 {
+        match self {
+            Kernel::CubicSpline => cubic_spline(r, h),
+            Kernel::Poly6 => {
+                let big = 2.0 * h;
+                if r >= big {
+                    return 0.0;
+                }
+                let d = big * big - r * r;
+                315.0 / (64.0 * std::f64::consts::PI * big.powi(9)) * d * d * d
+            }
+        }
+    }
+}
+
+pub trait Medium: Sync {
+    /// Density at `p` (0 outside [`Medium::bounds`]).
+    fn density(&self, p: DVec3) -> f64;
+    /// The box holding every point of non-zero density.
+    fn bounds(&self) -> (DVec3, DVec3);
+    /// Upper bounds of the density over cells of the box.
+    fn majorants(&self) -> &MajorantGrid;
+}
+
+/// A regular grid over a box with, per cell, an upper bound of the density inside it.
+pub struct MajorantGrid {
+    pub lo: DVec3,
+    pub hi: DVec3,
+    pub dims: [usize; 3],
+    pub max: Vec<f64>,
+}
+
+impl MajorantGrid {
+    fn cell_size(&self) -> DVec3 {
+        (self.hi - self.lo) / DVec3::new(self.dims[0] as f64, self.dims[1] as f64, self.dims[2] as f64)
+    }
+
+    /// Walks the ray o + t·d (d unit) through the grid for t ∈ [t0, t1], calling
+    /// `f(ta, tb, majorant)` per cell in order until it returns false.
+    pub fn walk(&self, o: DVec3, d: DVec3, t0: f64, t1: f64, mut f: impl FnMut(f64, f64, f64) -> bool) {
+        let Some((a, b)) = clip_box(o, d, self.lo, self.hi) else { return };
+        let (mut t, t_end) = (a.max(t0), b.min(t1));
+        if t >= t_end {
+            return;
+        }
+        let size = self.cell_size();
+        let p = o + t * d;
+        let mut cell = [0usize; 3];
+        let mut step = [0i64; 3];
+        let mut next = [f64::INFINITY; 3];
+        let mut delta = [f64::INFINITY; 3];
+        for k in 0..3 {
+            let c = ((p[k] - self.lo[k]) / size[k]).floor().clamp(0.0, (self.dims[k] - 1) as f64);
+            cell[k] = c as usize;
+            if d[k] > 0.0 {
+                step[k] = 1;
+                next[k] = (self.lo[k] + (c + 1.0) * size[k] - o[k]) / d[k];
+                delta[k] = size[k] / d[k];
+            } else if d[k] < 0.0 {
+                step[k] = -1;
+                next[k] = (self.lo[k] + c * size[k] - o[k]) / d[k];
+                delta[k] = -size[k] / d[k];
+            }
+        }
+        loop {
+            let k = if next[0] <= next[1] && next[0] <= next[2] {
+                0
+            } else if next[1] <= next[2] {
+                1
+            } else {
+                2
+            };
+            let tb = next[k].min(t_end).max(t);
+            let index = cell[0] + self.dims[0] * (cell[1] + self.dims[1] * cell[2]);
+            if !f(t, tb, self.max[index]) || tb >= t_end {
+                return;
+            }
+            t = tb;
+            let c = cell[k] as i64 + step[k];
+            if c < 0 || c >= self.dims[k] as i64 {
+                return;
+            }
+            cell[k] = c as usize;
+            next[k] += delta[k];
+        }
+    }
+}
+
+/// Slab test; the interval is clamped to t ≥ 0.
+pub fn clip_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
+    let mut t0 = 0.0f64;
+    let mut t1 = f64::INFINITY;
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return None;
+            }
+        } else {
+            let a = (lo[k] - o[k]) / d[k];
+            let b = (hi[k] - o[k]) / d[k];
+            t0 = t0.max(a.min(b));
+            t1 = t1.min(a.max(b));
+        }
+    }
+    (t0 <= t1).then_some((t0, t1))
+}
+
+/// The SPH density of a particle set.
+pub struct SphMedium {
+    positions: Vec<[f64; 3]>,
+    mass: Vec<f64>,
+    h: Vec<f64>,
+    kernel: Kernel,
+    grid: PointGrid,
+    /// The largest support radius 2h: the neighbour search radius.
+    support: f64,
+    lo: DVec3,
+    hi: DVec3,
+    majorants: MajorantGrid,
+}
+
+impl SphMedium {
+    /// `positions`, `mass` (kg) and `h` (m) per particle. Fails on an empty set or on a
+    /// smoothing length or mass that is not a positive finite number.
+    pub fn new(positions: Vec<[f64; 3]>, mass: Vec<f64>, h: Vec<f64>, kernel: Kernel) -> Result<SphMedium, String> {
+        if positions.is_empty() {
+            return Err("the particle set is empty: there is no smoke to render".into());
+        }
+        if let Some(i) = h.iter().position(|v| !(v.is_finite() && *v > 0.0)) {
+            return Err(format!("particle {i} has smoothing length h = {}; h must be a positive number", h[i]));
+        }
+        if let Some(i) = mass.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(format!("particle {i} has mass {}; masses must be non-negative numbers", mass[i]));
+        }
+        if let Some(i) = positions.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+            return Err(format!("particle {i} has a position that is not finite: {:?}", positions[i]));
+        }
+        let support = 2.0 * h.iter().cloned().fold(0.0, f64::max);
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for (p, &hh) in positions.iter().zip(&h) {
+            let p = DVec3::from(*p);
+            lo = lo.min(p - 2.0 * hh);
+            hi = hi.max(p + 2.0 * hh);
+        }
+        // Neighbour cells about the typical support: a few candidates per query.
+        let mut sorted = h.clone();
+        sorted.sort_by(f64::total_cmp);
+        let typical = 2.0 * sorted[sorted.len() / 2];
+        let grid = PointGrid::new(&positions, typical.max(support / 4.0));
+        let majorants = sph_majorants(&positions, &mass, &h, kernel, lo, hi, typical);
+        Ok(SphMedium { positions, mass, h, kernel, grid, support, lo, hi, majorants })
+    }
+
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    pub fn position(&self, i: usize) -> DVec3 {
+        DVec3::from(self.positions[i])
+    }
+
+    pub fn smoothing_length(&self, i: usize) -> f64 {
+        self.h[i]
+    }
+
+    pub fn mass(&self, i: usize) -> f64 {
+        self.mass[i]
+    }
+
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
+    /// Calls `f(i, W(|p − x_i|, h_i))` for every particle whose support holds `p`.
+    pub fn for_each_neighbour(&self, p: DVec3, mut f: impl FnMut(usize, f64)) {
+        self.grid.for_each_candidate(p.to_array(), self.support, |i| {
+            let h = self.h[i];
+            let r = (p - DVec3::from(self.positions[i])).length();
+            if r < 2.0 * h {
+                f(i, self.kernel.eval(r, h));
+            }
+        });
+    }
+}
+
+impl Medium for SphMedium {
+    fn density(&self, p: DVec3) -> f64 {
+        if p.cmplt(self.lo).any() || p.cmpgt(self.hi).any() {
+            return 0.0;
+        }
+        let mut rho = 0.0;
+        self.for_each_neighbour(p, |i, w| rho += self.mass[i] * w);
+        rho
+    }
+    fn bounds(&self) -> (DVec3, DVec3) {
+        (self.lo, self.hi)
+    }
+    fn majorants(&self) -> &MajorantGrid {
+        &self.majorants
+    }
+}
+
+/// Per cell, the sum of m·W(0, h) over every particle whose support box touches the cell:
+/// no point of the cell can have more density than that.
+fn sph_majorants(positions: &[[f64; 3]], mass: &[f64], h: &[f64], kernel: Kernel, lo: DVec3, hi: DVec3, typical: f64) -> MajorantGrid {
+    let extent = hi - lo;
+    // Cells of about two typical supports, at most 64 per axis.
+    let dims = [0, 1, 2].map(|k| ((extent[k] / (2.0 * typical)).ceil() as usize).clamp(1, 64));
+    let size = extent / DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
+    let mut max = vec![0.0; dims[0] * dims[1] * dims[2]];
+    for ((p, &m), &hh) in positions.iter().zip(mass).zip(h) {
+        let p = DVec3::from(*p);
+        let peak = m * kernel.eval(0.0, hh);
+        let a = ((p - 2.0 * hh - lo) / size).floor();
+        let b = ((p + 2.0 * hh - lo) / size).floor();
+        let range = |k: usize| (a[k].max(0.0) as usize).min(dims[k] - 1)..=(b[k].max(0.0) as usize).min(dims[k] - 1);
+        for z in range(2) {
+            for y in range(1) {
+                for x in range(0) {
+                    max[x + dims[0] * (y + dims[1] * z)] += peak;
+                }
+            }
+        }
+    }
+    MajorantGrid { lo, hi, dims, max }
+}
+
+/// Constant density inside a box or a sphere, zero outside: the closed-form cases.
+pub struct Homogeneous {
+    pub density: f64,
+    pub shape: Shape,
+    majorants: MajorantGrid,
+}
+
+#[derive(Debug, Clone, Copy)]
+pub enum Shape {
+    Box { lo: DVec3, hi: DVec3 },
+    Sphere { centre: DVec3, radius: f64 },
+}
+
+impl Homogeneous {
+    pub fn new(density: f64, shape: Shape) -> Homogeneous {
+        let (lo, hi) = match shape {
+            Shape::Box { lo, hi } => (lo, hi),
+            Shape::Sphere { centre, radius } => (centre - radius, centre + radius),
+        };
+        Homogeneous { density, shape, majorants: MajorantGrid { lo, hi, dims: [1, 1, 1], max: vec![density] } }
+    }
+}
+
+impl Medium for Homogeneous {
+    fn density(&self, p: DVec3) -> f64 {
+        let inside = match self.shape {
+            Shape::Box { lo, hi } => p.cmpge(lo).all() && p.cmple(hi).all(),
+            Shape::Sphere { centre, radius } => (p - centre).length_squared() <= radius * radius,
+        };
+        if inside {
+            self.density
+        } else {
+            0.0
+        }
+    }
+    fn bounds(&self) -> (DVec3, DVec3) {
+        (self.majorants.lo, self.majorants.hi)
+    }
+    fn majorants(&self) -> &MajorantGrid {
+        &self.majorants
+    }
+}
