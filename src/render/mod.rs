@@ -99,7 +99,8 @@ pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option
                 .as_ref()
                 .ok_or_else(|| anyhow!("node '{}': a particle node needs medium = {{ c_ext = …, albedo = …, g = … }}", desc.name))?;
             let particles = scene.particles(node)?;
-            let input = smoke::SmokeInput { particles: &particles, node_to_world: scene.world_transform(node), medium, lights: &scene.file.lights };
+            let input =
+                smoke::SmokeInput { particles: &particles, node_to_world: scene.world_transform(node), medium, lights: &scene.file.lights };
             smoke::render(&input, &rays, &s).with_context(|| format!("node '{}'", desc.name))?
         }
         _ => unreachable!(),

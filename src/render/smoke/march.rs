@@ -77,31 +77,43 @@ impl MarchView<'_> {
         let mut radiance = [0.0; 3];
         let mut tr = 1.0;
         let out = -d;
-        // Steps of Δ, the first one shortened by the jitter so that the sample positions
-        // of neighbouring pixels do not line up (no banding).
-        let mut ta = t0;
-        let mut tb = (t0 + jitter * self.step).min(t1);
-        if tb <= ta {
-            tb = (ta + self.step).min(t1);
-        }
-        while ta < t1 && tr > 1e-5 {
-            let dt = tb - ta;
-            let x = o + 0.5 * (ta + tb) * d;
-            let sigma_t = self.c_ext * self.medium.density(x);
-            if sigma_t > 0.0 {
-                let ss = self.single(x, out);
-                let ms = self.multiple.map(|f| f(x, out)).unwrap_or([0.0; 3]);
-                let sigma_s = self.albedo * sigma_t;
-                // ∫ over the step of T e^{−σ_t s} ds = T (1 − e^{−σ_t Δ}) / σ_t.
-                let weight = tr * -(-sigma_t * dt).exp_m1() / sigma_t;
-                for c in 0..3 {
-                    radiance[c] += weight * (sigma_s * ss[c] + ms[c]);
-                }
-                tr *= (-sigma_t * dt).exp();
+        // Steps of Δ on a lattice t0 + (jitter + k)·Δ, so that the samples of neighbouring
+        // pixels do not line up (no banding); cells of the majorant grid with no particle
+        // are skipped without a step.
+        let phase = jitter * self.step;
+        self.medium.majorants().walk(o, d, t0, t1, |ca, cb, maj| {
+            if maj <= 0.0 {
+                return true;
             }
-            ta = tb;
-            tb = (ta + self.step).min(t1);
-        }
+            let k0 = ((ca - t0 - phase) / self.step).floor();
+            let mut ta = ca;
+            let mut k = k0 + 1.0;
+            while ta < cb {
+                let tb = (t0 + phase + k * self.step).min(cb);
+                if tb > ta {
+                    let dt = tb - ta;
+                    let x = o + 0.5 * (ta + tb) * d;
+                    let sigma_t = self.c_ext * self.medium.density(x);
+                    if sigma_t > 0.0 {
+                        let ss = self.single(x, out);
+                        let ms = self.multiple.map(|f| f(x, out)).unwrap_or([0.0; 3]);
+                        let sigma_s = self.albedo * sigma_t;
+                        // ∫ over the step of T e^{−σ_t s} ds = T (1 − e^{−σ_t Δ}) / σ_t.
+                        let weight = tr * -(-sigma_t * dt).exp_m1() / sigma_t;
+                        for c in 0..3 {
+                            radiance[c] += weight * (sigma_s * ss[c] + ms[c]);
+                        }
+                        tr *= (-sigma_t * dt).exp();
+                        if tr < 1e-5 {
+                            return false;
+                        }
+                    }
+                }
+                ta = tb;
+                k += 1.0;
+            }
+            true
+        });
         (radiance, tr)
     }
 }
@@ -116,7 +128,7 @@ pub fn render(view: &MarchView, rays: &RayGenerator) -> Frame {
     let (lo, hi) = view.medium.bounds();
     frame.rgba.par_chunks_mut(w).zip(frame.depth.par_chunks_mut(w)).enumerate().for_each(|(y, (row, depth))| {
         for x in 0..w {
-            let mut rng = Rng::stream(view.seed ^ 0x5EED_CA3E_7A, (y * w + x) as u64);
+            let mut rng = Rng::stream(view.seed ^ 0x005E_EDCA_3E7A, (y * w + x) as u64);
             let mut acc = [0.0; 4];
             for s in 0..spp {
                 // One sample at the pixel centre; the rest jittered inside the pixel.

@@ -59,9 +59,9 @@ pub enum FreeFlight {
 #[serde(rename_all = "kebab-case")]
 pub enum ShadowMode {
     /// A shadow ray marched per sample.
-    #[default]
     Marched,
     /// A transmittance grid per light (the irradiance map's resolution), filled lazily.
+    #[default]
     Grid,
 }
 
@@ -104,7 +104,7 @@ impl Default for Settings {
             samples: 4,
             seed: 1,
             free_flight: FreeFlight::Delta,
-            shadows: ShadowMode::Marched,
+            shadows: ShadowMode::Grid,
             kernel: Kernel::CubicSpline,
             max_bounces: 1000,
         }

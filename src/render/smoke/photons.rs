@@ -58,7 +58,9 @@ pub fn trace(medium: &dyn Medium, emitters: &[Emitter], s: &TraceSettings) -> Tr
         return out;
     }
     const CHUNK: usize = 4096;
-    let chunks: Vec<(Vec<Photon>, [f64; 3], [f64; 3], usize)> = (0..s.count.div_ceil(CHUNK))
+    // Per chunk: stored photons, power emitted, power escaped, paths capped.
+    type Chunk = (Vec<Photon>, [f64; 3], [f64; 3], usize);
+    let chunks: Vec<Chunk> = (0..s.count.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
             let mut stored = Vec::new();
