@@ -79,6 +79,17 @@ def main():
             rel = float(np.median(np.abs(a[both] - b[both]) / b[both])) if both.any() else 0.0
             if rel > 1e-4:
                 errors.append(f"{name}: VTK depth differs from the committed one by {rel} (median relative)")
+        # Mitsuba's render of the smoke comparison scene (8192 spp, deterministic seed).
+        scenes = sorted(glob.glob(os.path.join(HERE, "smoke_scenes", "*.toml")))
+        subprocess.run([py, os.path.join(HERE, "mitsuba_smoke.py"), os.path.join(scratch, "mitsuba"), "8192"] + scenes, check=True,
+                       stderr=subprocess.DEVNULL)
+        for scene in scenes:
+            name = "mitsuba_" + os.path.splitext(os.path.basename(scene))[0] + ".exr"
+            a = OpenEXR.File(os.path.join(REPO, "tests/reference/data", name)).channels()["RGB"].pixels.astype(np.float64)
+            b = OpenEXR.File(os.path.join(scratch, "mitsuba", name)).channels()["RGB"].pixels.astype(np.float64)
+            rel = float(np.sqrt(((a - b) ** 2).mean() / max((b ** 2).mean(), 1e-30)))
+            if rel > 1e-3:
+                errors.append(f"{name}: Mitsuba render differs from the committed one by {rel} (relative RMSE)")
     elif os.environ.get("CI") == "true":
         print(f"shared data not found at {shared} (CI=true: must not skip)", file=sys.stderr)
         sys.exit(1)

@@ -45,7 +45,7 @@ impl MarchView<'_> {
             LightTransmittance::Marched { step } => marched_transmittance(self.medium, self.c_ext, x, -dir, dist, *step),
             LightTransmittance::Grid(grids) => grids[k].sample(x, &|p| {
                 let t = match self.emitters[k].incident(p) {
-                    Some((d, r, _)) => marched_transmittance(self.medium, self.c_ext, p, -d, r, 0.5 * self.step),
+                    Some((d, r, _)) => marched_transmittance(self.medium, self.c_ext, p, -d, r, self.step),
                     None => 0.0,
                 };
                 [t, 0.0, 0.0]

@@ -77,7 +77,7 @@ pub struct Settings {
     pub gather_radius: f64,
     /// Precompute the multiply-scattered source on a grid and interpolate it.
     pub irradiance_map: bool,
-    /// Irradiance-map (and transmittance-grid) spacing in metres (0: the median h).
+    /// Irradiance-map spacing in metres (0: the median h); the transmittance grid's is twice it.
     pub irradiance_cell: f64,
     /// March step as a fraction of the median h.
     pub step: f64,
@@ -225,7 +225,8 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         })
     };
     let shadow_grids: Vec<grid::LazyGrid> = match s.shadows {
-        ShadowMode::Grid => emitters.iter().map(|_| grid::LazyGrid::new(lo, hi, cell)).collect(),
+        // Light transmittance varies more slowly than the scattered source: twice the cell.
+        ShadowMode::Grid => emitters.iter().map(|_| grid::LazyGrid::new(lo, hi, 2.0 * cell)).collect(),
         ShadowMode::Marched => Vec::new(),
     };
     let has_ms = traced.is_some();
