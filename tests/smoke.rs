@@ -297,6 +297,12 @@ fn particle_map_and_photon_map_estimate_the_same_multiple_scattering() {
     let medium = MediumParams { c_ext: 20.0, albedo: 0.95, g: 0.0 };
     let base = Settings { photons: 200_000, samples: 1, irradiance_map: false, ..Default::default() };
     let single = render(&set, &lights, medium.clone(), &cam, &Settings { store: Store::None, ..base.clone() }).unwrap();
+    // The transmittance grid (the default) against a shadow ray per sample.
+    let marched = Settings { store: Store::None, shadows: smoke::ShadowMode::Marched, ..base.clone() };
+    let exact = render(&set, &lights, medium.clone(), &cam, &marched).unwrap();
+    let sum = |f: &volterra::render::Frame| f.rgba.iter().map(|p| p[0] as f64).sum::<f64>();
+    println!("single scattering: transmittance grid {:.4}, shadow rays {:.4}", sum(&single), sum(&exact));
+    assert!((sum(&single) / sum(&exact) - 1.0).abs() < 0.02, "transmittance grid {} vs shadow rays {}", sum(&single), sum(&exact));
     let pm = render(&set, &lights, medium.clone(), &cam, &Settings { store: Store::ParticleMap, ..base.clone() }).unwrap();
     let ph = render(&set, &lights, medium, &cam, &Settings { store: Store::PhotonMap, gather: 50, photons: 1_000_000, ..base }).unwrap();
     let ms = |f: &volterra::render::Frame| -> f64 { f.rgba.iter().zip(&single.rgba).map(|(a, b)| (a[0] - b[0]) as f64).sum() };

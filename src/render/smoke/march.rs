@@ -43,13 +43,19 @@ impl MarchView<'_> {
         let Some((dir, dist, _)) = self.emitters[k].incident(x) else { return 0.0 };
         match &self.transmittance {
             LightTransmittance::Marched { step } => marched_transmittance(self.medium, self.c_ext, x, -dir, dist, *step),
-            LightTransmittance::Grid(grids) => grids[k].sample(x, &|p| {
-                let t = match self.emitters[k].incident(p) {
-                    Some((d, r, _)) => marched_transmittance(self.medium, self.c_ext, p, -d, r, self.step),
-                    None => 0.0,
-                };
-                [t, 0.0, 0.0]
-            })[0],
+            // The grid holds optical depth, not transmittance: τ changes nearly linearly
+            // across a cell where e^−τ, in dense smoke, is far from linear (interpolating
+            // T overestimated single scattering twofold in a dense cloud).
+            LightTransmittance::Grid(grids) => {
+                let tau = grids[k].sample(x, &|p| {
+                    let t = match self.emitters[k].incident(p) {
+                        Some((d, r, _)) => marched_transmittance(self.medium, self.c_ext, p, -d, r, self.step),
+                        None => 0.0,
+                    };
+                    [-t.max(1e-30).ln(), 0.0, 0.0]
+                })[0];
+                (-tau).exp()
+            }
         }
     }
 

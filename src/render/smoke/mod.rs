@@ -164,7 +164,10 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     let start = Instant::now();
     let medium = build_medium(input, s.kernel)?;
     let (lo, hi) = medium::Medium::bounds(&medium);
-    let emitters = lights::Emitter::from_scene(input.lights, lo, hi)?;
+    let mut emitters = lights::Emitter::from_scene(input.lights, lo, hi)?;
+    for e in &mut emitters {
+        e.fit_to(medium::Medium::majorants(&medium));
+    }
     let h = median_h(&medium);
     let step = s.step * h;
     let cell = if s.irradiance_cell > 0.0 { s.irradiance_cell } else { h };
@@ -225,8 +228,17 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         })
     };
     let shadow_grids: Vec<grid::LazyGrid> = match s.shadows {
-        // Light transmittance varies more slowly than the scattered source: twice the cell.
-        ShadowMode::Grid => emitters.iter().map(|_| grid::LazyGrid::new(lo, hi, 2.0 * cell)).collect(),
+        // Optical depth varies more slowly than the scattered source — twice the cell —
+        // but in dense smoke light dies within a mean free path, and the grid must resolve
+        // that: no coarser than 1/σ_t at the median majorant.
+        ShadowMode::Grid => {
+            let maj = medium::Medium::majorants(&medium);
+            let mut nonzero: Vec<f64> = maj.max.iter().cloned().filter(|&m| m > 0.0).collect();
+            nonzero.sort_by(f64::total_cmp);
+            let sigma = c_ext * nonzero.get(nonzero.len() / 2).copied().unwrap_or(0.0);
+            let tcell = if sigma > 0.0 { (2.0 * cell).min(1.0 / sigma) } else { 2.0 * cell };
+            emitters.iter().map(|_| grid::LazyGrid::new(lo, hi, tcell)).collect()
+        }
         ShadowMode::Marched => Vec::new(),
     };
     let has_ms = traced.is_some();
