@@ -177,7 +177,7 @@ fn render(
 }
 
 fn quick() -> Settings {
-    Settings { photons: 5000, samples: 1, ..Default::default() }
+    Settings { photons: 5000, samples: 1, cache: false, ..Default::default() }
 }
 
 #[test]
@@ -273,7 +273,8 @@ fn photon_tracing_is_deterministic_for_a_seed_whatever_the_threads() {
     let cam = camera_looking_at([0.1, 0.1, 0.1], [0.1, -3.0, 0.1], 0.3);
     let lights = [sun([0.3, 0.5, -1.0], 2.0)];
     let medium = MediumParams { c_ext: 40.0, albedo: 0.9, g: 0.5 };
-    let s = Settings { photons: 20_000, samples: 2, ..Default::default() };
+    // No photon cache: both runs must trace.
+    let s = Settings { photons: 20_000, samples: 2, cache: false, ..Default::default() };
     let a = render(&set, &lights, medium.clone(), &cam, &s).unwrap();
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let b = pool.install(|| render(&set, &lights, medium.clone(), &cam, &s)).unwrap();
@@ -317,4 +318,30 @@ fn particle_map_and_photon_map_estimate_the_same_multiple_scattering() {
     // k shrinks and photons grow (k = 200 of 200k photons: +75 %; k = 50 of 1M: +25 %).
     // The particle map's estimate integrates exactly to the deposited power.
     assert!(b >= a && b < 1.3 * a, "particle map {a} vs photon map {b}");
+}
+
+#[test]
+fn traced_photons_are_cached_and_reused_for_another_view() {
+    let set = particles((0..300).map(|i| [(i % 7) as f64 * 0.03, (i % 11) as f64 * 0.02, (i % 5) as f64 * 0.04]).collect(), 0.001, 0.05);
+    let lights = [sun([0.3, 0.5, -1.0], 2.0)];
+    let medium = MediumParams { c_ext: 40.0, albedo: 0.9, g: 0.5 };
+    // A seed no other run uses, so the first render cannot find a cache entry.
+    let seed = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos() as u64;
+    let s = Settings { photons: 20_000, samples: 1, seed, ..Default::default() };
+    let hit = |f: &volterra::render::Frame| f.stats.counters.iter().find(|c| c.0 == "photon cache hit").unwrap().1;
+    let front = camera_looking_at([0.1, 0.1, 0.1], [0.1, -3.0, 0.1], 0.3);
+    let a = render(&set, &lights, medium.clone(), &front, &s).unwrap();
+    if a.stats.notes.iter().any(|n| n.contains("not written")) {
+        eprintln!("SKIPPED: no writable cache directory: {:?}", a.stats.notes);
+        return;
+    }
+    assert_eq!(hit(&a), 0.0);
+    let again = render(&set, &lights, medium.clone(), &front, &s).unwrap();
+    assert_eq!(hit(&again), 1.0);
+    assert_eq!(a.rgba, again.rgba, "the cached photons give the same image");
+    // Another view of the same smoke reuses them; another medium does not.
+    let side = camera_looking_at([0.1, 0.1, 0.1], [3.0, 0.1, 0.1], 0.3);
+    assert_eq!(hit(&render(&set, &lights, medium, &side, &s).unwrap()), 1.0);
+    let other = MediumParams { c_ext: 40.0, albedo: 0.8, g: 0.5 };
+    assert_eq!(hit(&render(&set, &lights, other, &front, &s).unwrap()), 0.0);
 }

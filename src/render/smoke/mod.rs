@@ -10,6 +10,7 @@
 //! - `photons`: photon tracing; `store`: particle map and photon map;
 //! - `grid`: lazily filled grids (irradiance map, transmittance grid); `march`: the camera.
 
+pub mod cache;
 pub mod grid;
 pub mod lights;
 pub mod march;
@@ -89,6 +90,8 @@ pub struct Settings {
     pub kernel: Kernel,
     /// Photon paths stop after this many scatterings (counted in the statistics).
     pub max_bounces: usize,
+    /// Keep traced photons on disk and reuse them for other views (see `smoke::cache`).
+    pub cache: bool,
 }
 
 impl Default for Settings {
@@ -107,6 +110,7 @@ impl Default for Settings {
             shadows: ShadowMode::Grid,
             kernel: Kernel::CubicSpline,
             max_bounces: 1000,
+            cache: true,
         }
     }
 }
@@ -176,20 +180,43 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
 
     // Photons: view-independent, traced once per render here (cached across views later).
     let t = Instant::now();
+    let mut notes = Vec::new();
+    let mut cache_hit = false;
     let traced = if s.store == Store::None || albedo == 0.0 {
         None
     } else {
-        let ts = photons::TraceSettings {
-            count: s.photons,
-            seed: s.seed,
-            c_ext,
-            albedo,
-            g,
-            free_flight: s.free_flight,
-            step,
-            max_bounces: s.max_bounces,
-        };
-        Some(photons::trace(&medium, &emitters, &ts))
+        let mut key = cache::Key::new();
+        for i in 0..medium.len() {
+            let p = medium.position(i);
+            key.f64(p.x).f64(p.y).f64(p.z).f64(medium.mass(i)).f64(medium.smoothing_length(i));
+        }
+        key.str(&format!("{:?} {emitters:?} {:?}", s.kernel, s.free_flight));
+        key.f64(c_ext).f64(albedo).f64(g).f64(step).u64(s.photons as u64).u64(s.seed).u64(s.max_bounces as u64);
+        let key = key.finish();
+        let cached = if s.cache { cache::load(key) } else { None };
+        if let Some(traced) = cached {
+            cache_hit = true;
+            notes.push(format!("photons from the cache ({} stored)", traced.photons.len()));
+            Some(traced)
+        } else {
+            let ts = photons::TraceSettings {
+                count: s.photons,
+                seed: s.seed,
+                c_ext,
+                albedo,
+                g,
+                free_flight: s.free_flight,
+                step,
+                max_bounces: s.max_bounces,
+            };
+            let traced = photons::trace(&medium, &emitters, &ts);
+            if s.cache {
+                if let Err(e) = cache::store(key, &traced) {
+                    notes.push(format!("photon cache not written: {e}"));
+                }
+            }
+            Some(traced)
+        }
     };
     let trace_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
@@ -285,7 +312,9 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         counters.push(("irradiance points computed".into(), irradiance.computed_points() as f64));
         counters.push(("irradiance map MB".into(), irradiance.memory() as f64 / 1e6));
     }
+    counters.push(("photon cache hit".into(), cache_hit as u8 as f64));
     frame.stats.counters = counters;
+    frame.stats.notes.extend(notes);
     frame.stats.seconds = start.elapsed().as_secs_f64();
     frame.stats.notes.push(format!("{:?} + {}", s.store, if s.irradiance_map { "irradiance map" } else { "direct estimates" }));
     Ok(frame)
