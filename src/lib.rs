@@ -11,6 +11,7 @@ pub mod info;
 pub use volterra_formats as formats;
 pub mod bench;
 pub mod bench_shear_warp;
+pub mod bench_smoke;
 pub mod bench_terrain;
 pub mod progress;
 pub mod render;

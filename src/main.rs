@@ -119,13 +119,19 @@ enum Command {
     /// `shear-warp` times the renderer's configurations and VTK's fixed-point mapper
     /// against their error from the reference ray caster; `terrain` times the GPU
     /// ray-caster's traversals on 256²..4096² DEMs, fly- and walk-through, with steps per
-    /// ray and depth error against the f64 reference.
+    /// ray and depth error against the f64 reference; `smoke` times photon map / particle
+    /// map with and without the irradiance map against their error from Mitsuba.
     Bench {
-        /// What to measure: formats, shear-warp or terrain.
+        /// What to measure: formats, shear-warp, terrain or smoke.
         what: String,
-        /// shear-warp: the scene (one volume, parallel camera).
-        #[arg(long, default_value = "samples/aneurysm.toml")]
-        scene: PathBuf,
+        /// The scene (shear-warp: one volume, parallel camera; default samples/aneurysm.toml.
+        /// smoke: one particle node with a Mitsuba reference in ../data; default
+        /// tests/reference/smoke_scenes/plume110k.toml).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// smoke: photons traced.
+        #[arg(long, default_value_t = 640_000)]
+        photons: usize,
         /// shear-warp: print the rows as JSON.
         #[arg(long)]
         json: bool,
@@ -135,9 +141,10 @@ enum Command {
         /// terrain: heightfield sizes (samples per side).
         #[arg(long, value_delimiter = ',', default_values_t = [256usize, 512, 1024, 2048, 4096])]
         sizes: Vec<usize>,
-        /// terrain: image size in pixels, WIDTHxHEIGHT.
-        #[arg(long, default_value = "1920x1080")]
-        image: String,
+        /// terrain, smoke: image size in pixels, WIDTHxHEIGHT (default 1920x1080 for
+        /// terrain, 500x500 for smoke, as in the papers).
+        #[arg(long)]
+        image: Option<String>,
         #[arg(long, default_value_t = 5)]
         runs: usize,
         /// Where the benchmark inputs are written (reused between runs).
@@ -189,7 +196,13 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Demo { out } => cmd_demo(&out),
-        Command::Bench { what, runs, work_dir, python, scene, json, plot, sizes, image } => {
+        Command::Bench { what, runs, work_dir, python, scene, json, plot, sizes, image, photons } => {
+            let image = image.unwrap_or_else(|| if what == "smoke" { "500x500".into() } else { "1920x1080".into() });
+            let (width, height) = image
+                .split_once('x')
+                .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+                .filter(|&(w, h): &(usize, usize)| w > 0 && h > 0)
+                .ok_or_else(|| anyhow!("--image {image}: expected WIDTHxHEIGHT, e.g. 1920x1080"))?;
             let plot = plot.unwrap_or_else(|| PathBuf::from(format!("out/bench_{}.png", what.replace('-', "_"))));
             if let Some(dir) = plot.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir)?;
@@ -197,19 +210,26 @@ fn run(cli: Cli) -> Result<()> {
             match what.as_str() {
                 "formats" => volterra::bench::run(&volterra::bench::FormatsBench { work_dir, runs, python }),
                 "shear-warp" => volterra::bench_shear_warp::run(&volterra::bench_shear_warp::ShearWarpBench {
-                    scene,
+                    scene: scene.unwrap_or_else(|| PathBuf::from("samples/aneurysm.toml")),
                     runs,
                     work_dir,
                     python,
                     json,
                     plot,
                 }),
+                "smoke" => {
+                    std::fs::create_dir_all(&work_dir)?;
+                    volterra::bench_smoke::run(&volterra::bench_smoke::SmokeBench {
+                        scene: scene.unwrap_or_else(|| PathBuf::from("tests/reference/smoke_scenes/plume110k.toml")),
+                        width,
+                        height,
+                        photons,
+                        python,
+                        work_dir,
+                        json,
+                    })
+                }
                 "terrain" => {
-                    let (width, height) = image
-                        .split_once('x')
-                        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-                        .filter(|&(w, h): &(usize, usize)| w > 0 && h > 0)
-                        .ok_or_else(|| anyhow!("--image {image}: expected WIDTHxHEIGHT, e.g. 1920x1080"))?;
                     if let Some(&s) = sizes.iter().find(|&&s| s < 2) {
                         bail!("--sizes: a heightfield needs at least 2 samples per side, not {s}");
                     }
@@ -224,7 +244,7 @@ fn run(cli: Cli) -> Result<()> {
                         plot,
                     })
                 }
-                other => bail!("bench {other}: known benchmarks: formats, shear-warp, terrain"),
+                other => bail!("bench {other}: known benchmarks: formats, shear-warp, terrain, smoke"),
             }
         }
     }
