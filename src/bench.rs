@@ -57,6 +57,20 @@ fn prepare(dir: &Path) -> Result<(PathBuf, PathBuf)> {
 }
 
 /// The median (sorts `v`).
+/// Runs the plot script `tests/reference/SCRIPT` on `data`, writing `out`; says on stderr
+/// where the `what` went, or that it was skipped (no matplotlib in `python`).
+pub fn plot(python: &Path, script: &str, data: &Path, out: &Path, what: &str) {
+    let status = std::process::Command::new(python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference").join(script))
+        .arg(data)
+        .arg(out)
+        .status();
+    match status {
+        Ok(s) if s.success() => eprintln!("{what} written to {}", out.display()),
+        _ => eprintln!("{what} skipped (needs matplotlib in {})", python.display()),
+    }
+}
+
 pub fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     let m = v.len() / 2;

@@ -148,15 +148,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
 
     let rows_path = b.work_dir.join("shear_warp_rows.json");
     std::fs::write(&rows_path, serde_json::to_string_pretty(&rows)?)?;
-    let plot = std::process::Command::new(&b.python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/plot_bench.py"))
-        .arg(&rows_path)
-        .arg(&b.plot)
-        .status();
-    match plot {
-        Ok(s) if s.success() => eprintln!("plot written to {}", b.plot.display()),
-        _ => eprintln!("plot skipped (needs matplotlib in {})", b.python.display()),
-    }
+    crate::bench::plot(&b.python, "plot_bench.py", &rows_path, &b.plot, "plot");
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {

@@ -8,7 +8,7 @@ use crate::bench::median;
 use crate::render::terrain::gpu::{self, GpuTerrain, StepStats, View};
 use crate::render::terrain::grid::TerrainGrid;
 use crate::render::terrain::shading::{sun_lights, Shading};
-use crate::render::terrain::{depth_agreement, reference, Traversal};
+use crate::render::terrain::{depth_agreement, reference, Settings, Traversal};
 use crate::scene::camera::Camera;
 use anyhow::{bail, Result};
 use glam::DMat4;
@@ -78,7 +78,7 @@ pub fn bench_dem(size: usize) -> Heightfield {
 
 /// Fly: from beyond the south-west corner, above the highest peak, looking across.
 /// Walk: 2 m above the ground near the middle, looking north-east along the terrain.
-pub fn bench_cameras(grid: &TerrainGrid) -> Vec<(&'static str, Camera)> {
+pub fn bench_cameras(grid: &TerrainGrid, hf: &Heightfield) -> Vec<(&'static str, Camera)> {
     let ext = grid.cell[0] * grid.cells()[0] as f64;
     let top = grid.z_ref + grid.z_hi;
     let fly = Camera {
@@ -90,7 +90,7 @@ pub fn bench_cameras(grid: &TerrainGrid) -> Vec<(&'static str, Camera)> {
         parallel_scale: 1.0,
     };
     let (x, y) = (0.55 * ext, 0.45 * ext);
-    let ground = grid.surface_height(x, y).unwrap_or(grid.z_ref);
+    let ground = hf.surface_height(x, y).unwrap_or(grid.z_ref);
     let walk = Camera {
         position: [x, y, ground + 2.0],
         focal_point: [x + 0.3 * ext, y + 0.4 * ext, ground + 2.0 + 0.02 * ext],
@@ -128,8 +128,9 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         let grid = TerrainGrid::new(&hf, DMat4::IDENTITY)?;
         // The same DEM and cameras for VTK.
         write_npy(&b.work_dir.join(format!("dem_{size}.npy")), size, size, &hf.elevations)?;
+        let cameras = bench_cameras(&grid, &hf);
         let cams: serde_json::Map<String, serde_json::Value> =
-            bench_cameras(&grid).into_iter().map(|(n, c)| (n.to_string(), serde_json::to_value(c).unwrap())).collect();
+            cameras.iter().map(|(n, c)| (n.to_string(), serde_json::to_value(c).unwrap())).collect();
         std::fs::write(b.work_dir.join(format!("cams_{size}.json")), serde_json::to_string(&cams)?)?;
         let mut builds = Vec::new();
         let mut terrain = None;
@@ -140,11 +141,11 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         }
         let terrain = terrain.expect("built at least once");
         let build_ms = 1e3 * median(&mut builds);
-        for (camera_name, cam) in bench_cameras(&grid) {
+        for (camera_name, cam) in cameras {
             let small = cam.rays(rw, rh);
             let truth = reference::render(&grid, None, &small, &shading);
             for traversal in [Traversal::Quadtree, Traversal::NoRaise, Traversal::Linear] {
-                let cap = 4 * (grid.cells()[0] + grid.cells()[1]) as u32 + 64;
+                let cap = Settings::default().step_cap(&grid);
                 let rays = cam.rays(b.width, b.height);
                 let view = View { grid: &grid, rays: &rays, shading: &shading, traversal, max_steps: cap };
                 let mut times = terrain.time_frames(gpu, &view, b.runs)?;
@@ -184,15 +185,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
 
     let steps_path = b.work_dir.join("terrain_steps.json");
     std::fs::write(&steps_path, serde_json::to_string(&histograms)?)?;
-    let plot = std::process::Command::new(&b.python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/plot_terrain_steps.py"))
-        .arg(&steps_path)
-        .arg(&b.plot)
-        .status();
-    match plot {
-        Ok(s) if s.success() => eprintln!("step histogram written to {}", b.plot.display()),
-        _ => eprintln!("plot skipped (needs matplotlib in {})", b.python.display()),
-    }
+    crate::bench::plot(&b.python, "plot_terrain_steps.py", &steps_path, &b.plot, "step histogram");
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
         return Ok(());

@@ -172,8 +172,7 @@ fn an_eye_on_a_cell_corner_at_exactly_ground_height() {
 fn grazing_rays_at_the_horizon_and_nodata_holes() {
     let rolling = |c: usize, r: usize| 30.0 * ((c as f32) * 0.05).sin() * ((r as f32) * 0.07).cos() + 100.0;
     let hf = field(257, 257, 10.0, rolling);
-    let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
-    let ground = grid.surface_height(300.0, 400.0).unwrap();
+    let ground = hf.surface_height(300.0, 400.0).unwrap();
     let cam = perspective([300.0, 400.0, ground + 2.0], [2000.0, 2400.0, ground + 2.0], [0.0, 0.0, 1.0], 30.0);
     let Some((gpu, reference)) = render_both(&hf, &cam, (128, 64), &Settings::default()) else { return };
     assert_agree("grazing", &gpu, &reference);
@@ -212,9 +211,8 @@ fn a_4096_squared_terrain_with_4000_m_of_relief() {
     let fly = perspective([-0.1 * extent, -0.1 * extent, 9000.0], [0.5 * extent, 0.5 * extent, 1000.0], [0.0, 0.0, 1.0], 50.0);
     let Some((gpu, reference)) = render_both(&hf, &fly, (96, 64), &Settings::default()) else { return };
     assert_agree("4096² fly", &gpu, &reference);
-    let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
     let (x, y) = (0.6 * extent, 0.4 * extent);
-    let ground = grid.surface_height(x, y).unwrap();
+    let ground = hf.surface_height(x, y).unwrap();
     let walk = perspective([x, y, ground + 2.0], [x - 5000.0, y + 8000.0, ground + 300.0], [0.0, 0.0, 1.0], 60.0);
     let Some((gpu, reference)) = render_both(&hf, &walk, (96, 64), &Settings::default()) else { return };
     assert_agree("4096² walk", &gpu, &reference);
@@ -303,7 +301,7 @@ fn real_dems_fly_and_walk_agree_with_the_reference() {
         let Some((gpu, reference)) = render_both(hf, &fly, (160, 100), &Settings::default()) else { return };
         assert_agree(&format!("{name} fly"), &gpu, &reference);
         let (x, y) = (0.45 * ex, 0.3 * ey);
-        let ground = grid.surface_height(x, y).unwrap();
+        let ground = hf.surface_height(x, y).unwrap();
         let walk = perspective([x, y, ground + 2.0], [x + 0.2 * ex, y + 0.5 * ey, ground + 2.0], [0.0, 0.0, 1.0], 60.0);
         let Some((gpu, reference)) = render_both(hf, &walk, (160, 100), &Settings::default()) else { return };
         assert_agree(&format!("{name} walk"), &gpu, &reference);

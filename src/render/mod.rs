@@ -3,6 +3,7 @@
 //! names and composites the results by depth.
 
 pub mod frame;
+pub mod geometry;
 pub mod reference_volume;
 pub mod shear_warp;
 pub mod smoke;

@@ -60,24 +60,6 @@ impl Field {
     }
 }
 
-/// Parametric interval where the ray o + t·d (index space) is inside [lo, hi]³.
-fn clip_to_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
-    let mut t0 = 0.0f64;
-    let mut t1 = f64::INFINITY;
-    for a in 0..3 {
-        if d[a].abs() < 1e-300 {
-            if o[a] < lo[a] || o[a] > hi[a] {
-                return None;
-            }
-        } else {
-            let (ta, tb) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
-            t0 = t0.max(ta.min(tb));
-            t1 = t1.min(ta.max(tb));
-        }
-    }
-    (t0 < t1).then_some((t0, t1))
-}
-
 /// What to draw: a volume placed in the world, classified by a transfer function.
 pub struct VolumeInput<'a> {
     pub volume: &'a Volume,
@@ -123,7 +105,8 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
                 let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
                 let o = world_to_index.transform_point3(ray.origin);
                 let d = world_to_index.transform_vector3(ray.dir);
-                let Some((t0, t1)) = clip_to_box(o, d, lo, hi) else { continue };
+                // A zero-length interval holds no sample.
+                let Some((t0, t1)) = crate::render::geometry::clip_box(o, d, lo, hi).filter(|(a, b)| a < b) else { continue };
                 let steps = ((t1 - t0) / dt).ceil() as usize;
                 let (mut c, mut a) = ([0.0f64; 3], 0.0f64);
                 let mut z = f32::INFINITY;

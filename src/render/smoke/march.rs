@@ -79,7 +79,7 @@ impl MarchView<'_> {
     /// Radiance and transmittance along one ray (d unit), the march starting `jitter`·Δ in.
     pub fn trace(&self, o: DVec3, d: DVec3, jitter: f64) -> ([f64; 3], f64) {
         let (lo, hi) = self.medium.bounds();
-        let Some((t0, t1)) = super::medium::clip_box(o, d, lo, hi) else { return ([0.0; 3], 1.0) };
+        let Some((t0, t1)) = crate::render::geometry::clip_box(o, d, lo, hi) else { return ([0.0; 3], 1.0) };
         let mut radiance = [0.0; 3];
         let mut tr = 1.0;
         let out = -d;
@@ -148,7 +148,7 @@ pub fn render(view: &MarchView, rays: &RayGenerator) -> Frame {
             }
             row[x] = acc.map(|v| (v / spp as f64) as f32);
             let centre = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
-            if let Some((t0, _)) = super::medium::clip_box(centre.origin, centre.dir, lo, hi) {
+            if let Some((t0, _)) = crate::render::geometry::clip_box(centre.origin, centre.dir, lo, hi) {
                 if row[x][3] > 0.0 {
                     depth[x] = t0 as f32;
                 }

@@ -7,6 +7,7 @@
 //! (ρ(x) = Σ m_i W(|x − x_i|, h_i)), and [`Homogeneous`], a box or sphere of constant
 //! density, for the closed-form checks.
 
+use crate::render::geometry::clip_box;
 use glam::DVec3;
 use volterra_formats::sph::{cubic_spline, PointGrid};
 
@@ -109,25 +110,6 @@ impl MajorantGrid {
             next[k] += delta[k];
         }
     }
-}
-
-/// Slab test; the interval is clamped to t ≥ 0.
-pub fn clip_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
-    let mut t0 = 0.0f64;
-    let mut t1 = f64::INFINITY;
-    for k in 0..3 {
-        if d[k] == 0.0 {
-            if o[k] < lo[k] || o[k] > hi[k] {
-                return None;
-            }
-        } else {
-            let a = (lo[k] - o[k]) / d[k];
-            let b = (hi[k] - o[k]) / d[k];
-            t0 = t0.max(a.min(b));
-            t1 = t1.min(a.max(b));
-        }
-    }
-    (t0 <= t1).then_some((t0, t1))
 }
 
 /// The SPH density of a particle set.

@@ -12,17 +12,23 @@ use super::medium::Medium;
 use super::rng::Rng;
 use glam::DVec3;
 
-/// Distance along o + t·d (d unit) to the first real collision before `t_max`, or None when
-/// the ray leaves the medium (or passes `t_max`) first. σ_t = c_ext·ρ.
-pub fn delta_track(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3, t_max: f64, rng: &mut Rng) -> Option<f64> {
-    let mut hit = None;
+/// Tentative collisions along o + t·d for t < t_max at the rate μ = c_ext·majorant of each
+/// majorant cell: calls `f(t, σ_t(x), μ, rng)` at each until it returns false. Leaving a
+/// cell restarts the exponential there (memorylessness).
+fn tentative_collisions(
+    medium: &dyn Medium,
+    c_ext: f64,
+    o: DVec3,
+    d: DVec3,
+    t_max: f64,
+    rng: &mut Rng,
+    mut f: impl FnMut(f64, f64, f64, &mut Rng) -> bool,
+) {
     medium.majorants().walk(o, d, 0.0, t_max, |ta, tb, maj| {
         let mu = c_ext * maj;
         if mu <= 0.0 {
             return true;
         }
-        // Tentative collisions at rate μ; a collision at x is real with probability σ_t(x)/μ.
-        // Leaving the cell restarts the exponential there (memorylessness).
         let mut t = ta;
         loop {
             t -= (1.0 - rng.uniform()).ln() / mu;
@@ -30,11 +36,24 @@ pub fn delta_track(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3, t_max: f
                 return true;
             }
             let sigma = c_ext * medium.density(o + t * d);
-            if rng.uniform() * mu < sigma {
-                hit = Some(t);
+            if !f(t, sigma, mu, rng) {
                 return false;
             }
         }
+    });
+}
+
+/// Distance along o + t·d (d unit) to the first real collision before `t_max`, or None when
+/// the ray leaves the medium (or passes `t_max`) first. σ_t = c_ext·ρ.
+pub fn delta_track(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3, t_max: f64, rng: &mut Rng) -> Option<f64> {
+    let mut hit = None;
+    // A tentative collision at x is real with probability σ_t(x)/μ.
+    tentative_collisions(medium, c_ext, o, d, t_max, rng, |t, sigma, mu, rng| {
+        if rng.uniform() * mu < sigma {
+            hit = Some(t);
+            return false;
+        }
+        true
     });
     hit
 }
@@ -58,23 +77,13 @@ pub fn local_free_path(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3, t_ma
 /// Unbiased transmittance estimate along o + t·d for t ∈ [0, t_max].
 pub fn ratio_track(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3, t_max: f64, rng: &mut Rng) -> f64 {
     let mut tr = 1.0;
-    medium.majorants().walk(o, d, 0.0, t_max, |ta, tb, maj| {
-        let mu = c_ext * maj;
-        if mu <= 0.0 {
-            return true;
+    tentative_collisions(medium, c_ext, o, d, t_max, rng, |_, sigma, mu, _| {
+        tr *= 1.0 - sigma / mu;
+        if tr < 1e-6 {
+            tr = 0.0;
+            return false;
         }
-        let mut t = ta;
-        loop {
-            t -= (1.0 - rng.uniform()).ln() / mu;
-            if t >= tb {
-                return true;
-            }
-            tr *= 1.0 - c_ext * medium.density(o + t * d) / mu;
-            if tr < 1e-6 {
-                tr = 0.0;
-                return false;
-            }
-        }
+        true
     });
     tr
 }

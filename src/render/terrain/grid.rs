@@ -7,6 +7,7 @@
 //! range is what lets the GPU work in f32: a UTM eye at 5·10⁶ m, or a peak at 4000 m,
 //! would lose centimetres to f32 rounding if used directly.
 
+use crate::render::geometry::clip_box;
 use crate::scene::camera::Ray;
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3};
@@ -126,52 +127,18 @@ impl TerrainGrid {
         clip_box(o, d, lo, hi)
     }
 
-    /// The surface height (metres, node frame) at local position (x east, y north) in
-    /// metres, bilinear in the patch; None outside the terrain or over NoData.
-    pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
-        let gx = x / self.cell[0];
-        let gy = y / self.cell[1];
-        let [cx, cy] = self.cells();
-        if !(gx >= 0.0 && gy >= 0.0 && gx <= cx as f64 && gy <= cy as f64) {
-            return None;
-        }
-        let i = (gx.floor() as usize).min(cx - 1);
-        let j = (gy.floor() as usize).min(cy - 1);
-        let z = self.patch(i, j)?;
-        Some(bilinear(z, gx - i as f64, gy - j as f64) + self.z_ref)
-    }
-
-    /// The unit world-space normal of the patch at (u, v).
     /// How far below the surface a ray may be at a cell's entry and still count as having
     /// crossed at the edge (metres): far above f64 rounding, far below anything visible.
     pub fn edge_tolerance(&self) -> f64 {
         1e-9 * (self.z_hi - self.z_lo).max(1.0)
     }
 
+    /// The unit world-space normal of the patch at (u, v).
     pub fn world_normal(&self, z: [f64; 4], u: f64, v: f64) -> DVec3 {
         let (a, b, c) = patch_coefficients(z);
         let local = DVec3::new(-(b + a * v) / self.cell[0], -(c + a * u) / self.cell[1], 1.0);
         (self.normal_to_world * local).normalize()
     }
-}
-
-/// Slab test of o + t·d against the box [lo, hi]; the interval is clamped to t ≥ 0.
-pub fn clip_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
-    let mut t0 = 0.0f64;
-    let mut t1 = f64::INFINITY;
-    for k in 0..3 {
-        if d[k] == 0.0 {
-            if o[k] < lo[k] || o[k] > hi[k] {
-                return None;
-            }
-        } else {
-            let a = (lo[k] - o[k]) / d[k];
-            let b = (hi[k] - o[k]) / d[k];
-            t0 = t0.max(a.min(b));
-            t1 = t1.min(a.max(b));
-        }
-    }
-    (t0 <= t1).then_some((t0, t1))
 }
 
 /// z(u, v) = z00 + B u + C v + A u v, returned as (A, B, C).
