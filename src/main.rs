@@ -164,7 +164,29 @@ enum Command {
     },
 }
 
+/// On SIGINT or SIGTERM: remove the temporary files of outputs being written (outputs are
+/// renamed into place only when complete, so an older file stays intact), say so, and exit
+/// with 128 + the signal number as shells do.
+#[cfg(unix)]
+fn exit_cleanly_on_signals() {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else { return };
+    std::thread::spawn(move || {
+        if let Some(sig) = signals.forever().next() {
+            let removed = formats::atomic::remove_pending();
+            let name = if sig == SIGINT { "SIGINT" } else { "SIGTERM" };
+            let what = if removed > 0 { format!(", {removed} unfinished output(s) removed") } else { String::new() };
+            eprintln!("error: interrupted by {name}{what}; no output was written partially");
+            std::process::exit(128 + sig);
+        }
+    });
+}
+
+#[cfg(not(unix))]
+fn exit_cleanly_on_signals() {}
+
 fn main() -> ExitCode {
+    exit_cleanly_on_signals();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The test command: installs what the tests need, checks that the committed reference
-# files regenerate from their scripts, then runs every Rust test and prints one summary
-# line ("N passed, M failed").
+# files regenerate from their scripts, runs every Rust test, fuzzes every reader for a
+# bounded time, and prints one summary line ("N passed, M failed").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tests/setup-system.sh
@@ -14,6 +14,15 @@ set +e
 cargo test --workspace --all-targets --no-fail-fast 2>&1 | tee target/test-output.log
 status=${PIPESTATUS[0]}
 set -e
+# Every reader under libFuzzer for a bounded time (tests/fuzz.sh; 60 s per target, two at once).
+set +e
+bash tests/fuzz.sh "${VOLTERRA_FUZZ_SECONDS:-60}" 2>&1 | tee target/fuzz-output.log
+fuzz_status=${PIPESTATUS[0]}
+set -e
 awk '/^test result:/ { for (i = 1; i <= NF; i++) { if ($(i+1) ~ /^passed/) p += $i; if ($(i+1) ~ /^failed/) f += $i } }
      END { printf "tests: %d passed, %d failed\n", p, f }' target/test-output.log
+if [ "$fuzz_status" -ne 0 ]; then
+    echo "fuzz: FAILED (see target/fuzz-output.log)"
+    [ "$status" -ne 0 ] || status=$fuzz_status
+fi
 exit "$status"

@@ -71,6 +71,32 @@ fn floats(obj: &Obj, tag: dicom_core::Tag) -> Option<Vec<f64>> {
 fn float(obj: &Obj, tag: dicom_core::Tag) -> Option<f64> {
     floats(obj, tag).and_then(|v| v.first().copied())
 }
+/// A numeric element that must be valid where present: None when absent or empty, an error
+/// naming the element when it holds something that is not finite numbers (a NaN slope or
+/// spacing must not be ignored silently).
+fn checked_floats(path: &Path, obj: &Obj, tag: dicom_core::Tag, name: &str) -> Result<Option<Vec<f64>>> {
+    let Some(e) = obj.get(tag) else { return Ok(None) };
+    let raw = e.to_str().map(|s| s.trim_matches(|c: char| c == '\0' || c.is_whitespace()).to_string()).unwrap_or_default();
+    if raw.is_empty() && e.to_multi_float64().map(|v| v.is_empty()).unwrap_or(true) {
+        return Ok(None);
+    }
+    match e.to_multi_float64() {
+        Ok(v) if !v.is_empty() && v.iter().all(|x| x.is_finite()) => Ok(Some(v)),
+        _ => Err(FormatError::invalid(path, format!("{name} '{raw}' is not a finite number"))),
+    }
+}
+
+/// RescaleSlope/Intercept of `obj` (identity where absent). A slope of 0 would map every
+/// pixel to the intercept: refused, like a non-finite one.
+fn rescale_of(path: &Path, obj: &Obj) -> Result<Rescale> {
+    let slope = checked_floats(path, obj, tags::RESCALE_SLOPE, "RescaleSlope")?.map(|v| v[0]);
+    let intercept = checked_floats(path, obj, tags::RESCALE_INTERCEPT, "RescaleIntercept")?.map(|v| v[0]);
+    if slope == Some(0.0) {
+        return Err(FormatError::invalid(path, "RescaleSlope is 0: every pixel would map to the intercept"));
+    }
+    Ok(Rescale { slope: slope.unwrap_or(1.0), intercept: intercept.unwrap_or(0.0) })
+}
+
 fn int(obj: &Obj, tag: dicom_core::Tag) -> Option<i64> {
     obj.get(tag).and_then(|e| e.to_int::<i64>().ok())
 }
@@ -85,9 +111,12 @@ fn items(obj: &Obj, seq: dicom_core::Tag) -> &[Obj] {
 }
 
 fn open(path: &Path, metadata_only: bool) -> Result<dicom_object::DefaultDicomObject> {
+    crate::dicom_scan::check_lengths(path)?;
     let opts = OpenFileOptions::new();
     let opts = if metadata_only { opts.read_until(tags::PIXEL_DATA) } else { opts };
-    opts.open_file(path).map_err(|e| FormatError::invalid(path, format!("not a readable DICOM file: {}", first_line(&e.to_string()))))
+    crate::guard::third_party(path, "the DICOM parser", || {
+        opts.open_file(path).map_err(|e| FormatError::invalid(path, format!("not a readable DICOM file: {}", first_line(&e.to_string()))))
+    })
 }
 
 fn first_line(s: &str) -> &str {
@@ -130,10 +159,7 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<Im
         ));
     }
     let modality = text(obj, tags::MODALITY).unwrap_or_default();
-    let mut rescale = Rescale {
-        slope: float(obj, tags::RESCALE_SLOPE).filter(|s| *s != 0.0).unwrap_or(1.0),
-        intercept: float(obj, tags::RESCALE_INTERCEPT).unwrap_or(0.0),
-    };
+    let mut rescale = rescale_of(path, obj)?;
     if modality == "RTDOSE" {
         // Dose values are stored × DoseGridScaling (Gy per unit); it plays the slope's role.
         if let Some(s) = float(obj, tags::DOSE_GRID_SCALING).filter(|s| *s != 0.0) {
@@ -151,7 +177,7 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<Im
         .or_else(|| from_groups(tags::PLANE_ORIENTATION_SEQUENCE, tags::IMAGE_ORIENTATION_PATIENT))
         .filter(|v| v.len() == 6)
         .map(|v| [v[0], v[1], v[2], v[3], v[4], v[5]]);
-    let pixel_spacing = floats(obj, tags::PIXEL_SPACING)
+    let pixel_spacing = checked_floats(path, obj, tags::PIXEL_SPACING, "PixelSpacing")?
         .or_else(|| from_groups(tags::PIXEL_MEASURES_SEQUENCE, tags::PIXEL_SPACING))
         .filter(|v| v.len() == 2)
         .map(|v| [v[0], v[1]]);
@@ -177,10 +203,7 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<Im
                 }
             }
             if let Some(t) = item(f, tags::PIXEL_VALUE_TRANSFORMATION_SEQUENCE) {
-                frame_rescale.push(Rescale {
-                    slope: float(t, tags::RESCALE_SLOPE).filter(|s| *s != 0.0).unwrap_or(1.0),
-                    intercept: float(t, tags::RESCALE_INTERCEPT).unwrap_or(0.0),
-                });
+                frame_rescale.push(rescale_of(path, t)?);
             }
         }
         if frame_positions.len() != frames as usize {
@@ -191,10 +214,7 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<Im
         }
         if frame_rescale.is_empty() {
             if let Some(t) = shared.and_then(|s| item(s, tags::PIXEL_VALUE_TRANSFORMATION_SEQUENCE)) {
-                rescale = Rescale {
-                    slope: float(t, tags::RESCALE_SLOPE).filter(|s| *s != 0.0).unwrap_or(1.0),
-                    intercept: float(t, tags::RESCALE_INTERCEPT).unwrap_or(0.0),
-                };
+                rescale = rescale_of(path, t)?;
             }
         }
     } else if frames > 1 {
@@ -259,20 +279,22 @@ fn check_transfer_syntax(info: &ImageInfo) -> Result<()> {
 /// as little-endian bytes, with BitsStored masking / sign extension applied.
 fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
     let file = open(&info.path, false)?;
-    let decoded = file.decode_pixel_data().map_err(|e| {
-        // jpeg-decoder (behind dicom-pixeldata) has no 12-bit DCT: say so instead of a
-        // generic decode failure.
-        if info.transfer_syntax == "1.2.840.10008.1.2.4.51" && info.bits_stored > 8 {
-            FormatError::unsupported(
-                &info.path,
-                format!(
-                    "unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)",
-                    info.bits_stored
-                ),
-            )
-        } else {
-            FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string())))
-        }
+    let decoded = crate::guard::third_party(&info.path, "the pixel data decoder", || {
+        file.decode_pixel_data().map_err(|e| {
+            // jpeg-decoder (behind dicom-pixeldata) has no 12-bit DCT: say so instead of a
+            // generic decode failure.
+            if info.transfer_syntax == "1.2.840.10008.1.2.4.51" && info.bits_stored > 8 {
+                FormatError::unsupported(
+                    &info.path,
+                    format!(
+                        "unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)",
+                        info.bits_stored
+                    ),
+                )
+            } else {
+                FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string())))
+            }
+        })
     })?;
     let pixels = info.rows as usize * info.columns as usize * info.frames as usize;
     let bytes_per = info.bits_allocated as usize / 8;
@@ -479,25 +501,31 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
         check_transfer_syntax(info)?;
     }
     // A series must agree with itself on everything that shapes the volume.
+    let name = |i: &ImageInfo| i.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     for info in &infos[1..] {
+        let (a, b) = (name(info), name(first));
         let contradiction = if (info.rows, info.columns) != (first.rows, first.columns) {
-            Some(format!("{}x{} vs {}x{} pixels", info.columns, info.rows, first.columns, first.rows))
+            Some(format!("{a} has {}x{} pixels, {b} {}x{}", info.columns, info.rows, first.columns, first.rows))
         } else if (info.bits_allocated, info.signed, info.samples_per_pixel)
             != (first.bits_allocated, first.signed, first.samples_per_pixel)
         {
-            Some("pixel formats differ".to_string())
+            Some(format!("{a} and {b} store pixels differently (bits, sign or samples per pixel)"))
         } else if !orientation_close(info.orientation, first.orientation) {
-            Some(format!("orientations differ ({:?} vs {:?})", info.orientation, first.orientation))
+            Some(format!("{a} has orientation {}, {b} {}", show_orientation(info.orientation), show_orientation(first.orientation)))
         } else if info.pixel_spacing.zip(first.pixel_spacing).is_some_and(|(a, b)| (a[0] - b[0]).abs() > 1e-4 || (a[1] - b[1]).abs() > 1e-4)
         {
-            Some("pixel spacings differ".to_string())
+            Some(format!("{a} and {b} have different PixelSpacing"))
         } else {
             None
         };
         if let Some(c) = contradiction {
-            return Err(FormatError::invalid(&info.path, format!("series contradicts itself: {c} (first file {})", first.path.display())));
+            return Err(FormatError::invalid(src, format!("series contradicts itself: {c}")));
         }
     }
+    // The whole volume against the memory guard before anything is sized by the frame count
+    // (a lying NumberOfFrames of 2^31 would otherwise allocate the frame list first).
+    let total_frames: u64 = infos.iter().map(|i| i.frames as u64).sum();
+    check_alloc(src, "DICOM volume", &[first.columns as u64, first.rows as u64, total_frames, (first.bits_allocated as u64).div_ceil(8)])?;
     if infos.len() > 1 && infos.iter().any(|i| i.frames > 1) {
         return Err(FormatError::unsupported(src, "a series of several multi-frame files is not supported"));
     }
@@ -661,6 +689,9 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     }
     notes.insert(0, format!("DICOM {} file(s), {} slice(s), transfer syntax {}", infos.len(), n, first.transfer_syntax));
     let spacing = spacing_of(&affine);
+    if affine.iter().flatten().any(|v| !v.is_finite()) || spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        return Err(FormatError::invalid(src, format!("positions and orientations give no valid geometry (voxel spacing {spacing:?})")));
+    }
     Ok(Volume {
         dims: [cols, rows, depth],
         spacing,
@@ -673,6 +704,13 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
         volume_index: 0,
         notes,
     })
+}
+
+fn show_orientation(o: Option<[f64; 6]>) -> String {
+    match o {
+        Some(v) => format!("[{}]", v.iter().map(|x| format!("{x:.4}")).collect::<Vec<_>>().join(", ")),
+        None => "none".to_string(),
+    }
 }
 
 fn orientation_close(a: Option<[f64; 6]>, b: Option<[f64; 6]>) -> bool {

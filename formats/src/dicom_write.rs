@@ -74,7 +74,10 @@ pub fn write_series(dir: &Path, vol: &Volume, series_uid: &str, shuffle: Option<
             .media_storage_sop_instance_uid(sop_uid.as_str());
         let file = obj.with_meta(meta).map_err(|e| FormatError::invalid(dir, format!("cannot build DICOM meta: {e}")))?;
         let path = dir.join(format!("IMG{:05}.dcm", names[k]));
-        file.write_to_file(&path).map_err(|e| FormatError::invalid(&path, format!("cannot write DICOM: {e}")))?;
+        // Encoded in memory, then written under a temporary name and renamed (crate::atomic).
+        let mut bytes = Vec::new();
+        file.write_all(&mut bytes).map_err(|e| FormatError::invalid(&path, format!("cannot write DICOM: {e}")))?;
+        crate::atomic::write_bytes_atomically(&path, &bytes)?;
     }
     Ok(())
 }

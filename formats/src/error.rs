@@ -36,7 +36,7 @@ impl std::error::Error for FormatError {}
 
 impl FormatError {
     pub fn new(path: impl AsRef<Path>, kind: ErrorKind, message: impl Into<String>) -> Self {
-        FormatError { path: path.as_ref().to_path_buf(), kind, message: message.into() }
+        FormatError { path: path.as_ref().to_path_buf(), kind, message: one_line(message.into()) }
     }
     pub fn invalid(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
         Self::new(path, ErrorKind::Invalid, message)
@@ -55,3 +55,42 @@ impl FormatError {
 }
 
 pub type Result<T> = std::result::Result<T, FormatError>;
+
+/// Messages quote what a file holds (names, types, values); a hostile file can put line
+/// breaks and megabytes there. Control characters are escaped and the message is cut at
+/// `MAX_MESSAGE` characters, so an error stays one readable line.
+fn one_line(message: String) -> String {
+    const MAX_MESSAGE: usize = 300;
+    if message.len() <= MAX_MESSAGE && !message.chars().any(char::is_control) {
+        return message;
+    }
+    let mut out = String::with_capacity(MAX_MESSAGE + 8);
+    let mut n = 0;
+    for c in message.chars() {
+        if n >= MAX_MESSAGE {
+            out.push('…');
+            break;
+        }
+        if c.is_control() {
+            for e in c.escape_default() {
+                out.push(e);
+                n += 1;
+            }
+        } else {
+            out.push(c);
+            n += 1;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn messages_are_one_bounded_line() {
+        let e = super::FormatError::invalid("f.vtp", format!("type '{}'", "A\nB".repeat(500)));
+        assert!(!e.to_string().contains('\n'));
+        assert!(e.message.chars().count() <= 310);
+        assert!(e.message.starts_with("type 'A\\nB"));
+    }
+}

@@ -72,6 +72,29 @@ fn short_key(keys: &[(u16, GeoKey)], id: u16) -> Option<u16> {
     })
 }
 
+/// Every strip or tile must lie inside the file: the tiff crate reports one that does not
+/// as a bare read error ("failed to fill whole buffer") or a deflate error.
+fn check_data_offsets<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -> Result<()> {
+    let file_len = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?.len();
+    for (offsets, counts, what) in [(Tag::StripOffsets, Tag::StripByteCounts, "strip"), (Tag::TileOffsets, Tag::TileByteCounts, "tile")] {
+        let Some(offsets) = d.find_tag(offsets).map_err(|e| tiff_err(path, e))? else { continue };
+        let offsets = offsets.into_u64_vec().map_err(|e| tiff_err(path, e))?;
+        let counts = match d.find_tag(counts).map_err(|e| tiff_err(path, e))? {
+            Some(c) => c.into_u64_vec().map_err(|e| tiff_err(path, e))?,
+            None => return Err(FormatError::invalid(path, format!("{what} offsets without {what} byte counts"))),
+        };
+        for (i, (&o, &c)) in offsets.iter().zip(&counts).enumerate() {
+            if o.checked_add(c).is_none_or(|end| end > file_len) {
+                return Err(FormatError::invalid(
+                    path,
+                    format!("{what} {i} lies beyond the end of the file (offset {o}, {c} bytes; the file has {file_len})"),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
     let mut d = Decoder::new(BufReader::new(file)).map_err(|e| tiff_err(path, e))?;
@@ -100,6 +123,7 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
     limits.intermediate_buffer_size = bytes.max(1 << 20);
     limits.ifd_value_size = 64 << 20;
     d = d.with_limits(limits);
+    check_data_offsets(path, &mut d)?;
 
     let keys = geo_keys(path, &mut d)?;
     let nodata_value: Option<f64> = match d.find_tag(Tag::GdalNodata).map_err(|e| tiff_err(path, e))? {
@@ -123,6 +147,14 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
         None => None,
     };
 
+    if keys.is_empty() && (scale.is_some() || transform.is_some()) {
+        // Without GeoKeys the CRS is unknown, and with it whether the pixel scale is in
+        // degrees or metres: guessing would give cells 100 000 times too small or too large.
+        return Err(FormatError::invalid(
+            path,
+            "has a pixel scale or transformation but no GeoKeys: its CRS (degrees or metres) is unknown",
+        ));
+    }
     let mut notes = Vec::new();
     // Raster → model: X = x0 + sx·I, Y = y0 − sy·J, for raster coordinates (I, J) where
     // (0, 0) is the corner of the first pixel (PixelIsArea) or its centre (PixelIsPoint).
@@ -171,7 +203,7 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
         Crs { epsg, geographic, description: desc }
     };
 
-    let raw = d.read_image().map_err(|e| tiff_err(path, e))?;
+    let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
     let n = w as usize * h as usize;
     let vertical = match short_key(&keys, KEY_VERTICAL_UNITS) {
         Some(9002) => {
@@ -200,22 +232,30 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
     }
     let mut nodata = vec![false; n];
     let mut any = false;
+    // Infinite samples (or values beyond f32's range) are no elevation anyone measured:
+    // they become NoData like NaN, and a note says how many there were.
+    let mut not_finite = 0usize;
     let elevations: Vec<f32> = values[..n]
         .iter()
         .zip(nodata.iter_mut())
         .map(|(&v, flag)| {
-            let is_nd = v.is_nan() || nodata_value.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
-            if is_nd {
+            let declared = v.is_nan() || nodata_value.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
+            let metres = (v * vertical) as f32;
+            if declared || !metres.is_finite() {
+                not_finite += usize::from(!declared);
                 *flag = true;
                 any = true;
                 f32::NAN
             } else {
-                (v * vertical) as f32
+                metres
             }
         })
         .collect();
     if !any {
         nodata.clear();
+    }
+    if not_finite > 0 {
+        notes.push(format!("{not_finite} infinite or out-of-range sample(s) treated as NoData"));
     }
 
     let cell_size = if geographic {

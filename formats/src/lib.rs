@@ -7,10 +7,12 @@
 
 pub mod atomic;
 pub mod dicom;
+mod dicom_scan;
 pub mod dicom_write;
 pub mod error;
 pub mod exr_io;
 pub mod geotiff;
+pub mod guard;
 pub mod heightfield;
 pub mod image;
 pub mod memory;

@@ -417,9 +417,26 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
             Err(e) => return Err(FormatError::invalid(path, format!("cannot read voxel data: {e}"))),
         }
     }
+    // gzip checks its CRC only at the end of the stream: after the last volume read on to
+    // the end (little is left there), so a corrupt .nii.gz is refused rather than shown.
+    let data_path = if h.single_file { path.to_path_buf() } else { image_path_for_header(path)? };
+    if is_gz(&data_path) && opts.volume_index as u64 + 1 == volume_count {
+        std::io::copy(&mut (&mut data_reader).take(64 << 20), &mut std::io::sink())
+            .map_err(|e| FormatError::invalid(&data_path, format!("gzip stream is corrupt: {e}")))?;
+    }
     data.fix_byte_order(h.big_endian);
 
     let (mut affine, which) = best_affine(&h);
+    if which != "sform" {
+        // The qform and the no-transform rule scale by pixdim: a voxel size of 0 or below is
+        // a broken header (nibabel refuses negative ones too), not something to guess around.
+        for i in 1..=3 {
+            let p = h.pixdim[i];
+            if p <= 0.0 {
+                return Err(FormatError::invalid(path, format!("pixdim[{i}] = {p} is not a positive voxel size (the {which} needs it)")));
+            }
+        }
+    }
     if unit_mm != 1.0 {
         for row in affine.iter_mut().take(3) {
             for v in row.iter_mut() {
@@ -435,6 +452,9 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
     let spacing = spacing_of(&affine);
     if spacing.contains(&0.0) {
         return Err(FormatError::invalid(path, format!("the {which} affine is singular (a zero voxel spacing)")));
+    }
+    if spacing.iter().any(|s| !s.is_finite()) {
+        return Err(FormatError::invalid(path, format!("the {which} affine's voxel spacing {spacing:?} overflows")));
     }
     // scl_slope 0 (or not finite) means "no scaling" by the standard.
     let rescale = if h.scl_slope != 0.0 && h.scl_slope.is_finite() {

@@ -34,12 +34,18 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
     if !head.starts_with(b"# vtk DataFile") {
         return Err(FormatError::invalid(path, "not a legacy VTK file (no '# vtk DataFile' header)"));
     }
-    // Guard before vtkio allocates: the POINTS count must fit the memory limit.
+    // Guard before vtkio allocates: the file and the POINTS it declares must fit the memory
+    // limit, and the points must be there (vtkio reports a short file as "Parse error: Digit").
     let len = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?.len();
     check_alloc(path, "VTK file", &[len, 4])?;
+    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    check_legacy_points(path, &bytes)?;
+    drop(bytes);
     // Legacy binary is big-endian by the format's definition.
-    let vtk = vtkio::Vtk::import_legacy_be(path)
-        .map_err(|e| FormatError::invalid(path, format!("cannot parse legacy VTK: {}", short(&e.to_string()))))?;
+    let vtk = crate::guard::third_party(path, "the legacy VTK parser", || {
+        vtkio::Vtk::import_legacy_be(path)
+            .map_err(|e| FormatError::invalid(path, format!("legacy VTK is malformed or truncated (vtkio: {})", short(&e.to_string()))))
+    })?;
     let (points, attributes) = match vtk.data {
         DataSet::PolyData { pieces, .. } => {
             let p = first_piece(path, pieces)?;
@@ -90,6 +96,54 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
     };
     let notes = vec![format!("legacy VTK {version}, {} points", positions.len())];
     ParticleSet::from_arrays(positions, arrays, names, notes).map_err(|m| FormatError::invalid(path, m))
+}
+
+/// Checks the POINTS line of a legacy file against the memory limit and against what
+/// follows it: enough bytes (binary) or numbers (ASCII) for every point.
+fn check_legacy_points(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut lines = bytes.split(|&b| b == b'\n');
+    let binary = lines.nth(2).is_some_and(|l| String::from_utf8_lossy(l).trim().eq_ignore_ascii_case("BINARY"));
+    let Some(at) = bytes.windows(8).position(|w| w == b"\nPOINTS ") else { return Ok(()) };
+    let line_end = bytes[at + 1..].iter().position(|&b| b == b'\n').map_or(bytes.len(), |i| at + 1 + i);
+    let line = String::from_utf8_lossy(&bytes[at + 1..line_end]).into_owned();
+    let mut words = line.split_whitespace().skip(1);
+    let count = words.next().unwrap_or("");
+    let n: u64 = count.parse().map_err(|_| FormatError::invalid(path, format!("POINTS count '{count}' is not a number")))?;
+    let ty = words.next().unwrap_or("float").to_ascii_lowercase();
+    check_alloc(path, "POINTS", &[n, 3, 8])?;
+    let rest = bytes.get(line_end + 1..).unwrap_or(&[]);
+    if binary {
+        let size = match ty.as_str() {
+            "double" | "long" | "unsigned_long" | "vtkidtype" => 8,
+            "short" | "unsigned_short" => 2,
+            "char" | "unsigned_char" | "bit" => 1,
+            _ => 4,
+        };
+        let need = n * 3 * size;
+        if (rest.len() as u64) < need {
+            return Err(FormatError::invalid(
+                path,
+                format!("POINTS declares {n} points ({need} bytes of {ty}) but only {} bytes follow", rest.len()),
+            ));
+        }
+    } else {
+        let need = n * 3;
+        let mut found = 0u64;
+        for word in rest.split(|b| b.is_ascii_whitespace()).filter(|w| !w.is_empty()) {
+            if found == need || (word[0].is_ascii_alphabetic() && !word.eq_ignore_ascii_case(b"nan") && !word.eq_ignore_ascii_case(b"inf"))
+            {
+                break;
+            }
+            found += 1;
+        }
+        if found < need {
+            return Err(FormatError::invalid(
+                path,
+                format!("POINTS declares {n} points but only {found} coordinates follow ({need} needed)"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Pieces other than inline ones only occur in XML parallel files.

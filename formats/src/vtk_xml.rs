@@ -49,6 +49,15 @@ fn type_size(ty: &str) -> Option<usize> {
 
 pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
     let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    // A cut file can still parse up to where it stops (and appended raw data can still cover
+    // the arrays): refuse it by its missing end.
+    let tail = &bytes[bytes.len().saturating_sub(4096)..];
+    if find(tail, b"</VTKFile>").is_none() {
+        if find(&bytes[..bytes.len().min(4096)], b"<VTKFile").is_none() {
+            return Err(FormatError::invalid(path, "not a VTK XML file (no VTKFile element)"));
+        }
+        return Err(FormatError::invalid(path, "file is truncated: no closing </VTKFile>"));
+    }
     // The appended block may hold raw bytes that are not XML: parse only what precedes it.
     let app_tag = find(&bytes, b"<AppendedData");
     let xml_end = app_tag.unwrap_or(bytes.len());
@@ -280,18 +289,19 @@ fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: us
     Ok(values)
 }
 
-fn header_int(f: &FileDecl, b: &[u8]) -> u64 {
-    if f.header64 {
-        let a: [u8; 8] = b[..8].try_into().unwrap();
+/// One integer of a block header; None when the bytes run out (a cut or corrupt header).
+fn header_int(f: &FileDecl, b: &[u8]) -> Option<u64> {
+    Some(if f.header64 {
+        let a: [u8; 8] = b.get(..8)?.try_into().ok()?;
         if f.big_endian {
             u64::from_be_bytes(a)
         } else {
             u64::from_le_bytes(a)
         }
     } else {
-        let a: [u8; 4] = b[..4].try_into().unwrap();
+        let a: [u8; 4] = b.get(..4)?.try_into().ok()?;
         (if f.big_endian { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) }) as u64
-    }
+    })
 }
 
 /// Raw appended block: header then (possibly compressed) data, all bytes.
@@ -299,12 +309,12 @@ fn decode_raw_block(path: &Path, f: &FileDecl, block: &[u8], want: usize, what: 
     let hs = if f.header64 { 8 } else { 4 };
     let short = || FormatError::invalid(path, format!("{what}: appended data is truncated"));
     if f.zlib {
-        let nblocks = header_int(f, block.get(..hs).ok_or_else(short)?) as usize;
+        let nblocks = header_int(f, block).ok_or_else(short)? as usize;
         let hlen = nblocks.checked_add(3).and_then(|c| c.checked_mul(hs)).ok_or_else(short)?;
         let header = block.get(..hlen).ok_or_else(short)?;
         inflate_blocks(path, f, header, &block[hlen..], want, what)
     } else {
-        let nbytes = header_int(f, block.get(..hs).ok_or_else(short)?) as usize;
+        let nbytes = header_int(f, block).ok_or_else(short)? as usize;
         if nbytes != want {
             return Err(FormatError::invalid(path, format!("{what}: block holds {nbytes} bytes, expected {want}")));
         }
@@ -325,18 +335,18 @@ fn decode_base64_block(path: &Path, f: &FileDecl, text: &[u8], want: usize, what
     let hs = if f.header64 { 8 } else { 4 };
     let first = run(0, hs)?;
     if f.zlib {
-        let nblocks = header_int(f, &first) as usize;
+        let nblocks = header_int(f, &first).ok_or_else(bad)? as usize;
         let hlen = nblocks.checked_add(3).and_then(|c| c.checked_mul(hs)).ok_or_else(bad)?;
         let header = run(0, hlen)?;
         if header.len() < hlen {
             return Err(bad());
         }
-        let sizes: u64 = header.chunks_exact(hs).skip(3).map(|c| header_int(f, c)).fold(0u64, u64::saturating_add);
+        let sizes: u64 = header.chunks_exact(hs).skip(3).filter_map(|c| header_int(f, c)).fold(0u64, u64::saturating_add);
         let sizes = usize::try_from(sizes).map_err(|_| bad())?;
         let data = run(enc_len(hlen), sizes)?;
         inflate_blocks(path, f, &header, &data, want, what)
     } else {
-        let nbytes = header_int(f, &first) as usize;
+        let nbytes = header_int(f, &first).ok_or_else(bad)? as usize;
         if nbytes != want {
             return Err(FormatError::invalid(path, format!("{what}: block holds {nbytes} bytes, expected {want}")));
         }
@@ -365,20 +375,29 @@ fn check_len(path: &Path, data: Vec<u8>, want: usize, what: &str) -> Result<Vec<
 /// zlib blocks: header = [nblocks, block size, last block size, compressed sizes…].
 fn inflate_blocks(path: &Path, f: &FileDecl, header: &[u8], data: &[u8], want: usize, what: &str) -> Result<Vec<u8>> {
     let hs = if f.header64 { 8 } else { 4 };
-    let h: Vec<u64> = header.chunks_exact(hs).map(|c| header_int(f, c)).collect();
-    let (nblocks, block, last) = (h[0] as usize, h[1] as usize, h[2] as usize);
-    let total = if nblocks == 0 { 0 } else { (nblocks - 1) * block + if last == 0 { block } else { last } };
-    if total != want {
+    let h: Vec<u64> = header.chunks_exact(hs).filter_map(|c| header_int(f, c)).collect();
+    let bad_header = || FormatError::invalid(path, format!("{what}: compressed block header is corrupt"));
+    if h.len() < 3 || h.len() < 3 + h[0] as usize {
+        return Err(bad_header());
+    }
+    let (nblocks, block, last) = (h[0], h[1], h[2]);
+    let total = if nblocks == 0 {
+        Some(0)
+    } else {
+        (nblocks - 1).checked_mul(block).and_then(|t| t.checked_add(if last == 0 { block } else { last }))
+    };
+    let total = total.ok_or_else(bad_header)?;
+    if total != want as u64 {
         return Err(FormatError::invalid(path, format!("{what}: compressed header declares {total} bytes, expected {want}")));
     }
     let mut out = Vec::with_capacity(want);
     let mut pos = 0usize;
-    for &csize in &h[3..3 + nblocks] {
+    for &csize in &h[3..3 + nblocks as usize] {
         let csize = csize as usize;
         let chunk = data
             .get(pos..pos.saturating_add(csize))
             .ok_or_else(|| FormatError::invalid(path, format!("{what}: compressed data is truncated")))?;
-        let mut d = flate2::read::ZlibDecoder::new(chunk).take((block.max(last)) as u64);
+        let mut d = flate2::read::ZlibDecoder::new(chunk).take(block.max(last));
         d.read_to_end(&mut out).map_err(|e| FormatError::invalid(path, format!("{what}: corrupt zlib data: {e}")))?;
         pos += csize;
     }

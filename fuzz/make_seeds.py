@@ -1,0 +1,103 @@
+#!/usr/bin/env python3
+"""Builds the seed corpus of every fuzz target (standard library only).
+
+usage: make_seeds.py OUT_DIR [SHARED_DATA_DIR]
+
+Seeds are the project's own fixtures and samples, the small files of ../shared/data (read in
+place, copied only into the throw-away seed directory, never into the repository), a few
+tiny PNGs written here, and for `dicom_series` whole fixture series joined into one input
+with the separator the harness splits on (fuzz/src/harness.rs: SERIES_SPLIT).
+"""
+import gzip
+import shutil
+import struct
+import sys
+import zlib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+SERIES_SPLIT = b"\n--volterra-next-file--\n"
+MAX_SEED = 1 << 20  # libFuzzer runs with -max_len 1 MiB; larger files would be cut anyway
+
+
+def png(width, height, colour_type, bit_depth, pixels: bytes) -> bytes:
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    channels = {0: 1, 2: 3, 4: 2, 6: 4}[colour_type]
+    row = width * channels * bit_depth // 8
+    raw = b"".join(b"\0" + pixels[y * row:(y + 1) * row] for y in range(height))
+    ihdr = struct.pack(">IIBBBBB", width, height, bit_depth, colour_type, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+
+
+def small_files(directory: Path, suffixes):
+    if not directory.is_dir():
+        return []
+    return sorted(p for p in directory.rglob("*") if p.is_file() and p.stat().st_size <= MAX_SEED
+                  and any(p.name.lower().endswith(s) for s in suffixes))
+
+
+def main():
+    out = Path(sys.argv[1])
+    shared = Path(sys.argv[2]) if len(sys.argv) > 2 else None
+    have_shared = shared is not None and shared.is_dir()
+    fixtures = ROOT / "tests" / "fixtures"
+    seeds = {t: [] for t in ["dicom_file", "dicom_series", "nifti", "nifti_gz", "geotiff", "png_height", "vtk_legacy", "vtk_xml"]}
+
+    dicoms = small_files(fixtures / "dicom", [".dcm"])
+    if have_shared:
+        dicoms += small_files(shared / "volumes" / "dicom_real" / "pydicom", [".dcm"])
+    seeds["dicom_file"] = [(p.name, p.read_bytes()) for p in dicoms]
+    for series in sorted(d for d in (fixtures / "dicom").iterdir() if d.is_dir()):
+        files = sorted(series.glob("*.dcm"))
+        seeds["dicom_series"].append((series.name, SERIES_SPLIT.join(f.read_bytes() for f in files)))
+    if have_shared:
+        py = shared / "volumes" / "dicom_real" / "pydicom"
+        pair = [py / "CT_small.dcm", py / "MR_small.dcm"]
+        if all(p.exists() for p in pair):
+            seeds["dicom_series"].append(("two_series_real", SERIES_SPLIT.join(p.read_bytes() for p in pair)))
+
+    niftis = [p for p in small_files(fixtures / "nifti", [".nii", ".nii.gz"])]
+    if have_shared:
+        niftis += small_files(shared / "volumes", [".nii", ".nii.gz"])
+    for p in niftis:
+        data = p.read_bytes()
+        if p.name.endswith(".gz"):
+            data = gzip.decompress(data)
+            if len(data) > MAX_SEED:
+                continue
+        seeds["nifti"].append((p.name.removesuffix(".gz"), data))
+        seeds["nifti_gz"].append((p.name.removesuffix(".gz"), data))
+
+    tiffs = small_files(fixtures / "geotiff", [".tif"]) + small_files(ROOT / "samples", [".tif"])
+    if have_shared:
+        tiffs += small_files(shared / "terrain", [".tif", ".tiff"])
+    seeds["geotiff"] = [(p.name, p.read_bytes()) for p in tiffs]
+
+    # Grey 8/16-bit, grey+alpha, RGB and RGBA; the harness picks the encoding from the last byte.
+    seeds["png_height"] = [
+        ("grey8.png", png(4, 3, 0, 8, bytes(range(12)))),
+        ("grey16.png", png(5, 4, 0, 16, b"".join(struct.pack(">H", 1000 * i) for i in range(20)))),
+        ("grey_alpha.png", png(3, 2, 4, 8, bytes(range(12)))),
+        ("rgb.png", png(3, 3, 2, 8, bytes(range(27)))),
+        ("rgba.png", png(2, 2, 6, 8, bytes(range(16)))),
+    ] + [(p.name, p.read_bytes()) for p in small_files(ROOT / "samples", [".png"])]
+
+    seeds["vtk_legacy"] = [(p.name, p.read_bytes()) for p in small_files(fixtures / "vtk", [".vtk"])]
+    seeds["vtk_xml"] = [(p.name, p.read_bytes()) for p in small_files(fixtures / "vtk", [".vtp", ".vtu"])]
+    if have_shared:
+        seeds["vtk_legacy"] += [(p.name, p.read_bytes()) for p in small_files(shared, [".vtk"])]
+        seeds["vtk_xml"] += [(p.name, p.read_bytes()) for p in small_files(shared, [".vtp", ".vtu"])]
+
+    for target, files in seeds.items():
+        d = out / target
+        shutil.rmtree(d, ignore_errors=True)
+        d.mkdir(parents=True)
+        for i, (name, data) in enumerate(files):
+            (d / f"{i:03d}_{name}").write_bytes(data)
+        print(f"{target}: {len(files)} seeds")
+
+
+if __name__ == "__main__":
+    main()
