@@ -20,6 +20,8 @@ pub struct ShearWarpBench {
     pub python: PathBuf,
     pub json: bool,
     pub plot: PathBuf,
+    /// Time only the configurations whose name contains this (None: all).
+    pub only: Option<String>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -89,7 +91,11 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     }
 
     let mut rows = Vec::new();
-    let time_config = |name: String, blend: BlendMode, s: shear_warp::Settings| -> Result<Row> {
+    let wanted = |name: &str| b.only.as_deref().is_none_or(|o| name.contains(o));
+    let time_config = |name: String, blend: BlendMode, s: shear_warp::Settings| -> Result<Option<Row>> {
+        if !wanted(&name) {
+            return Ok(None);
+        }
         let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend };
         let (mut ms, mut err, mut mpix) = (Vec::new(), Vec::new(), Vec::new());
         for (v, cam) in cams.iter().enumerate() {
@@ -116,39 +122,43 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         if !b.json {
             eprintln!("{:<34} {:>9.1} ms {:>8.2} %", row.config, row.median_ms, 100.0 * row.rel_rmse);
         }
-        Ok(row)
+        Ok(Some(row))
     };
     for leaping in [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped] {
         for ratio in [1.0, 1.13, 2.26] {
             let name = format!("shear-warp {} ×{ratio}", leaping_name(leaping));
-            rows.push(time_config(
+            rows.extend(time_config(
                 name,
                 BlendMode::Composite,
                 shear_warp::Settings { leaping, supersampling: ratio, ..Default::default() },
             )?);
         }
     }
-    rows.push(time_config("shear-warp overlapped auto".into(), BlendMode::Composite, Default::default())?);
-    rows.push(time_config(
+    rows.extend(time_config("shear-warp overlapped auto".into(), BlendMode::Composite, Default::default())?);
+    rows.extend(time_config(
         "shear-warp mip overlapped ×2.26".into(),
         BlendMode::Mip,
         shear_warp::Settings { supersampling: 2.26, ..Default::default() },
     )?);
-    rows.push(time_config(
+    rows.extend(time_config(
         "shear-warp mip none ×2.26".into(),
         BlendMode::Mip,
         shear_warp::Settings { supersampling: 2.26, leaping: shear_warp::Leaping::None, ..Default::default() },
     )?);
 
     // VTK's fixed-point mapper through Python, same views, same reference.
-    match vtk_rows(b, &cams, &refs) {
-        Ok(r) => rows.extend(r),
-        Err(e) => eprintln!("VTK rows skipped: {e:#}"),
+    if wanted("vtk fixed-point") {
+        match vtk_rows(b, &cams, &refs) {
+            Ok(r) => rows.extend(r),
+            Err(e) => eprintln!("VTK rows skipped: {e:#}"),
+        }
     }
 
     let rows_path = b.work_dir.join("shear_warp_rows.json");
     std::fs::write(&rows_path, serde_json::to_string_pretty(&rows)?)?;
-    crate::bench::plot(&b.python, "plot_bench.py", &rows_path, &b.plot, "plot");
+    if b.only.is_none() {
+        crate::bench::plot(&b.python, "plot_bench.py", &rows_path, &b.plot, "plot");
+    }
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {

@@ -147,6 +147,10 @@ enum Command {
         image: Option<String>,
         #[arg(long, default_value_t = 5)]
         runs: usize,
+        /// shear-warp: time only the configurations whose name contains this text (e.g.
+        /// "overlapped ×1", "vtk"); for profiling one path.
+        #[arg(long)]
+        only: Option<String>,
         /// Where the benchmark inputs are written (reused between runs).
         #[arg(long, default_value = "target/bench-data")]
         work_dir: PathBuf,
@@ -218,7 +222,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Demo { out } => cmd_demo(&out),
-        Command::Bench { what, runs, work_dir, python, scene, json, plot, sizes, image, photons } => {
+        Command::Bench { what, runs, work_dir, python, scene, json, plot, sizes, image, photons, only } => {
             let image = image.unwrap_or_else(|| if what == "smoke" { "500x500".into() } else { "1920x1080".into() });
             let (width, height) = image
                 .split_once('x')
@@ -238,6 +242,7 @@ fn run(cli: Cli) -> Result<()> {
                     python,
                     json,
                     plot,
+                    only,
                 }),
                 "smoke" => {
                     std::fs::create_dir_all(&work_dir)?;

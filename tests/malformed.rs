@@ -248,7 +248,11 @@ fn geotiff_cases(s: &mut Suite) {
 }
 
 fn png_cases(s: &mut Suite) {
-    let base = std::fs::read(common::repo_path("samples/fractal_dem.png")).unwrap();
+    // A 16-bit grey heightmap written by our own PNG writer.
+    let png = s.dir.join("base_heightmap.png.src");
+    let grey: Vec<u16> = (0..64 * 48).map(|i| (i * 13 % 65536) as u16).collect();
+    volterra_formats::image::write_png_grey16(&png, 64, 48, &grey).unwrap();
+    let base = std::fs::read(&png).unwrap();
     s.file("cut_signature.png", &base[..4]);
     s.file("cut_half.png", &base[..base.len() / 2]);
     let mut b = base.clone();

@@ -41,6 +41,9 @@ pub struct PreintTable {
     entries: Vec<Rgba>,
     /// prefix[j] = Σ opacity of levels < j (for empty-space tests, level resolution).
     opacity_prefix: Vec<f64>,
+    /// Segments whose front and back both lie below this level are empty (every table entry
+    /// they interpolate has zero opacity): the compositing loop skips their lookup.
+    pub clear_below: f32,
 }
 
 /// Extinction per world unit, finite even for opacity 1.
@@ -167,7 +170,11 @@ impl PreintTable {
         for j in 0..n {
             opacity_prefix[j + 1] = opacity_prefix[j] + tau[j];
         }
-        PreintTable { n, lo, hi, entries, opacity_prefix }
+        // The lowest max(front, back) index of an entry with opacity: entries below it on
+        // both axes are empty, and a lookup reads indices up to ⌊level⌋ + 1.
+        let first_opaque = (0..n * n).filter(|&i| entries[i].a > 0.0).map(|i| (i / n).max(i % n)).min().unwrap_or(n);
+        let clear_below = first_opaque as f32 - 1.0;
+        PreintTable { n, lo, hi, entries, opacity_prefix, clear_below }
     }
 
     /// Table level (fractional) of a real-world value.
@@ -203,8 +210,11 @@ impl PreintTable {
     /// opacity transfer function makes this one subtraction.
     #[inline]
     pub fn transparent(&self, lo: f32, hi: f32) -> bool {
-        let a = (lo.floor() as usize).min(self.n - 1);
-        let b = (hi.ceil() as usize).min(self.n - 1);
+        // Levels are ≥ 0: truncation is floor, and ceil by hand (floorf/ceilf are libm
+        // calls on baseline x86-64, in the per-run leaping test).
+        let a = (lo.max(0.0) as usize).min(self.n - 1);
+        let hc = hi.max(0.0) as usize;
+        let b = (hc + usize::from((hc as f32) < hi)).min(self.n - 1);
         self.opacity_prefix[b + 1] - self.opacity_prefix[a] == 0.0
     }
 }
