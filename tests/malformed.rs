@@ -237,6 +237,13 @@ fn geotiff_cases(s: &mut Suite) {
     put_u32(&mut b, w + 8, 1 << 31);
     put_u32(&mut b, h + 8, 1 << 31);
     s.file("huge.tif", &b);
+    // A geographic raster whose origin lies beyond the pole (ModelTransformation: 16
+    // doubles, the y origin is the 8th): metres per degree would come out negative.
+    let mut b = fixture("geotiff/f32_transform_point_geographic.tif");
+    let e = tiff_entry(&b, 34264);
+    let at = u32::from_le_bytes(b[e + 8..e + 12].try_into().unwrap()) as usize + 7 * 8;
+    b[at..at + 8].copy_from_slice(&(-179.5f64).to_le_bytes());
+    s.file("latitude_beyond_pole.tif", &b);
     // ModelPixelScale: three doubles at the entry's offset.
     for (name, v) in [("scale_zero.tif", 0.0), ("scale_negative.tif", -30.0), ("scale_nan.tif", f64::NAN)] {
         let mut b = base.clone();
@@ -377,6 +384,7 @@ const EXPECTED: &[(&str, &str)] = &[
     ("tile_beyond_end.tif", "tile 0 lies beyond the end of the file (offset 1073741824, 1981 bytes; the file has 7530)"),
     ("width_zero.tif", "invalid TIFF: format error: invalid dimensions: 0x37"),
     ("huge.tif", "invalid TIFF: format error: inconsistent sizes encountered"),
+    ("latitude_beyond_pole.tif", "geographic raster centred at latitude -179.536°, outside ±90°"),
     ("scale_zero.tif", "pixel scale (0, 20) must be finite and positive (north-up)"),
     ("scale_negative.tif", "pixel scale (-30, 20) must be finite and positive (north-up)"),
     ("scale_nan.tif", "pixel scale (NaN, 20) must be finite and positive (north-up)"),

@@ -260,6 +260,9 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
 
     let cell_size = if geographic {
         let centre_lat = oy - 0.5 * (h as f64 - 1.0) * sy;
+        if !(-90.0..=90.0).contains(&centre_lat) {
+            return Err(FormatError::invalid(path, format!("geographic raster centred at latitude {centre_lat}°, outside ±90°")));
+        }
         let (mx, my) = metres_per_degree(centre_lat);
         notes.push(format!(
             "geographic CRS: cell size {sx}°×{sy}° converted to {:.3} m × {:.3} m at the centre latitude {centre_lat:.5}°",
@@ -270,6 +273,9 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
     } else {
         [sx, sy]
     };
+    if !cell_size.iter().all(|c| c.is_finite() && *c > 0.0) {
+        return Err(FormatError::invalid(path, format!("cell size {cell_size:?} m is not positive and finite")));
+    }
     Ok(Heightfield {
         width: w as usize,
         height: h as usize,
