@@ -25,6 +25,13 @@ fn put_u32(b: &mut [u8], at: usize, v: u32) {
     b[at..at + 4].copy_from_slice(&v.to_le_bytes());
 }
 
+/// A copy of `base` with one edit applied.
+fn edited(base: &[u8], edit: impl FnOnce(&mut Vec<u8>)) -> Vec<u8> {
+    let mut b = base.to_vec();
+    edit(&mut b);
+    b
+}
+
 fn gunzip(data: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(data), &mut out).unwrap();
@@ -96,32 +103,16 @@ fn nifti_cases(s: &mut Suite) {
     s.file("header_only.nii", &base[..348]);
     s.file("no_voxels.nii", &base[..352]);
     s.file("half_voxels.nii", &base[..352 + (base.len() - 352) / 2]);
-    let mut b = base.clone();
-    b[344..348].copy_from_slice(b"xyz\0");
-    s.file("wrong_magic.nii", &b);
-    let mut b = base.clone();
-    put_i16(&mut b, 42, 0);
-    s.file("dim_zero.nii", &b);
-    let mut b = base.clone();
-    put_i16(&mut b, 70, 1234);
-    s.file("unknown_datatype.nii", &b);
-    let mut b = base.clone();
-    put_i16(&mut b, 72, 32);
-    s.file("bitpix_mismatch.nii", &b);
-    let mut b = base.clone();
-    put_f32(&mut b, 108, 100.0);
-    s.file("vox_offset_in_header.nii", &b);
+    s.file("wrong_magic.nii", &edited(&base, |b| b[344..348].copy_from_slice(b"xyz\0")));
+    s.file("dim_zero.nii", &edited(&base, |b| put_i16(b, 42, 0)));
+    s.file("unknown_datatype.nii", &edited(&base, |b| put_i16(b, 70, 1234)));
+    s.file("bitpix_mismatch.nii", &edited(&base, |b| put_i16(b, 72, 32)));
+    s.file("vox_offset_in_header.nii", &edited(&base, |b| put_f32(b, 108, 100.0)));
     // Spacing: pixdim[i] at 76 + 4 i. qform_only.nii takes its geometry from pixdim.
     let q = fixture("nifti/qform_only.nii");
-    let mut b = q.clone();
-    put_f32(&mut b, 80, -2.0);
-    s.file("negative_pixdim.nii", &b);
-    let mut b = q.clone();
-    put_f32(&mut b, 84, 0.0);
-    s.file("zero_pixdim.nii", &b);
-    let mut b = q.clone();
-    put_f32(&mut b, 88, f32::NAN);
-    s.file("nan_pixdim.nii", &b);
+    s.file("negative_pixdim.nii", &edited(&q, |b| put_f32(b, 80, -2.0)));
+    s.file("zero_pixdim.nii", &edited(&q, |b| put_f32(b, 84, 0.0)));
+    s.file("nan_pixdim.nii", &edited(&q, |b| put_f32(b, 88, f32::NAN)));
     // The sform (srow_x at 280) with a zero column: no voxel size at all.
     let mut b = base.clone();
     for k in 0..3 {
@@ -134,9 +125,7 @@ fn nifti_cases(s: &mut Suite) {
     let n2 = gunzip(&fixture("nifti/f32_nifti2_be.nii.gz"));
     let le = i32::from_le_bytes(n2[0..4].try_into().unwrap()) == 540;
     let i64_bytes = |v: i64| if le { v.to_le_bytes() } else { v.to_be_bytes() };
-    let mut b = n2.clone();
-    b[24..32].copy_from_slice(&i64_bytes(1 << 31));
-    s.file("dim_2pow31.nii", &b);
+    s.file("dim_2pow31.nii", &edited(&n2, |b| b[24..32].copy_from_slice(&i64_bytes(1 << 31))));
     let mut b = n2.clone();
     for k in 0..3 {
         b[24 + 8 * k..32 + 8 * k].copy_from_slice(&i64_bytes(1 << 40));
@@ -162,9 +151,7 @@ fn dicom_cases(s: &mut Suite) {
     s.file("cut_in_meta.dcm", &base[..180]);
     s.file("cut_in_dataset.dcm", &base[..n / 2]);
     s.file("cut_in_pixels.dcm", &base[..n - 10]);
-    let mut b = base.clone();
-    b[128..132].copy_from_slice(b"DICX");
-    s.file("wrong_magic.dcm", &b);
+    s.file("wrong_magic.dcm", &edited(&base, |b| b[128..132].copy_from_slice(b"DICX")));
     s.file("rows_zero.dcm", &dicom_edit("dicom/oblique/z5.dcm", |o| put_us(o, tags::ROWS, 0)));
     s.file(
         "huge_frames.dcm",
@@ -206,9 +193,7 @@ fn geotiff_cases(s: &mut Suite) {
     let base = fixture("geotiff/i16_none_strips.tif");
     s.file("header_only.tif", &base[..8]);
     s.file("cut_half.tif", &base[..base.len() / 2]);
-    let mut b = base.clone();
-    b[..4].copy_from_slice(b"XX*\0");
-    s.file("wrong_magic.tif", &b);
+    s.file("wrong_magic.tif", &edited(&base, |b| b[..4].copy_from_slice(b"XX*\0")));
     let mut b = base.clone();
     let e = tiff_entry(&b, 34735);
     put_u16(&mut b, e, 65000); // GeoKeyDirectory renamed to an unknown private tag
@@ -262,9 +247,7 @@ fn png_cases(s: &mut Suite) {
     let base = std::fs::read(&png).unwrap();
     s.file("cut_signature.png", &base[..4]);
     s.file("cut_half.png", &base[..base.len() / 2]);
-    let mut b = base.clone();
-    b[1..4].copy_from_slice(b"JPG");
-    s.file("wrong_magic.png", &b);
+    s.file("wrong_magic.png", &edited(&base, |b| b[1..4].copy_from_slice(b"JPG")));
     // IHDR width at byte 16, its CRC at 29: fix the CRC so only the value is wrong.
     let ihdr = |w: u32, h: u32| {
         let mut b = base.clone();

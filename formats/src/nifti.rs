@@ -382,6 +382,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
     let vol_bytes = check_alloc(path, "volume", &[dims[0] as u64, dims[1] as u64, dims[2] as u64, ty.size() as u64])?;
 
     // Skip to the data: in a single file it starts at vox_offset; in a pair, at 0 of .img.
+    let data_path = if h.single_file { path.to_path_buf() } else { image_path_for_header(path)? };
     let mut data_reader: Box<dyn Read> = if h.single_file {
         let header_size = if h.version == 1 { 348 } else { 540 };
         let off = h.vox_offset;
@@ -392,10 +393,9 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
         std::io::copy(&mut (&mut r).take(skip), &mut std::io::sink()).map_err(|e| FormatError::io(path, e))?;
         r
     } else {
-        let img = image_path_for_header(path)?;
-        let mut ir = open_maybe_gz(&img)?;
+        let mut ir = open_maybe_gz(&data_path)?;
         let off = if h.vox_offset.is_finite() && h.vox_offset > 0.0 { h.vox_offset as u64 } else { 0 };
-        std::io::copy(&mut (&mut ir).take(off), &mut std::io::sink()).map_err(|e| FormatError::io(&img, e))?;
+        std::io::copy(&mut (&mut ir).take(off), &mut std::io::sink()).map_err(|e| FormatError::io(&data_path, e))?;
         ir
     };
     let skip_volumes = (opts.volume_index as u64) * vol_bytes as u64;
@@ -419,7 +419,6 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
     }
     // gzip checks its CRC only at the end of the stream: after the last volume read on to
     // the end (little is left there), so a corrupt .nii.gz is refused rather than shown.
-    let data_path = if h.single_file { path.to_path_buf() } else { image_path_for_header(path)? };
     if is_gz(&data_path) && opts.volume_index as u64 + 1 == volume_count {
         std::io::copy(&mut (&mut data_reader).take(64 << 20), &mut std::io::sink())
             .map_err(|e| FormatError::invalid(&data_path, format!("gzip stream is corrupt: {e}")))?;

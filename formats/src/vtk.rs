@@ -38,12 +38,12 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
     // limit, and the points must be there (vtkio reports a short file as "Parse error: Digit").
     let len = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?.len();
     check_alloc(path, "VTK file", &[len, 4])?;
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let mut bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
     check_legacy_points(path, &bytes)?;
-    drop(bytes);
-    // Legacy binary is big-endian by the format's definition.
+    // Legacy binary is big-endian by the format's definition. vtkio parses the bytes read
+    // above (its reader appends nothing from an empty one): the file is read once.
     let vtk = crate::guard::third_party(path, "the legacy VTK parser", || {
-        vtkio::Vtk::import_legacy_be(path)
+        vtkio::Vtk::parse_legacy_buf_be(std::io::empty(), &mut bytes)
             .map_err(|e| FormatError::invalid(path, format!("legacy VTK is malformed or truncated (vtkio: {})", short(&e.to_string()))))
     })?;
     let (points, attributes) = match vtk.data {

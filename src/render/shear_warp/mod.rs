@@ -174,29 +174,6 @@ impl<'a> SliceRows<'a> {
     }
 }
 
-/// The min-max block (of n voxels along x) holding x ≥ 0 (negative x: block 0). A multiply
-/// by 1/n and one correction instead of an integer division: this runs once per run of
-/// n pixels and the division was a tenth of the compositing time.
-#[inline]
-fn block_of(x: f64, n: usize, inv_n: f64) -> usize {
-    let xi = x.max(0.0) as i64;
-    let mut bx = (xi as f64 * inv_n) as i64;
-    let n = n as i64;
-    if (bx + 1) * n <= xi {
-        bx += 1;
-    } else if bx * n > xi {
-        bx -= 1;
-    }
-    bx as usize
-}
-
-/// ⌈v⌉ for v ≥ 0 (0 below): `f64::ceil` is a libm call on baseline x86-64 (no SSE4.1).
-#[inline]
-fn ceil_to_usize(v: f64) -> usize {
-    let t = v.max(0.0) as i64;
-    (t + i64::from((t as f64) < v)) as usize
-}
-
 /// Rows and weight for continuous y in [ylo, yhi].
 #[inline]
 fn rows(y: f64, ny: usize) -> (usize, usize, f32) {
@@ -271,7 +248,6 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let mip = input.blend == BlendMode::Mip;
     let leaping = if mip && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
     let n = settings.block;
-    let inv_n = 1.0 / n as f64;
     // Built once per volume, axis and block size; reused across views and transfer functions.
     let over_map = (leaping == Leaping::Overlapped && nz > 1).then(|| axis.overlapped(n));
     let scan_map = (leaping == Leaping::MultiScanline && nz > 1).then(|| axis.scanline(n));
@@ -374,8 +350,10 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         // Sample every slice; skip runs whose block cannot raise any pixel's max.
                         let mut u = ua;
                         while u <= ub {
-                            let bx = block_of(x_of(u, iz), n, inv_n);
-                            let run_end = ceil_to_usize((((bx + 1) * n) as f64 - iz) * fac.ratio).max(u + 1).min(ub + 1);
+                            let x = x_of(u, iz);
+                            let bx = ((x.max(0.0)) as usize) / n;
+                            let run_end = (((bx + 1) * n) as f64 * fac.ratio - fac.ratio * iz).ceil().max(u as f64 + 1.0) as usize;
+                            let run_end = run_end.min(ub + 1);
                             if let Some(map) = over_map {
                                 let zs = if z + 1 < nz { z } else { z - 1 };
                                 let mm = map.get(zs, y0 as isize, 0, bx);
@@ -415,9 +393,11 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
                     let mut u = next_live(links, ua);
                     while u <= ub {
-                        let bx = block_of(x_of(u, iz), n, inv_n);
+                        let x = x_of(u, iz);
+                        let bx = (x.max(0.0) as usize) / n;
                         // Pixels whose x falls in block bx: U < ratio·(n·(bx+1)) + Tz.
-                        let run_end = ceil_to_usize((((bx + 1) * n) as f64 - iz) * fac.ratio).max(u + 1).min(ub + 1);
+                        let run_end = ((((bx + 1) * n) as f64 - iz) * fac.ratio).ceil().max(u as f64 + 1.0) as usize;
+                        let run_end = run_end.min(ub + 1);
                         let empty = match leaping {
                             Leaping::None => false,
                             Leaping::Overlapped => {

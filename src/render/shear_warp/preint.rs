@@ -210,11 +210,8 @@ impl PreintTable {
     /// opacity transfer function makes this one subtraction.
     #[inline]
     pub fn transparent(&self, lo: f32, hi: f32) -> bool {
-        // Levels are ≥ 0: truncation is floor, and ceil by hand (floorf/ceilf are libm
-        // calls on baseline x86-64, in the per-run leaping test).
-        let a = (lo.max(0.0) as usize).min(self.n - 1);
-        let hc = hi.max(0.0) as usize;
-        let b = (hc + usize::from((hc as f32) < hi)).min(self.n - 1);
+        let a = (lo.floor() as usize).min(self.n - 1);
+        let b = (hi.ceil() as usize).min(self.n - 1);
         self.opacity_prefix[b + 1] - self.opacity_prefix[a] == 0.0
     }
 }
