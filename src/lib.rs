@@ -17,3 +17,4 @@ pub mod progress;
 pub mod render;
 pub mod samples;
 pub mod scene;
+pub mod view;

@@ -107,6 +107,16 @@ enum Command {
         #[arg(long, value_name = "N")]
         frames: Option<usize>,
     },
+    /// Open the interactive viewer on a scene file, a data file or a DICOM folder (or on
+    /// nothing: open one from the window, or drop it there).
+    View {
+        path: Option<PathBuf>,
+        /// Save a PNG of the window after the first full-quality frame, then close.
+        #[arg(long, value_name = "PNG")]
+        screenshot: Option<PathBuf>,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
     /// Write the built-in sample data and a scene for each into DIR.
     Samples { dir: PathBuf },
     /// The main job on built-in samples: write them, render every scene a renderer exists
@@ -222,6 +232,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Demo { out } => cmd_demo(&out),
+        Command::View { path, screenshot, read } => volterra::view::run(path, read.options()?, screenshot),
         Command::Bench { what, runs, work_dir, python, scene, json, plot, sizes, image, photons, only } => {
             let image = image.unwrap_or_else(|| if what == "smoke" { "500x500".into() } else { "1920x1080".into() });
             let (width, height) = image

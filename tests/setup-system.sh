@@ -5,9 +5,12 @@
 #   python3-venv    the venv for the reference readers (tests only)
 #   mesa-vulkan-drivers, libvulkan1  lavapipe, the software Vulkan adapter the terrain
 #                   ray-caster's tests run on where there is no GPU
+#   xvfb, xauth, libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0
+#                   the viewer's window (winit loads the X libraries at run time); the
+#                   test of a real window runs it under Xvfb
 set -euo pipefail
 need=()
-for pkg in libcharls-dev python3-venv mesa-vulkan-drivers libvulkan1; do
+for pkg in libcharls-dev python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

@@ -13,6 +13,31 @@ pub use frame::{Frame, FrameStats};
 
 use crate::scene::{Camera, NodeKind, Scene};
 use anyhow::{anyhow, bail, Context, Result};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use volterra_formats::Volume;
+
+/// What renderers may keep between frames of one scene: the shear-warp preparation of each
+/// volume (quantised copy, permuted axes, min-max maps), which depends only on the volume,
+/// not on the camera or the transfer function. An interactive viewer keeps one for its
+/// scene; a one-off render uses a fresh one.
+#[derive(Default)]
+pub struct RenderCache {
+    /// Keyed by the volume's address: a node whose data is replaced gets a new entry.
+    prepared: Mutex<HashMap<usize, PreparedVolume>>,
+}
+
+/// A volume and its shear-warp preparation (the volume is held so its address stays taken).
+type PreparedVolume = (Arc<Volume>, Arc<shear_warp::Prepared>);
+
+impl RenderCache {
+    fn shear_warp(&self, volume: &Arc<Volume>) -> Arc<shear_warp::Prepared> {
+        let key = Arc::as_ptr(volume) as usize;
+        let mut map = self.prepared.lock().unwrap();
+        // Entries keep their volume alive, so an address is never reused while cached.
+        map.entry(key).or_insert_with(|| (volume.clone(), Arc::new(shear_warp::Prepared::new(volume)))).1.clone()
+    }
+}
 
 /// Renderers by name, with the node kinds they draw and whether they exist yet.
 pub const RENDERERS: &[(&str, NodeKind, bool)] = &[
@@ -37,9 +62,15 @@ fn settings<T: serde::de::DeserializeOwned + Default>(table: &toml::Table, node:
         .map_err(|e: toml::de::Error| anyhow!("node '{node}': settings for renderer '{renderer}': {}", e.message().trim()))
 }
 
-/// Renders one node seen by `camera`. Returns None for nodes nothing is drawn for (groups,
-/// hidden nodes).
+/// Renders one node seen by `camera` at the scene's image size. Returns None for nodes
+/// nothing is drawn for (groups, hidden nodes).
 pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option<Frame>> {
+    let (w, h) = (scene.file.image.width, scene.file.image.height);
+    render_node_with(scene, node, camera, (w, h), &RenderCache::default())
+}
+
+/// As [`render_node`], at `size` (width, height) pixels, reusing what `cache` holds.
+pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usize, usize), cache: &RenderCache) -> Result<Option<Frame>> {
     let desc = &scene.nodes()[node];
     if !desc.visible || desc.kind == NodeKind::Group {
         return Ok(None);
@@ -59,8 +90,7 @@ pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option
     if !ready {
         bail!("node '{}': renderer '{name}' is not implemented yet", desc.name);
     }
-    let (w, h) = (scene.file.image.width, scene.file.image.height);
-    let rays = camera.rays(w, h);
+    let rays = camera.rays(size.0, size.1);
     let frame = match name {
         "reference" => {
             let s: reference_volume::Settings = settings(&desc.settings, &desc.name, name)?;
@@ -72,8 +102,7 @@ pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option
         "shear-warp" => {
             let s: shear_warp::Settings = settings(&desc.settings, &desc.name, name)?;
             let tf = desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name))?;
-            let vol = scene.volume(node)?;
-            let prepared = shear_warp::Prepared::new(&vol);
+            let prepared = cache.shear_warp(&scene.volume(node)?);
             let input = shear_warp::Input { prepared: &prepared, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
             shear_warp::render(&input, &rays, &s)?
         }
@@ -111,16 +140,21 @@ pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option
 
 /// Renders the scene's camera (or frame k of n along its keyframes).
 pub fn render_scene(scene: &Scene, frame: Option<(usize, usize)>) -> Result<Frame> {
-    let (w, h) = (scene.file.image.width, scene.file.image.height);
     let camera = scene.camera(frame)?;
+    let size = (scene.file.image.width, scene.file.image.height);
+    render_view(scene, &camera, size, &RenderCache::default())
+}
+
+/// Renders every visible node seen by `camera` at `size` and composites them by depth.
+pub fn render_view(scene: &Scene, camera: &Camera, size: (usize, usize), cache: &RenderCache) -> Result<Frame> {
     let mut layers = Vec::new();
     for i in 0..scene.nodes().len() {
-        if let Some(f) = render_node(scene, i, &camera).with_context(|| scene.source.display().to_string())? {
+        if let Some(f) = render_node_with(scene, i, camera, size, cache).with_context(|| scene.source.display().to_string())? {
             layers.push(f);
         }
     }
     if layers.len() == 1 {
         return Ok(layers.pop().unwrap());
     }
-    Ok(Frame::composite(w, h, &layers))
+    Ok(Frame::composite(size.0, size.1, &layers))
 }

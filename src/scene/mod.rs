@@ -4,7 +4,9 @@
 //! data lazily: a node's file is read (and cached) only when a renderer asks for it, so a
 //! render loads exactly the nodes it draws.
 
+pub mod auto;
 pub mod camera;
+pub mod presets;
 pub mod transfer;
 
 pub use camera::{Camera, Ray, RayGenerator};
@@ -219,6 +221,30 @@ pub enum NodeData {
     Volume(Arc<Volume>),
     Heightfield(Arc<Heightfield>),
     Particles(Arc<ParticleSet>),
+}
+
+impl From<Dataset> for NodeData {
+    fn from(d: Dataset) -> NodeData {
+        match d {
+            Dataset::Volume(v) => NodeData::Volume(Arc::new(v)),
+            Dataset::Heightfield(h) => NodeData::Heightfield(Arc::new(h)),
+            Dataset::Particles(mut p) => {
+                // Renderers need mass, h and density: fill the documented defaults.
+                volterra_formats::sph::fill_defaults(&mut p);
+                NodeData::Particles(Arc::new(p))
+            }
+        }
+    }
+}
+
+impl NodeData {
+    pub fn kind(&self) -> NodeKind {
+        match self {
+            NodeData::Volume(_) => NodeKind::Volume,
+            NodeData::Heightfield(_) => NodeKind::Heightfield,
+            NodeData::Particles(_) => NodeKind::Particles,
+        }
+    }
 }
 
 pub struct Scene {
@@ -436,16 +462,11 @@ impl Scene {
             opts.particles = a.clone();
         }
         let d = volterra_formats::load(&path, &opts)?;
-        Ok(match (n.kind, d) {
-            (NodeKind::Volume, Dataset::Volume(v)) => NodeData::Volume(Arc::new(v)),
-            (NodeKind::Heightfield, Dataset::Heightfield(h)) => NodeData::Heightfield(Arc::new(h)),
-            (NodeKind::Particles, Dataset::Particles(mut p)) => {
-                // Renderers need mass, h and density: fill the documented defaults.
-                volterra_formats::sph::fill_defaults(&mut p);
-                NodeData::Particles(Arc::new(p))
-            }
-            (k, _) => bail!("{}: node '{}' is a {:?} node but the file holds other data", path.display(), n.name, k),
-        })
+        let data = NodeData::from(d);
+        if data.kind() != n.kind {
+            bail!("{}: node '{}' is a {:?} node but the file holds other data", path.display(), n.name, n.kind);
+        }
+        Ok(data)
     }
 
     pub fn volume(&self, node: usize) -> Result<Arc<Volume>> {
@@ -474,6 +495,32 @@ impl Scene {
             .get_or_init(|| volterra_formats::image::read_rgb_png(&path).map(Arc::new).map_err(|e| e.to_string()))
             .clone();
         r.map(Some).map_err(|e| anyhow!(e))
+    }
+
+    /// A scene from an edited copy of this one's description (same base directory and
+    /// source), keeping the data already read for every node whose data-reading keys
+    /// did not change: editing a transfer function or the camera reads nothing again.
+    pub fn edited(&self, file: SceneFile) -> Result<Scene> {
+        let next = Scene::from_file(file, self.base_dir.clone(), self.source.clone())?;
+        for (i, n) in next.file.nodes.iter().enumerate() {
+            let Some(j) = self.node_index(&n.name) else { continue };
+            let o = &self.file.nodes[j];
+            let same_data = (&o.kind, &o.file, &o.series, o.volume_index, o.resample, &o.png, &o.arrays)
+                == (&n.kind, &n.file, &n.series, n.volume_index, n.resample, &n.png, &n.arrays);
+            if let (true, Some(d)) = (same_data, self.data[j].get()) {
+                let _ = next.data[i].set(d.clone());
+            }
+            if let (true, true, Some(t)) = (same_data, o.texture == n.texture, self.textures[j].get()) {
+                let _ = next.textures[i].set(t.clone());
+            }
+        }
+        Ok(next)
+    }
+
+    /// Gives a node data already read (a viewer that opened a data file read it to build
+    /// the scene). Does nothing if the node's data is already there.
+    pub fn provide_data(&self, node: usize, data: NodeData) {
+        let _ = self.data[node].set(Ok(data));
     }
 
     /// True if the node's data has been read (for tests of lazy loading).

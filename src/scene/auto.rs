@@ -1,0 +1,218 @@
+//! A scene for one data file, for `volterra view FILE`: one node with the renderer its
+//! kind draws best, a camera that frames it, a light, and for volumes the transfer-function
+//! preset that suits the modality.
+
+use super::presets::{Preset, ValueStats};
+use super::{Camera, ImageSettings, Light, LightKind, Medium, NodeData, NodeDesc, NodeKind, Scene, SceneFile, Transform};
+use anyhow::{anyhow, Result};
+use glam::{DMat4, DVec3};
+use std::path::{Component, Path, PathBuf};
+use volterra_formats::LoadOptions;
+
+/// Reads `path` and builds a scene showing it. The data read is handed to the scene, so
+/// nothing is read twice.
+pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
+    let data = NodeData::from(volterra_formats::load(path, opts)?);
+    let kind = data.kind();
+    let name = node_name(path);
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
+    let file_name = PathBuf::from(path.file_name().ok_or_else(|| anyhow!("{}: not a file name", path.display()))?);
+    let mut node = NodeDesc {
+        name,
+        kind,
+        file: Some(file_name),
+        parent: None,
+        transform: Transform::default(),
+        renderer: None,
+        visible: true,
+        settings: toml::Table::new(),
+        series: opts.dicom.series.clone(),
+        volume_index: opts.nifti.volume_index,
+        resample: opts.dicom.resample,
+        transfer_function: None,
+        blend: Default::default(),
+        png: None,
+        texture: None,
+        arrays: None,
+        medium: None,
+    };
+    let mut image = ImageSettings::default();
+    let mut lights = Vec::new();
+    match &data {
+        NodeData::Volume(v) => {
+            node.renderer = Some("shear-warp".into());
+            let stats = ValueStats::of(v);
+            let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
+            node.transfer_function = Some(Preset::for_volume(v, &stats).transfer_function(&stats, unit));
+        }
+        NodeData::Heightfield(_) => {
+            node.renderer = Some("terrain".into());
+            if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+                node.png = Some(opts.png.clone());
+            }
+            image.background = [0.55, 0.7, 0.9];
+            lights.push(Light {
+                kind: LightKind::Directional,
+                direction: Some([1.0, 1.0, -1.0]),
+                position: None,
+                color: [1.0; 3],
+                intensity: 1.0,
+                cone_angle: None,
+            });
+        }
+        NodeData::Particles(_) => {
+            node.renderer = Some("smoke".into());
+            node.arrays = Some(opts.particles.clone());
+            // An optically moderate medium for particles in metres with SPH densities
+            // near 1 kg/m³ (the SPH defaults): about one mean free path across 0.1 m.
+            node.medium = Some(Medium { c_ext: 10.0, albedo: 0.9, g: 0.3 });
+            image.background = [0.02, 0.02, 0.03];
+            lights.push(Light {
+                kind: LightKind::Directional,
+                direction: Some([-1.0, 0.6, -0.5]),
+                position: None,
+                color: [1.0; 3],
+                intensity: 3.0,
+                cone_angle: None,
+            });
+        }
+    }
+    let bounds =
+        data_bounds(&data, DMat4::IDENTITY).ok_or_else(|| anyhow!("{}: the data has no finite extent to frame", path.display()))?;
+    let camera = fit_camera(kind, bounds);
+    let file = SceneFile { image, camera, walk: None, keyframes: vec![], lights, nodes: vec![node] };
+    let scene = Scene::from_file(file, dir, path.to_path_buf())?;
+    scene.provide_data(0, data);
+    Ok(scene)
+}
+
+fn node_name(path: &Path) -> String {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "data".into());
+    let stem = name.trim_end_matches(".gz");
+    let stem = stem.rsplit_once('.').map(|(s, _)| s).filter(|s| !s.is_empty()).unwrap_or(stem);
+    stem.to_string()
+}
+
+/// World-space bounding box of a node's data (corners of the voxel cells, the terrain
+/// surface, the particle centres), or None where nothing finite is there.
+pub fn data_bounds(data: &NodeData, node_to_world: DMat4) -> Option<(DVec3, DVec3)> {
+    let mut pts: Vec<DVec3> = Vec::new();
+    match data {
+        NodeData::Volume(v) => {
+            let a = node_to_world * DMat4::from_cols_array_2d(&v.affine).transpose();
+            for c in 0..8 {
+                let ijk = DVec3::new(
+                    if c & 1 == 0 { -0.5 } else { v.dims[0] as f64 - 0.5 },
+                    if c & 2 == 0 { -0.5 } else { v.dims[1] as f64 - 0.5 },
+                    if c & 4 == 0 { -0.5 } else { v.dims[2] as f64 - 0.5 },
+                );
+                pts.push(a.transform_point3(ijk));
+            }
+        }
+        NodeData::Heightfield(h) => {
+            let (lo, hi) = h
+                .elevations
+                .iter()
+                .filter(|e| e.is_finite())
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &e| (a.min(e as f64), b.max(e as f64)));
+            if !lo.is_finite() {
+                return None;
+            }
+            let (x, y) = ((h.width - 1) as f64 * h.cell_size[0], (h.height - 1) as f64 * h.cell_size[1]);
+            for c in 0..8 {
+                let p = DVec3::new(if c & 1 == 0 { 0.0 } else { x }, if c & 2 == 0 { 0.0 } else { y }, if c & 4 == 0 { lo } else { hi });
+                pts.push(node_to_world.transform_point3(p));
+            }
+        }
+        NodeData::Particles(p) => {
+            pts.extend(p.positions.iter().map(|&q| node_to_world.transform_point3(DVec3::from(q))).filter(|q| q.is_finite()));
+        }
+    }
+    let lo = pts.iter().copied().reduce(DVec3::min)?;
+    let hi = pts.iter().copied().reduce(DVec3::max)?;
+    (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+}
+
+/// A camera that shows the box whole: volumes from the patient's front (anterior, head
+/// up) in parallel projection, as the shear-warp renderer needs; terrain from above its
+/// south-west corner; particles from the south.
+pub fn fit_camera(kind: NodeKind, (lo, hi): (DVec3, DVec3)) -> Camera {
+    let centre = 0.5 * (lo + hi);
+    let radius = (0.5 * (hi - lo).length()).max(1e-6);
+    let up = [0.0, 0.0, 1.0];
+    match kind {
+        NodeKind::Volume | NodeKind::Group => Camera {
+            position: (centre + DVec3::Y * 4.0 * radius).to_array(),
+            focal_point: centre.to_array(),
+            view_up: up,
+            view_angle: 30.0,
+            parallel_projection: true,
+            parallel_scale: 1.02 * radius,
+        },
+        NodeKind::Heightfield => {
+            let ext = (hi - lo).truncate().max_element().max(1e-6);
+            Camera {
+                position: (centre + DVec3::new(-0.75 * ext, -0.75 * ext, 0.6 * ext)).to_array(),
+                focal_point: centre.to_array(),
+                view_up: up,
+                view_angle: 45.0,
+                parallel_projection: false,
+                parallel_scale: 1.0,
+            }
+        }
+        NodeKind::Particles => {
+            let angle: f64 = 35.0;
+            let dist = 1.1 * radius / (0.5 * angle.to_radians()).sin();
+            Camera {
+                position: (centre - DVec3::Y * dist).to_array(),
+                focal_point: centre.to_array(),
+                view_up: up,
+                view_angle: angle,
+                parallel_projection: false,
+                parallel_scale: 1.0,
+            }
+        }
+    }
+}
+
+/// `target` as a path relative to directory `base` where both are absolute (after
+/// canonicalising what exists), else `target` made absolute. Saved scenes name their data
+/// relative to themselves, as the samples do.
+pub fn relative_path(target: &Path, base: &Path) -> PathBuf {
+    let abs = |p: &Path| {
+        std::fs::canonicalize(p).unwrap_or_else(|_| std::env::current_dir().map(|d| d.join(p)).unwrap_or_else(|_| p.to_path_buf()))
+    };
+    let (t, b) = (abs(target), abs(base));
+    let tc: Vec<Component> = t.components().collect();
+    let bc: Vec<Component> = b.components().collect();
+    let common = tc.iter().zip(&bc).take_while(|(a, b)| a == b).count();
+    if common == 0 {
+        return t;
+    }
+    let mut out = PathBuf::new();
+    for _ in common..bc.len() {
+        out.push("..");
+    }
+    for c in &tc[common..] {
+        out.push(c.as_os_str());
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn relative_paths_climb_out_of_the_base() {
+        assert_eq!(relative_path(Path::new("/a/b/c/data.nii"), Path::new("/a/b/d")), PathBuf::from("../c/data.nii"));
+        assert_eq!(relative_path(Path::new("/a/b/data.nii"), Path::new("/a/b")), PathBuf::from("data.nii"));
+    }
+
+    #[test]
+    fn names_drop_every_extension_of_a_gzip() {
+        assert_eq!(node_name(Path::new("x/aneurism.nii.gz")), "aneurism");
+        assert_eq!(node_name(Path::new("plume.vtp")), "plume");
+        assert_eq!(node_name(Path::new("series_dir")), "series_dir");
+    }
+}

@@ -1,0 +1,1140 @@
+//! The viewer's state and UI. Everything the window shows is drawn from here; renders come
+//! from the [`RenderWorker`] thread, so the UI never waits on a renderer.
+//!
+//! Progressive rendering: every change (camera, transfer function, settings) bumps a
+//! version. While the user is moving things, quarter-resolution previews are requested;
+//! once nothing has changed for [`SETTLE`], the full-resolution frame, which is exactly what
+//! `volterra render` draws for the scene "Save scene" writes.
+
+use super::files::{start_dir, FileDialog};
+use super::navigate::{self, AxisView};
+use super::slices::{Plane, SliceImage, SliceSource};
+use super::transfer_editor::TfEditor;
+use super::worker::{Done, Job, Quality, RenderWorker};
+use crate::render::{Frame, RENDERERS};
+use crate::scene::auto::{data_bounds, fit_camera, relative_path, scene_for_file};
+use crate::scene::presets::ValueStats;
+use crate::scene::{BlendMode, Camera, NodeData, NodeKind, Scene};
+use anyhow::{anyhow, Result};
+use egui::{Color32, Pos2, Rect, Sense, Vec2};
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+use volterra_formats::LoadOptions;
+
+/// How long the view must stay unchanged before the full-resolution frame is requested.
+pub const SETTLE: Duration = Duration::from_millis(250);
+/// Previews render one pixel per PREVIEW_DIV² of the viewport.
+const PREVIEW_DIV: usize = 4;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NavMode {
+    /// Trackball about the focal point (ParaView/pyvista).
+    Orbit,
+    /// Mouse look about the eye, WASD along the view, Q/E down and up.
+    Fly,
+    /// As fly, with the eye kept `eye_height` above the terrain.
+    Walk,
+}
+
+/// The open scene and what the viewer derived from it.
+struct Document {
+    scene: Arc<Scene>,
+    /// Per node: value statistics of volumes (histogram, presets).
+    stats: Vec<Option<ValueStats>>,
+    /// The camera "Reset camera" returns to.
+    home: Camera,
+}
+
+struct Shown {
+    version: u64,
+    quality: Quality,
+    texture: egui::TextureHandle,
+    steps: Option<egui::TextureHandle>,
+    seconds: f64,
+    renderer: String,
+    size: (usize, usize),
+}
+
+struct SliceState {
+    node: usize,
+    source: SliceSource,
+    cross: DVec3,
+    window: f64,
+    level: f64,
+    images: Vec<(SliceImage, egui::TextureHandle)>,
+    dirty: bool,
+}
+
+pub struct Viewer {
+    doc: Option<Document>,
+    worker: RenderWorker,
+    wake: Arc<OnceLock<egui::Context>>,
+    camera: Camera,
+    version: u64,
+    submitted: Option<(u64, Quality, (usize, usize))>,
+    shown: Option<Shown>,
+    /// The newest full-quality frame and the version it shows.
+    last_full: Option<(u64, Frame)>,
+    /// Relative RMSE of the full frame against the reference renderer, by version.
+    error_vs_reference: Option<(u64, Result<f64, String>)>,
+    reference_pending: bool,
+    changed_at: Option<Instant>,
+    render_error: Option<String>,
+    message: Option<String>,
+    selected: usize,
+    tf_editor: TfEditor,
+    slices: Option<SliceState>,
+    show_slices: bool,
+    dialog: FileDialog,
+    save_path: String,
+    mode: NavMode,
+    eye_height: f64,
+    show_steps: bool,
+    load: LoadOptions,
+    /// Write a PNG of the window after the first full frame, then close (for checking a
+    /// real window, e.g. under Xvfb).
+    screenshot_then_quit: Option<PathBuf>,
+    screenshot_state: Arc<Mutex<ScreenshotState>>,
+    /// Where the 3-D view was laid out last frame (its size is the render size).
+    viewport_rect: Option<Rect>,
+    last_size: Option<(usize, usize)>,
+}
+
+#[derive(Default, PartialEq)]
+enum ScreenshotState {
+    #[default]
+    Waiting,
+    /// The full frame was painted once; the request goes out on the next frame.
+    Painted(u32),
+    Requested,
+    Saved(Result<(), String>),
+}
+
+impl Viewer {
+    pub fn new(load: LoadOptions) -> Viewer {
+        let wake: Arc<OnceLock<egui::Context>> = Arc::default();
+        let w = wake.clone();
+        let worker = RenderWorker::start(move || {
+            if let Some(ctx) = w.get() {
+                ctx.request_repaint();
+            }
+        });
+        Viewer {
+            doc: None,
+            worker,
+            wake,
+            camera: Camera {
+                position: [0.0, 1.0, 0.0],
+                focal_point: [0.0; 3],
+                view_up: [0.0, 0.0, 1.0],
+                view_angle: 30.0,
+                parallel_projection: true,
+                parallel_scale: 1.0,
+            },
+            version: 0,
+            submitted: None,
+            shown: None,
+            last_full: None,
+            error_vs_reference: None,
+            reference_pending: false,
+            changed_at: None,
+            render_error: None,
+            message: None,
+            selected: 0,
+            tf_editor: TfEditor::default(),
+            slices: None,
+            show_slices: true,
+            dialog: FileDialog::new(start_dir(None)),
+            save_path: String::new(),
+            mode: NavMode::Orbit,
+            eye_height: 1.7,
+            show_steps: false,
+            load,
+            screenshot_then_quit: None,
+            screenshot_state: Arc::default(),
+            viewport_rect: None,
+            last_size: None,
+        }
+    }
+
+    /// After the first full frame, save a PNG of the whole window to `path` and close.
+    pub fn screenshot_then_quit(&mut self, path: PathBuf) {
+        self.screenshot_then_quit = Some(path);
+    }
+
+    /// Opens a scene file (.toml) or a data file / DICOM folder.
+    pub fn open(&mut self, path: &Path) -> Result<()> {
+        let is_scene = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+        let scene = if is_scene { Scene::load(path, &[])? } else { scene_for_file(path, &self.load)? };
+        let mut stats = vec![None; scene.nodes().len()];
+        for (i, n) in scene.nodes().iter().enumerate() {
+            if n.kind == NodeKind::Volume {
+                let v = scene.volume(i)?;
+                stats[i] = Some(ValueStats::of(&v));
+            }
+        }
+        self.camera = if is_scene { scene.camera(None)? } else { scene.file.camera.clone() };
+        if let Some(w) = &scene.file.walk {
+            self.eye_height = w.eye_height;
+            self.mode = NavMode::Walk;
+        } else {
+            self.mode = NavMode::Orbit;
+        }
+        self.selected = scene.nodes().iter().position(|n| n.kind != NodeKind::Group).unwrap_or(0);
+        self.dialog.dir = start_dir(Some(path));
+        self.save_path = default_save_path(path);
+        self.doc = Some(Document { home: self.camera.clone(), scene: Arc::new(scene), stats });
+        self.slices = None;
+        self.shown = None;
+        self.last_full = None;
+        self.error_vs_reference = None;
+        self.render_error = None;
+        self.message = Some(format!("opened {}", path.display()));
+        self.bump(false);
+        Ok(())
+    }
+
+    /// The scene as the viewer shows it now (camera included).
+    pub fn scene(&self) -> Option<&Scene> {
+        self.doc.as_ref().map(|d| &*d.scene)
+    }
+
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// The newest full-quality frame, if it shows the current state.
+    pub fn current_full_frame(&self) -> Option<&Frame> {
+        self.last_full.as_ref().filter(|(v, _)| *v == self.version).map(|(_, f)| f)
+    }
+
+    /// The last error a render or an action reported.
+    pub fn last_error(&self) -> Option<&str> {
+        self.render_error.as_deref()
+    }
+
+    /// Messages of the status bar (tests read what an action said).
+    pub fn message(&self) -> Option<&str> {
+        self.message.as_deref()
+    }
+
+    /// True while the worker renders or has work queued.
+    pub fn rendering(&self) -> bool {
+        self.worker.busy()
+    }
+
+    /// Blocks until the render thread is idle (tests).
+    pub fn wait_for_renders(&self, timeout: Duration) -> bool {
+        self.worker.wait_idle(timeout)
+    }
+
+    /// Marks the state changed; `moving` means more changes are coming (preview quality).
+    fn bump(&mut self, moving: bool) {
+        self.version += 1;
+        self.changed_at = if moving { Some(Instant::now()) } else { None };
+    }
+
+    /// Applies an edit to the scene description and rebuilds the scene (data kept).
+    fn edit(&mut self, moving: bool, f: impl FnOnce(&mut crate::scene::SceneFile)) {
+        let Some(doc) = &mut self.doc else { return };
+        let mut file = doc.scene.file.clone();
+        f(&mut file);
+        match doc.scene.edited(file) {
+            Ok(s) => {
+                doc.scene = Arc::new(s);
+                self.bump(moving);
+            }
+            Err(e) => self.render_error = Some(format!("{e:#}")),
+        }
+    }
+
+    /// Writes the current view as a scene file that `volterra render` reproduces: the
+    /// camera, the size of the full-resolution frame, data paths relative to the new file.
+    pub fn save_scene(&self, path: &Path) -> Result<()> {
+        let doc = self.doc.as_ref().ok_or_else(|| anyhow!("nothing is open"))?;
+        let mut file = doc.scene.file.clone();
+        file.camera = self.camera.clone();
+        if let Some(s) = &self.shown {
+            let (w, h) = if s.quality == Quality::Full { s.size } else { (s.size.0 * PREVIEW_DIV, s.size.1 * PREVIEW_DIV) };
+            file.image.width = w;
+            file.image.height = h;
+        }
+        // The eye height of a walk is already applied to the camera; keep walking on.
+        if let (NavMode::Walk, None) = (self.mode, &file.walk) {
+            if let Some(n) = file.nodes.iter().find(|n| n.kind == NodeKind::Heightfield) {
+                file.walk = Some(crate::scene::Walk { node: n.name.clone(), eye_height: self.eye_height });
+            }
+        }
+        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        for n in &mut file.nodes {
+            if let Some(f) = &n.file {
+                n.file = Some(relative_path(&doc.scene.base_dir.join(f), dir));
+            }
+            if let Some(t) = &n.texture {
+                n.texture = Some(relative_path(&doc.scene.base_dir.join(t), dir));
+            }
+        }
+        let text = toml::to_string(&file).map_err(|e| anyhow!("{}: cannot write the scene: {e}", path.display()))?;
+        let text = format!("# Saved by `volterra view`; render with `volterra render {} -o OUT.exr`.\n{text}", path.display());
+        volterra_formats::atomic::write_bytes_atomically(path, text.as_bytes())?;
+        Ok(())
+    }
+
+    /// Writes the newest full frame as EXR (R, G, B, A, Z and extra channels) or PNG.
+    pub fn save_image(&self, path: &Path) -> Result<()> {
+        let doc = self.doc.as_ref().ok_or_else(|| anyhow!("nothing is open"))?;
+        let (_, frame) = self.last_full.as_ref().ok_or_else(|| anyhow!("no full-quality frame yet"))?;
+        let bg = doc.scene.file.image.background;
+        let lower = path.to_string_lossy().to_ascii_lowercase();
+        if lower.ends_with(".exr") {
+            volterra_formats::exr_io::write_exr(path, &frame.to_image(bg))?;
+        } else if lower.ends_with(".png") {
+            volterra_formats::image::write_png_preview(path, frame.width, frame.height, &frame.preview_rgba(bg))?;
+        } else {
+            return Err(anyhow!("{}: save images as .exr or .png", path.display()));
+        }
+        Ok(())
+    }
+
+    fn save(&mut self) {
+        let path = PathBuf::from(self.save_path.trim());
+        let lower = self.save_path.to_ascii_lowercase();
+        let r = if lower.ends_with(".toml") { self.save_scene(&path) } else { self.save_image(&path) };
+        match r {
+            Ok(()) => {
+                self.message = Some(format!("saved {}", path.display()));
+                self.render_error = None;
+            }
+            Err(e) => self.render_error = Some(format!("{e:#}")),
+        }
+    }
+
+    /// One frame of UI.
+    pub fn ui(&mut self, ui: &mut egui::Ui) {
+        let ctx = ui.ctx().clone();
+        let _ = self.wake.set(ctx.clone());
+        self.receive(&ctx);
+        self.handle_dropped_files(&ctx);
+        if let Some(p) = self.dialog.show(&ctx) {
+            if let Err(e) = self.open(&p) {
+                self.render_error = Some(format!("{e:#}"));
+            }
+        }
+
+        egui::Panel::top("toolbar").show(ui, |ui| self.toolbar(ui));
+        egui::Panel::bottom("status").show(ui, |ui| self.status_bar(ui));
+        if self.doc.is_some() {
+            egui::Panel::left("scene").default_size(340.0).resizable(true).show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| self.scene_panel(ui));
+            });
+            if self.show_slices && self.selected_volume().is_some() {
+                egui::Panel::right("slices").default_size(260.0).resizable(true).show(ui, |ui| {
+                    egui::ScrollArea::vertical().show(ui, |ui| self.slice_panel(ui));
+                });
+            }
+        }
+        egui::CentralPanel::no_frame().show(ui, |ui| self.viewport(ui));
+        self.schedule(&ctx);
+        self.screenshot_step(&ctx);
+    }
+
+    fn selected_volume(&self) -> Option<usize> {
+        let doc = self.doc.as_ref()?;
+        (doc.scene.nodes().get(self.selected)?.kind == NodeKind::Volume).then_some(self.selected)
+    }
+
+    fn receive(&mut self, ctx: &egui::Context) {
+        for done in self.worker.poll() {
+            self.take_done(ctx, done);
+        }
+    }
+
+    fn take_done(&mut self, ctx: &egui::Context, done: Done) {
+        let frame = match done.result {
+            Ok(f) => f,
+            Err(e) => {
+                if done.quality == Quality::Reference {
+                    self.reference_pending = false;
+                    self.error_vs_reference = Some((done.version, Err(e)));
+                } else {
+                    self.render_error = Some(e);
+                }
+                return;
+            }
+        };
+        if done.quality == Quality::Reference {
+            self.reference_pending = false;
+            let err = match &self.last_full {
+                Some((v, f)) if *v == done.version => Ok(crate::compare::rgba_rel_rmse(&f.rgba, &frame.rgba)),
+                _ => Err("the view changed while the reference rendered".to_string()),
+            };
+            self.error_vs_reference = Some((done.version, err));
+            return;
+        }
+        // A late preview never replaces a newer frame.
+        if let Some(s) = &self.shown {
+            if s.version > done.version || (s.version == done.version && s.quality == Quality::Full) {
+                return;
+            }
+        }
+        self.render_error = None;
+        let bg = self.doc.as_ref().map(|d| d.scene.file.image.background).unwrap_or([0.0; 3]);
+        let texture = ctx.load_texture("view", frame_image(&frame, bg), egui::TextureOptions::LINEAR);
+        let steps = frame
+            .extra
+            .iter()
+            .find(|(n, _)| n == "steps")
+            .map(|(_, s)| ctx.load_texture("steps", steps_image(&frame, s), egui::TextureOptions::NEAREST));
+        self.shown = Some(Shown {
+            version: done.version,
+            quality: done.quality,
+            texture,
+            steps,
+            seconds: done.seconds,
+            renderer: frame.stats.renderer.clone(),
+            size: done.size,
+        });
+        if done.quality == Quality::Full {
+            self.last_full = Some((done.version, frame));
+        }
+    }
+
+    fn handle_dropped_files(&mut self, ctx: &egui::Context) {
+        let dropped: Vec<PathBuf> =
+            ctx.input(|i| i.raw.dropped_files.iter().map(|f| f.path().to_path_buf()).filter(|p| !p.as_os_str().is_empty()).collect());
+        if let Some(p) = dropped.first() {
+            if let Err(e) = self.open(p) {
+                self.render_error = Some(format!("{e:#}"));
+            }
+        }
+    }
+
+    /// Requests the frame the current state needs, if it is not already coming.
+    fn schedule(&mut self, ctx: &egui::Context) {
+        let Some(doc) = &self.doc else { return };
+        let size = self.viewport_pixels(ctx);
+        if size.0 == 0 || size.1 == 0 {
+            return;
+        }
+        // A new view size (window resized, panels laid out) settles like a camera move:
+        // previews first, one full frame once the size holds still.
+        if self.last_size != Some(size) {
+            if self.last_size.is_some() {
+                self.changed_at = Some(Instant::now());
+            }
+            self.last_size = Some(size);
+        }
+        let moving = self.changed_at.is_some_and(|t| t.elapsed() < SETTLE);
+        let (quality, want) = if moving {
+            (Quality::Preview, ((size.0 / PREVIEW_DIV).max(16), (size.1 / PREVIEW_DIV).max(16)))
+        } else {
+            (Quality::Full, size)
+        };
+        if moving {
+            ctx.request_repaint_after(SETTLE);
+        }
+        let have_full = self.last_full.as_ref().is_some_and(|(v, f)| *v == self.version && (f.width, f.height) == size);
+        if self.submitted == Some((self.version, quality, want)) || (quality == Quality::Full && have_full) {
+            return;
+        }
+        self.worker.submit(Job { version: self.version, quality, scene: doc.scene.clone(), camera: self.camera.clone(), size: want });
+        self.submitted = Some((self.version, quality, want));
+    }
+
+    /// Size of the 3-D view in physical pixels, as the last frame laid it out.
+    fn viewport_pixels(&self, ctx: &egui::Context) -> (usize, usize) {
+        let ppp = ctx.pixels_per_point();
+        self.viewport_rect
+            .map(|r| ((r.width() * ppp).round().max(0.0) as usize, (r.height() * ppp).round().max(0.0) as usize))
+            .unwrap_or((0, 0))
+    }
+
+    fn toolbar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal_wrapped(|ui| {
+            if ui.button("Open…").clicked() || ui.input(|i| i.modifiers.command && i.key_pressed(egui::Key::O)) {
+                self.dialog.open = true;
+            }
+            let label = ui.label("Save as");
+            ui.add(egui::TextEdit::singleline(&mut self.save_path).desired_width(220.0).hint_text("view.toml / view.exr / view.png"))
+                .labelled_by(label.id);
+            if ui.button("Save").on_hover_text(".toml: the view as a scene file; .exr/.png: the full-quality frame").clicked() {
+                self.save();
+            }
+            ui.separator();
+            let has_doc = self.doc.is_some();
+            if ui.add_enabled(has_doc, egui::Button::new("Reset camera")).clicked() {
+                if let Some(d) = &self.doc {
+                    self.camera = d.home.clone();
+                    self.bump(false);
+                }
+            }
+            for v in AxisView::ALL {
+                let hover = format!("View from the {:?} side", v).to_lowercase();
+                if ui.add_enabled(has_doc, egui::Button::new(v.label())).on_hover_text(hover).clicked() {
+                    navigate::axis_view(&mut self.camera, v);
+                    self.bump(false);
+                }
+            }
+            ui.separator();
+            for (m, label) in [(NavMode::Orbit, "Orbit"), (NavMode::Fly, "Fly"), (NavMode::Walk, "Walk")] {
+                if ui.selectable_label(self.mode == m, label).clicked() && self.mode != m {
+                    self.mode = m;
+                    if m == NavMode::Walk {
+                        self.settle_walk();
+                    }
+                }
+            }
+        });
+    }
+
+    fn status_bar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal_wrapped(|ui| {
+            if self.worker.busy() {
+                ui.spinner();
+                if let Some((what, pos, len)) = crate::progress::current() {
+                    ui.add(egui::ProgressBar::new(pos as f32 / len.max(1) as f32).desired_width(160.0).text(format!("{what} {pos}/{len}")));
+                }
+            }
+            if let Some(s) = &self.shown {
+                let q = match s.quality {
+                    Quality::Preview => "preview",
+                    Quality::Full => "full",
+                    Quality::Reference => "reference",
+                };
+                ui.label(format!("{} · {} {}×{} · {:.0} ms", s.renderer, q, s.size.0, s.size.1, s.seconds * 1e3));
+            }
+            match &self.error_vs_reference {
+                Some((v, Ok(e))) if *v == self.version => {
+                    ui.label(format!("· error vs reference {:.2} %", 100.0 * e));
+                }
+                Some((v, Err(e))) if *v == self.version => {
+                    ui.label(format!("· no error figure: {e}"));
+                }
+                _ => {}
+            }
+            let can_measure = self.current_full_frame().is_some() && !self.reference_pending;
+            if ui
+                .add_enabled(can_measure, egui::Button::new("Measure error"))
+                .on_hover_text("Render this view with the brute-force reference and compare")
+                .clicked()
+            {
+                self.measure_error();
+            }
+            if let Some(e) = &self.render_error {
+                ui.colored_label(Color32::from_rgb(230, 90, 80), e);
+            } else if let Some(m) = &self.message {
+                ui.label(egui::RichText::new(m).weak());
+            }
+        });
+    }
+
+    /// Queues the reference render of the current view (the worker compares when it ends).
+    pub fn measure_error(&mut self) {
+        let (Some(doc), Some((v, f))) = (&self.doc, &self.last_full) else { return };
+        if *v != self.version {
+            return;
+        }
+        self.worker.submit(Job {
+            version: *v,
+            quality: Quality::Reference,
+            scene: doc.scene.clone(),
+            camera: self.camera.clone(),
+            size: (f.width, f.height),
+        });
+        self.submitted = Some((*v, Quality::Reference, (f.width, f.height)));
+        self.reference_pending = true;
+    }
+
+    /// The relative RMSE measured by [`Self::measure_error`] for the current state.
+    pub fn error_vs_reference(&self) -> Option<&Result<f64, String>> {
+        self.error_vs_reference.as_ref().filter(|(v, _)| *v == self.version).map(|(_, e)| e)
+    }
+
+    fn scene_panel(&mut self, ui: &mut egui::Ui) {
+        let Some(doc) = &self.doc else { return };
+        let scene = doc.scene.clone();
+        ui.heading("Scene");
+        ui.label(egui::RichText::new(scene.source.display().to_string()).small());
+        for (i, n) in scene.nodes().iter().enumerate() {
+            let label = format!("{} ({:?})", n.name, n.kind).to_lowercase();
+            if ui.selectable_label(self.selected == i, label).clicked() {
+                self.selected = i;
+                self.tf_editor = TfEditor::default();
+            }
+        }
+        ui.separator();
+        let i = self.selected;
+        let Some(n) = scene.nodes().get(i).cloned() else { return };
+        ui.heading(&n.name);
+        // Metadata, as `volterra info` prints it.
+        if n.kind != NodeKind::Group {
+            match scene.data(i) {
+                Ok(d) => metadata_grid(ui, &d, n.arrays.clone().unwrap_or_default()),
+                Err(e) => {
+                    ui.colored_label(Color32::from_rgb(230, 90, 80), format!("{e:#}"));
+                }
+            }
+        }
+        let mut visible = n.visible;
+        if ui.checkbox(&mut visible, "Visible").changed() {
+            self.edit(false, |f| f.nodes[i].visible = visible);
+        }
+        // Renderer choice among those that draw this kind.
+        let current = n.renderer.clone().or_else(|| crate::render::default_renderer(n.kind).map(str::to_string)).unwrap_or_default();
+        let mut chosen = None;
+        egui::ComboBox::from_label("Renderer").selected_text(&current).show_ui(ui, |ui| {
+            for (name, kind, ready) in RENDERERS {
+                if *kind == n.kind && *ready && ui.selectable_label(current == *name, *name).clicked() {
+                    chosen = Some(name.to_string());
+                }
+            }
+        });
+        if let Some(r) = chosen.filter(|r| *r != current) {
+            self.edit(false, |f| {
+                f.nodes[i].renderer = Some(r);
+                // Each renderer checks its own keys: settings of the previous one go.
+                f.nodes[i].settings = toml::Table::new();
+            });
+        }
+        match n.kind {
+            NodeKind::Volume => self.volume_controls(ui, i, &current),
+            NodeKind::Heightfield => self.terrain_controls(ui, i),
+            NodeKind::Particles => self.smoke_controls(ui, i),
+            NodeKind::Group => {}
+        }
+    }
+
+    fn volume_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &str) {
+        let Some(doc) = &self.doc else { return };
+        let n = doc.scene.nodes()[i].clone();
+        let stats = doc.stats.get(i).cloned().flatten();
+        let volume = doc.scene.volume(i).ok();
+        let mut mip = n.blend == BlendMode::Mip;
+        if ui.checkbox(&mut mip, "Maximum intensity projection").changed() {
+            self.edit(false, |f| f.nodes[i].blend = if mip { BlendMode::Mip } else { BlendMode::Composite });
+        }
+        if renderer == "reference" {
+            let mut step = n.settings.get("step").and_then(|v| v.as_float()).unwrap_or(0.05);
+            ui.horizontal(|ui| {
+                let lbl = ui.label("Step (voxels)");
+                if ui.add(egui::DragValue::new(&mut step).speed(0.005).range(0.01..=1.0)).labelled_by(lbl.id).changed() {
+                    self.edit(false, |f| {
+                        f.nodes[i].settings.insert("step".into(), toml::Value::Float(step));
+                    });
+                }
+            });
+        }
+        if renderer == "shear-warp" {
+            let mut ratio = n.settings.get("supersampling").and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).unwrap_or(0.0);
+            ui.horizontal(|ui| {
+                let lbl = ui.label("Supersampling");
+                let r = ui
+                    .add(egui::Slider::new(&mut ratio, 0.0..=4.0).step_by(0.01).custom_formatter(|v, _| {
+                        if v == 0.0 {
+                            "auto".into()
+                        } else {
+                            format!("{v:.2}")
+                        }
+                    }))
+                    .labelled_by(lbl.id);
+                if r.changed() {
+                    self.edit(r.dragged(), |f| {
+                        f.nodes[i].settings.insert("supersampling".into(), toml::Value::Float(ratio));
+                    });
+                }
+            });
+            let leaping = n.settings.get("leaping").and_then(|v| v.as_str()).unwrap_or("overlapped").to_string();
+            let mut pick = None;
+            egui::ComboBox::from_label("Empty-space leaping").selected_text(&leaping).show_ui(ui, |ui| {
+                for l in ["overlapped", "multi-scanline", "none"] {
+                    if ui.selectable_label(leaping == l, l).clicked() {
+                        pick = Some(l);
+                    }
+                }
+            });
+            if let Some(l) = pick.filter(|l| *l != leaping) {
+                self.edit(false, |f| {
+                    f.nodes[i].settings.insert("leaping".into(), toml::Value::String(l.into()));
+                });
+            }
+        }
+        ui.checkbox(&mut self.show_slices, "Slice views");
+        ui.separator();
+        ui.label(egui::RichText::new("Transfer function").strong());
+        let Some(stats) = stats else { return };
+        let Some(mut tf) = n.transfer_function.clone() else {
+            if ui.button("Add a transfer function").clicked() {
+                if let Some(v) = volume {
+                    let p = crate::scene::presets::Preset::for_volume(&v, &stats);
+                    let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
+                    self.edit(false, |f| f.nodes[i].transfer_function = Some(p.transfer_function(&stats, unit)));
+                }
+            }
+            return;
+        };
+        if self.tf_editor.show(ui, &mut tf, &stats) && tf.validate().is_ok() {
+            let moving = ui.input(|inp| inp.pointer.any_down());
+            self.edit(moving, |f| f.nodes[i].transfer_function = Some(tf));
+        }
+    }
+
+    fn terrain_controls(&mut self, ui: &mut egui::Ui, i: usize) {
+        let Some(doc) = &self.doc else { return };
+        let n = doc.scene.nodes()[i].clone();
+        let lights = doc.scene.file.lights.clone();
+        let mut shadows = n.settings.get("shadows").and_then(|v| v.as_bool()).unwrap_or(false);
+        if ui.checkbox(&mut shadows, "Shadows").changed() {
+            self.edit(false, |f| {
+                f.nodes[i].settings.insert("shadows".into(), toml::Value::Boolean(shadows));
+            });
+        }
+        let mut exaggeration = n.transform.scale.map(|s| s[2]).unwrap_or(1.0);
+        ui.horizontal(|ui| {
+            let lbl = ui.label("Vertical exaggeration");
+            let r = ui.add(egui::Slider::new(&mut exaggeration, 0.1..=10.0).logarithmic(true)).labelled_by(lbl.id);
+            if r.changed() {
+                self.edit(r.dragged(), |f| {
+                    let s = f.nodes[i].transform.scale.get_or_insert([1.0; 3]);
+                    s[2] = exaggeration;
+                });
+            }
+        });
+        self.sun_controls(ui, &lights);
+        ui.checkbox(&mut self.show_steps, "Step-count heat map");
+        if self.mode == NavMode::Walk {
+            ui.horizontal(|ui| {
+                let lbl = ui.label("Eye height (m)");
+                if ui.add(egui::DragValue::new(&mut self.eye_height).speed(0.1).range(0.0..=10000.0)).labelled_by(lbl.id).changed() {
+                    self.settle_walk();
+                }
+            });
+        }
+        ui.label(egui::RichText::new("Fly/Walk: drag to look, W A S D to move, Q/E down/up (fly), Shift faster").weak());
+    }
+
+    /// Sun azimuth (degrees clockwise from north, where the light comes from) and
+    /// elevation above the horizon, editing the first directional light.
+    fn sun_controls(&mut self, ui: &mut egui::Ui, lights: &[crate::scene::Light]) {
+        let Some(li) = lights.iter().position(|l| l.kind == crate::scene::LightKind::Directional) else { return };
+        let d = DVec3::from(lights[li].direction.unwrap_or([0.0, 0.0, -1.0])).normalize();
+        let from = -d;
+        let mut azimuth = from.x.atan2(from.y).to_degrees().rem_euclid(360.0);
+        let mut elevation = from.z.clamp(-1.0, 1.0).asin().to_degrees();
+        let mut changed = None;
+        ui.horizontal(|ui| {
+            let lbl = ui.label("Sun azimuth");
+            let r = ui.add(egui::Slider::new(&mut azimuth, 0.0..=360.0).suffix("°")).labelled_by(lbl.id);
+            if r.changed() {
+                changed = Some(r.dragged());
+            }
+        });
+        ui.horizontal(|ui| {
+            let lbl = ui.label("Sun elevation");
+            let r = ui.add(egui::Slider::new(&mut elevation, 1.0..=90.0).suffix("°")).labelled_by(lbl.id);
+            if r.changed() {
+                changed = Some(r.dragged());
+            }
+        });
+        if let Some(moving) = changed {
+            let (a, e) = (azimuth.to_radians(), elevation.to_radians());
+            let from = DVec3::new(a.sin() * e.cos(), a.cos() * e.cos(), e.sin());
+            self.edit(moving, |f| f.lights[li].direction = Some((-from).to_array()));
+        }
+    }
+
+    fn smoke_controls(&mut self, ui: &mut egui::Ui, i: usize) {
+        let Some(doc) = &self.doc else { return };
+        let n = doc.scene.nodes()[i].clone();
+        let lights = doc.scene.file.lights.clone();
+        if let Some(mut m) = n.medium.clone() {
+            let mut changed = None;
+            ui.horizontal(|ui| {
+                let lbl = ui.label("Albedo");
+                let r = ui.add(egui::Slider::new(&mut m.albedo, 0.0..=1.0)).labelled_by(lbl.id);
+                if r.changed() {
+                    changed = Some(r.dragged());
+                }
+            });
+            ui.horizontal(|ui| {
+                let lbl = ui.label("C_ext (m²/kg)");
+                let r = ui.add(egui::Slider::new(&mut m.c_ext, 0.01..=1000.0).logarithmic(true)).labelled_by(lbl.id);
+                if r.changed() {
+                    changed = Some(r.dragged());
+                }
+            });
+            ui.horizontal(|ui| {
+                let lbl = ui.label("g (Henyey–Greenstein)");
+                let r = ui.add(egui::Slider::new(&mut m.g, -0.95..=0.95)).labelled_by(lbl.id);
+                if r.changed() {
+                    changed = Some(r.dragged());
+                }
+            });
+            if let Some(moving) = changed {
+                self.edit(moving, |f| f.nodes[i].medium = Some(m));
+            }
+        }
+        let mut photons = n.settings.get("photons").and_then(|v| v.as_integer()).unwrap_or(200_000);
+        ui.horizontal(|ui| {
+            let lbl = ui.label("Photons");
+            if ui.add(egui::DragValue::new(&mut photons).speed(1000).range(1000..=100_000_000)).labelled_by(lbl.id).changed() {
+                self.edit(false, |f| {
+                    f.nodes[i].settings.insert("photons".into(), toml::Value::Integer(photons));
+                });
+            }
+        });
+        self.sun_controls(ui, &lights);
+        ui.label(egui::RichText::new("Traced photons are cached on disk: moving the camera reuses them.").weak());
+    }
+
+    fn slice_panel(&mut self, ui: &mut egui::Ui) {
+        let Some(i) = self.selected_volume() else { return };
+        let Some(doc) = &self.doc else { return };
+        let Ok(volume) = doc.scene.volume(i) else { return };
+        let stats = doc.stats[i].clone();
+        // (Re)build the source when another volume (or its placement) is selected.
+        let world = doc.scene.world_transform(i);
+        let rebuild = self.slices.as_ref().is_none_or(|s| s.node != i || !Arc::ptr_eq(&s.source.volume, &volume));
+        if rebuild {
+            let source = SliceSource::new(volume, world);
+            let (window, level) = stats
+                .as_ref()
+                .map(|s| {
+                    let (a, b) = (s.percentile(0.005), s.percentile(0.999));
+                    let (a, b) = if b > a { (a, b) } else { (s.min, s.max.max(s.min + 1.0)) };
+                    (b - a, 0.5 * (a + b))
+                })
+                .unwrap_or((1.0, 0.5));
+            self.slices = Some(SliceState { node: i, cross: source.centre(), source, window, level, images: vec![], dirty: true });
+        }
+        let s = self.slices.as_mut().unwrap();
+        ui.horizontal(|ui| {
+            let speed = s.window.abs() * 0.01 + 1e-6;
+            let lbl = ui.label("Window");
+            s.dirty |= ui.add(egui::DragValue::new(&mut s.window).speed(speed).range(1e-9..=f64::MAX)).labelled_by(lbl.id).changed();
+            let lbl = ui.label("Level");
+            s.dirty |= ui.add(egui::DragValue::new(&mut s.level).speed(speed)).labelled_by(lbl.id).changed();
+        });
+        if s.dirty {
+            s.images = Plane::ALL
+                .iter()
+                .map(|&p| {
+                    let img = s.source.slice(p, s.cross, s.window, s.level);
+                    let tex = ui.ctx().load_texture(
+                        format!("slice-{}", p.label()),
+                        egui::ColorImage::from_gray([img.width, img.height], &img.grey),
+                        egui::TextureOptions::LINEAR,
+                    );
+                    (img, tex)
+                })
+                .collect();
+            s.dirty = false;
+        }
+        let width = ui.available_width();
+        let mut new_cross = None;
+        for (k, plane) in Plane::ALL.iter().enumerate() {
+            let (img, tex) = &s.images[k];
+            ui.label(format!(
+                "{} ({:.1} mm)",
+                plane.label(),
+                match plane {
+                    Plane::Axial => s.cross.z,
+                    Plane::Coronal => s.cross.y,
+                    Plane::Sagittal => s.cross.x,
+                }
+            ));
+            let aspect = img.height as f32 / img.width as f32;
+            let size = Vec2::new(width, (width * aspect).min(width * 1.5));
+            let (resp, painter) = ui.allocate_painter(size, Sense::click_and_drag());
+            let r = resp.rect;
+            painter.image(tex.id(), r, Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)), Color32::WHITE);
+            // Cross-hair.
+            let (u, v) = img.pixel_of(s.cross);
+            let p = Pos2::new(r.left() + (u as f32 / img.width as f32) * r.width(), r.top() + (v as f32 / img.height as f32) * r.height());
+            let stroke = egui::Stroke::new(1.0, Color32::from_rgb(255, 210, 0));
+            painter.line_segment([Pos2::new(r.left(), p.y), Pos2::new(r.right(), p.y)], stroke);
+            painter.line_segment([Pos2::new(p.x, r.top()), Pos2::new(p.x, r.bottom())], stroke);
+            let [l, rt, t, b] = plane.edge_labels();
+            let font = egui::FontId::proportional(13.0);
+            let c = Color32::from_rgb(120, 220, 255);
+            painter.text(Pos2::new(r.left() + 4.0, r.center().y), egui::Align2::LEFT_CENTER, l, font.clone(), c);
+            painter.text(Pos2::new(r.right() - 4.0, r.center().y), egui::Align2::RIGHT_CENTER, rt, font.clone(), c);
+            painter.text(Pos2::new(r.center().x, r.top() + 2.0), egui::Align2::CENTER_TOP, t, font.clone(), c);
+            painter.text(Pos2::new(r.center().x, r.bottom() - 2.0), egui::Align2::CENTER_BOTTOM, b, font, c);
+            if let Some(pos) = resp.interact_pointer_pos().filter(|_| resp.clicked() || resp.dragged()) {
+                let u = (pos.x - r.left()) / r.width() * img.width as f32;
+                let v = (pos.y - r.top()) / r.height() * img.height as f32;
+                new_cross = Some(img.world_at(u as f64, v as f64));
+            }
+        }
+        if let Some(c) = new_cross {
+            let (lo, hi) = s.source.bounds();
+            s.cross = c.clamp(lo, hi);
+            s.dirty = true;
+        }
+    }
+
+    fn viewport(&mut self, ui: &mut egui::Ui) {
+        let (resp, painter) = ui.allocate_painter(ui.available_size(), Sense::click_and_drag());
+        let rect = resp.rect;
+        self.viewport_rect = Some(rect);
+        painter.rect_filled(rect, 0.0, Color32::from_gray(18));
+        let Some(_) = &self.doc else {
+            painter.text(
+                rect.center(),
+                egui::Align2::CENTER_CENTER,
+                "Open a file or scene (Ctrl+O), or drop one here",
+                egui::FontId::proportional(18.0),
+                Color32::GRAY,
+            );
+            return;
+        };
+        if let Some(s) = &self.shown {
+            let uv = Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0));
+            painter.image(s.texture.id(), rect, uv, Color32::WHITE);
+            if self.show_steps {
+                if let Some(t) = &s.steps {
+                    painter.image(t.id(), rect, uv, Color32::from_white_alpha(200));
+                }
+            }
+        }
+        // Cross-hair of the slice views, projected.
+        if let (Some(sl), true) = (&self.slices, self.show_slices && self.selected_volume().is_some()) {
+            if let Some(p) = project(&self.camera, rect, sl.cross) {
+                let c = Color32::from_rgb(255, 210, 0);
+                painter.line_segment([p - Vec2::new(8.0, 0.0), p + Vec2::new(8.0, 0.0)], egui::Stroke::new(1.5, c));
+                painter.line_segment([p - Vec2::new(0.0, 8.0), p + Vec2::new(0.0, 8.0)], egui::Stroke::new(1.5, c));
+            }
+        }
+        self.navigate(ui, &resp, rect);
+    }
+
+    fn navigate(&mut self, ui: &mut egui::Ui, resp: &egui::Response, rect: Rect) {
+        let mut moved = false;
+        let d = resp.drag_delta();
+        let (shift, scroll) = ui.input(|i| (i.modifiers.shift, i.smooth_scroll_delta.y));
+        let h = rect.height().max(1.0) as f64;
+        let primary = resp.dragged_by(egui::PointerButton::Primary);
+        let pan_drag = resp.dragged_by(egui::PointerButton::Middle)
+            || resp.dragged_by(egui::PointerButton::Secondary)
+            || (primary && shift && self.mode == NavMode::Orbit);
+        if d != Vec2::ZERO {
+            if pan_drag {
+                navigate::pan(&mut self.camera, d.x as f64 / h, d.y as f64 / h);
+                moved = true;
+            } else if primary {
+                match self.mode {
+                    NavMode::Orbit => navigate::orbit(&mut self.camera, d.x as f64 * 180.0 / h, d.y as f64 * 180.0 / h),
+                    NavMode::Fly | NavMode::Walk => navigate::look(&mut self.camera, d.x as f64 * 90.0 / h, -d.y as f64 * 90.0 / h),
+                }
+                moved = true;
+            }
+        }
+        if resp.hovered() && scroll != 0.0 {
+            navigate::zoom(&mut self.camera, (scroll as f64 / 300.0).exp());
+            moved = true;
+        }
+        if self.mode != NavMode::Orbit && (resp.hovered() || resp.has_focus()) {
+            let dt = ui.input(|i| i.stable_dt).min(0.1) as f64;
+            let extent = self.doc.as_ref().and_then(|d| scene_extent(&d.scene)).unwrap_or(100.0);
+            let speed = extent * 0.15 * dt * if shift { 5.0 } else { 1.0 };
+            let key = |k| ui.input(|i| i.key_down(k));
+            let f = (key(egui::Key::W) as i32 - key(egui::Key::S) as i32) as f64;
+            let s = (key(egui::Key::D) as i32 - key(egui::Key::A) as i32) as f64;
+            let r = if self.mode == NavMode::Fly { (key(egui::Key::E) as i32 - key(egui::Key::Q) as i32) as f64 } else { 0.0 };
+            if f != 0.0 || s != 0.0 || r != 0.0 {
+                navigate::travel(&mut self.camera, f * speed, s * speed, r * speed, self.mode == NavMode::Walk);
+                if self.mode == NavMode::Walk {
+                    self.settle_walk();
+                }
+                moved = true;
+                ui.ctx().request_repaint();
+            }
+        }
+        if moved {
+            self.bump(true);
+        }
+    }
+
+    /// Walk mode: puts the eye `eye_height` above the ground under it (the focal point
+    /// moves with it, so the view keeps its pitch).
+    fn settle_walk(&mut self) {
+        let Some(doc) = &self.doc else { return };
+        let Some(i) = doc.scene.nodes().iter().position(|n| n.kind == NodeKind::Heightfield) else { return };
+        let Ok(hf) = doc.scene.heightfield(i) else { return };
+        let m = doc.scene.world_transform(i);
+        let eye = DVec3::from(self.camera.position);
+        let local = m.inverse().transform_point3(DVec3::new(eye.x, eye.y, 0.0));
+        if let Some(ground) = hf.surface_height(local.x, local.y) {
+            let z = m.transform_point3(DVec3::new(local.x, local.y, ground)).z + self.eye_height;
+            let lift = z - eye.z;
+            self.camera.position[2] = z;
+            self.camera.focal_point[2] += lift;
+            self.bump(true);
+        }
+    }
+
+    fn screenshot_step(&mut self, ctx: &egui::Context) {
+        let Some(path) = self.screenshot_then_quit.clone() else { return };
+        let full_shown = self.shown.as_ref().is_some_and(|s| s.quality == Quality::Full && s.version == self.version);
+        let mut st = self.screenshot_state.lock().unwrap();
+        match &*st {
+            ScreenshotState::Waiting if full_shown => {
+                *st = ScreenshotState::Painted(0);
+                ctx.request_repaint();
+            }
+            // Let a couple of frames through so the texture is on screen.
+            ScreenshotState::Painted(n) if *n < 2 => {
+                *st = ScreenshotState::Painted(n + 1);
+                ctx.request_repaint();
+            }
+            ScreenshotState::Painted(_) => {
+                *st = ScreenshotState::Requested;
+                let state = self.screenshot_state.clone();
+                let c = ctx.clone();
+                ctx.request_screenshot(move |img| {
+                    let bytes: Vec<u8> = img.pixels.iter().flat_map(|p| p.to_array()).collect();
+                    let r = volterra_formats::image::write_png_rgba8(&path, img.size[0], img.size[1], &bytes).map_err(|e| e.to_string());
+                    *state.lock().unwrap() = ScreenshotState::Saved(r);
+                    c.request_repaint();
+                });
+            }
+            ScreenshotState::Saved(_) => {
+                ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+            }
+            _ => {
+                ctx.request_repaint_after(Duration::from_millis(50));
+            }
+        }
+    }
+
+    /// Result of the screenshot-then-quit run: None until saved.
+    pub fn screenshot_result(&self) -> Option<Result<(), String>> {
+        match &*self.screenshot_state.lock().unwrap() {
+            ScreenshotState::Saved(r) => Some(r.clone()),
+            _ => None,
+        }
+    }
+}
+
+impl eframe::App for Viewer {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        Viewer::ui(self, ui);
+    }
+}
+
+/// `dir/name.view.toml` beside the opened file.
+fn default_save_path(opened: &Path) -> String {
+    let stem =
+        opened.file_name().map(|n| n.to_string_lossy().split('.').next().unwrap_or("view").to_string()).unwrap_or_else(|| "view".into());
+    start_dir(Some(opened)).join(format!("{stem}_view.toml")).display().to_string()
+}
+
+fn scene_extent(scene: &Scene) -> Option<f64> {
+    let mut ext: Option<f64> = None;
+    for (i, n) in scene.nodes().iter().enumerate() {
+        if n.kind == NodeKind::Group || !scene.is_loaded(i) {
+            continue;
+        }
+        let d = scene.data(i).ok()?;
+        if let Some((lo, hi)) = data_bounds(&d, scene.world_transform(i)) {
+            ext = Some(ext.unwrap_or(0.0).max((hi - lo).length()));
+        }
+    }
+    ext
+}
+
+/// Frames the data of every loaded node (used by `volterra view` on a scene with no
+/// camera worth keeping; exposed for tests).
+pub fn fit_scene_camera(scene: &Scene) -> Option<Camera> {
+    let i = scene.nodes().iter().position(|n| n.kind != NodeKind::Group)?;
+    let d = scene.data(i).ok()?;
+    Some(fit_camera(d.kind(), data_bounds(&d, scene.world_transform(i))?))
+}
+
+/// The window position of a world point, if in front of the camera.
+fn project(cam: &Camera, rect: Rect, p: DVec3) -> Option<Pos2> {
+    let g = cam.rays(rect.width().max(1.0) as usize, rect.height().max(1.0) as usize);
+    let (eye, right, up) = g.basis();
+    let (hw, hh) = g.half_extent();
+    let d = p - eye;
+    let (x, y) = if g.is_parallel() {
+        (d.dot(right), d.dot(up))
+    } else {
+        let z = d.dot(g.forward());
+        if z <= 0.0 {
+            return None;
+        }
+        (d.dot(right) / z, d.dot(up) / z)
+    };
+    let sx = 0.5 * (x / hw + 1.0);
+    let sy = 0.5 * (1.0 - y / hh);
+    Some(Pos2::new(rect.left() + sx as f32 * rect.width(), rect.top() + sy as f32 * rect.height()))
+}
+
+/// sRGB pixels of a frame over its background.
+fn frame_image(frame: &Frame, bg: [f64; 3]) -> egui::ColorImage {
+    let rgba = frame.preview_rgba(bg);
+    let to8 = |v: f32| (volterra_formats::image::linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0).round() as u8;
+    let pixels = rgba.chunks_exact(4).map(|p| Color32::from_rgb(to8(p[0]), to8(p[1]), to8(p[2]))).collect();
+    egui::ColorImage::new([frame.width, frame.height], pixels)
+}
+
+/// Terrain traversal steps per pixel as a heat map (black → red → yellow at the maximum).
+fn steps_image(frame: &Frame, steps: &[f32]) -> egui::ColorImage {
+    let max = steps.iter().cloned().fold(1.0f32, f32::max);
+    let pixels = steps
+        .iter()
+        .map(|&s| {
+            let t = (s / max).clamp(0.0, 1.0);
+            let r = (t * 2.0).min(1.0);
+            let g = (t * 2.0 - 1.0).max(0.0);
+            Color32::from_rgb((r * 255.0) as u8, (g * 255.0) as u8, 0)
+        })
+        .collect();
+    egui::ColorImage::new([frame.width, frame.height], pixels)
+}
+
+fn metadata_grid(ui: &mut egui::Ui, data: &NodeData, names: volterra_formats::ParticleArrayNames) {
+    let json = match data {
+        NodeData::Volume(v) => crate::info::volume_json(v),
+        NodeData::Heightfield(h) => crate::info::heightfield_json(h),
+        NodeData::Particles(p) => crate::info::particles_json(p, &names),
+    };
+    egui::Grid::new("metadata").num_columns(2).striped(true).show(ui, |ui| {
+        if let serde_json::Value::Object(map) = json {
+            for (k, v) in map {
+                if k == "notes" || k == "affine" {
+                    continue;
+                }
+                ui.label(k);
+                let text = match &v {
+                    serde_json::Value::String(s) => s.clone(),
+                    serde_json::Value::Null => "—".into(),
+                    serde_json::Value::Array(a) if a.iter().all(|x| x.is_number()) => a
+                        .iter()
+                        .map(|x| {
+                            if x.is_f64() {
+                                format!("{:.6}", x.as_f64().unwrap()).trim_end_matches('0').trim_end_matches('.').to_string()
+                            } else {
+                                x.to_string()
+                            }
+                        })
+                        .collect::<Vec<_>>()
+                        .join(" × "),
+                    other => {
+                        let t = other.to_string();
+                        if t.len() > 60 {
+                            format!("{}…", &t[..t.char_indices().nth(60).map(|c| c.0).unwrap_or(t.len())])
+                        } else {
+                            t
+                        }
+                    }
+                };
+                ui.label(text);
+                ui.end_row();
+            }
+        }
+    });
+}

@@ -1,0 +1,200 @@
+//! The viewer's render thread: renderers run here, never on the UI thread. It holds one
+//! pending job (a newer one replaces it, so a moving camera never queues stale frames) and
+//! one [`RenderCache`], so shear-warp's prepared volume and min-max maps are built once
+//! per volume, not per frame.
+
+use crate::render::{self, Frame, RenderCache};
+use crate::scene::{Camera, Scene};
+use std::path::PathBuf;
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::Instant;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quality {
+    /// While the camera moves: a fraction of the pixels.
+    Preview,
+    /// Once it stops: every pixel, as `volterra render` draws the saved scene.
+    Full,
+    /// The brute-force reference renderers at the same view, to measure the error.
+    Reference,
+}
+
+pub struct Job {
+    /// The viewer's state version the job shows.
+    pub version: u64,
+    pub quality: Quality,
+    pub scene: Arc<Scene>,
+    pub camera: Camera,
+    pub size: (usize, usize),
+}
+
+pub struct Done {
+    pub version: u64,
+    pub quality: Quality,
+    pub size: (usize, usize),
+    pub result: Result<Frame, String>,
+    /// Wall time of the render, including data loading on first use.
+    pub seconds: f64,
+}
+
+#[derive(Default)]
+struct Mailbox {
+    job: Option<Job>,
+    busy: bool,
+    quit: bool,
+}
+
+pub struct RenderWorker {
+    mailbox: Arc<(Mutex<Mailbox>, Condvar)>,
+    done: Receiver<Done>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl RenderWorker {
+    /// Starts the thread; `wake` is called after every finished job (the UI repaints).
+    pub fn start(wake: impl Fn() + Send + 'static) -> RenderWorker {
+        let mailbox: Arc<(Mutex<Mailbox>, Condvar)> = Arc::default();
+        let (tx, done) = channel();
+        let mb = mailbox.clone();
+        let thread =
+            std::thread::Builder::new().name("volterra-render".into()).spawn(move || work(mb, tx, wake)).expect("spawn render thread");
+        RenderWorker { mailbox, done, thread: Some(thread) }
+    }
+
+    /// Queues `job`, replacing any job not yet started.
+    pub fn submit(&self, job: Job) {
+        let (lock, cv) = &*self.mailbox;
+        lock.lock().unwrap().job = Some(job);
+        cv.notify_all();
+    }
+
+    /// Finished jobs, oldest first.
+    pub fn poll(&self) -> Vec<Done> {
+        self.done.try_iter().collect()
+    }
+
+    /// True while a job is queued or rendering.
+    pub fn busy(&self) -> bool {
+        let m = self.mailbox.0.lock().unwrap();
+        m.busy || m.job.is_some()
+    }
+
+    /// Blocks until nothing is queued or rendering (tests, and saving a final image).
+    pub fn wait_idle(&self, timeout: std::time::Duration) -> bool {
+        let (lock, cv) = &*self.mailbox;
+        let deadline = Instant::now() + timeout;
+        let mut m = lock.lock().unwrap();
+        while m.busy || m.job.is_some() {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return false;
+            }
+            m = cv.wait_timeout(m, left).unwrap().0;
+        }
+        true
+    }
+}
+
+impl Drop for RenderWorker {
+    fn drop(&mut self) {
+        let (lock, cv) = &*self.mailbox;
+        lock.lock().unwrap().quit = true;
+        cv.notify_all();
+        // A render in progress finishes first; the UI is gone by then, so nobody waits on
+        // it but the process exit.
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn()) {
+    let (lock, cv) = &*mailbox;
+    let mut cache = RenderCache::default();
+    let mut cached_for: Option<PathBuf> = None;
+    loop {
+        let job = {
+            let mut m = lock.lock().unwrap();
+            loop {
+                if m.quit {
+                    return;
+                }
+                if let Some(j) = m.job.take() {
+                    m.busy = true;
+                    break j;
+                }
+                m = cv.wait(m).unwrap();
+            }
+        };
+        // A different scene file: drop the previous scene's prepared volumes.
+        if cached_for.as_deref() != Some(job.scene.source.as_path()) {
+            cache = RenderCache::default();
+            cached_for = Some(job.scene.source.clone());
+        }
+        let start = Instant::now();
+        let result = match job.quality {
+            Quality::Reference => render_reference(&job.scene, &job.camera, job.size),
+            Quality::Preview => {
+                preview_of(&job.scene).and_then(|s| render::render_view(&s, &job.camera, job.size, &cache)).map_err(|e| format!("{e:#}"))
+            }
+            Quality::Full => render::render_view(&job.scene, &job.camera, job.size, &cache).map_err(|e| format!("{e:#}")),
+        };
+        let done = Done { version: job.version, quality: job.quality, size: job.size, result, seconds: start.elapsed().as_secs_f64() };
+        let _ = tx.send(done);
+        {
+            let mut m = lock.lock().unwrap();
+            m.busy = false;
+        }
+        cv.notify_all();
+        wake();
+    }
+}
+
+/// The scene with cheaper settings for previews: one camera ray per pixel for smoke, no
+/// supersampling for shear-warp, a 0.25-voxel step for the reference ray caster. Only
+/// keys the user did not make cheaper already are touched.
+fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
+    let number = |s: &toml::Table, key: &str, default: f64| {
+        s.get(key).and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).unwrap_or(default)
+    };
+    let mut file = scene.file.clone();
+    for n in &mut file.nodes {
+        let s = &mut n.settings;
+        match n.renderer.as_deref() {
+            Some("smoke") if number(s, "samples", 4.0) > 1.0 => {
+                s.insert("samples".into(), toml::Value::Integer(1));
+            }
+            // 0 is "auto", which can pick up to 4 intermediate pixels per voxel.
+            Some("shear-warp") if !(number(s, "supersampling", 0.0) > 0.0 && number(s, "supersampling", 0.0) <= 1.0) => {
+                s.insert("supersampling".into(), toml::Value::Float(1.0));
+            }
+            Some("reference") if number(s, "step", 0.05) < 0.25 => {
+                s.insert("step".into(), toml::Value::Float(0.25));
+            }
+            _ => {}
+        }
+    }
+    scene.edited(file)
+}
+
+/// The same view through each node's brute-force reference (volumes: the f64 ray caster;
+/// terrain: the f64 CPU reference). Smoke has no reference renderer in-process (Mitsuba is
+/// the reference), so a scene with particles has no error figure.
+fn render_reference(scene: &Scene, camera: &Camera, size: (usize, usize)) -> Result<Frame, String> {
+    use crate::scene::NodeKind;
+    let mut file = scene.file.clone();
+    for n in &mut file.nodes {
+        match n.kind {
+            NodeKind::Volume => {
+                n.renderer = Some("reference".into());
+                n.settings = toml::Table::new();
+            }
+            NodeKind::Heightfield => n.renderer = Some("terrain-reference".into()),
+            NodeKind::Particles if n.visible => return Err("no in-process reference for smoke (Mitsuba is its reference)".into()),
+            _ => {}
+        }
+    }
+    let reference = scene.edited(file).map_err(|e| format!("{e:#}"))?;
+    render::render_view(&reference, camera, size, &RenderCache::default()).map_err(|e| format!("{e:#}"))
+}
