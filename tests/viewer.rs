@@ -10,6 +10,7 @@ use std::process::Command;
 use std::time::Duration;
 use volterra::formats::{exr_io, LoadOptions};
 use volterra::scene::presets::{Preset, ValueStats};
+use volterra::view::worker::Quality;
 use volterra::view::Viewer;
 
 fn samples() -> tempfile::TempDir {
@@ -105,7 +106,12 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     h.drop_at(centre + egui::Vec2::new(60.0, 0.0));
     h.run_steps(1);
     assert_ne!(h.state().camera().position, before, "dragging the view orbits the camera");
+    let previews = h.state().frames_shown(Quality::Preview);
+    let fulls = h.state().frames_shown(Quality::Full);
     settle(&mut h);
+    // Progressive: the move showed a quarter-resolution preview, then one full frame.
+    assert!(h.state().frames_shown(Quality::Preview) > previews, "a preview was shown while moving");
+    assert_eq!(h.state().frames_shown(Quality::Full), fulls + 1);
 
     // Save the view as a scene and the frame as EXR, through the toolbar.
     let out = tempfile::tempdir().unwrap();
@@ -249,4 +255,63 @@ fn a_real_window_under_xvfb_shows_the_render() {
     // … on the scene's black background in the 3-D view.
     let black = px.iter().filter(|p| p[0] < 3 && p[1] < 3 && p[2] < 3).count();
     assert!(black > 50_000, "background pixels: {black}");
+}
+
+/// A file dropped on the window, as the windowing integration hands it to egui.
+#[derive(Debug)]
+struct Dropped(PathBuf);
+
+impl egui::DroppedFile for Dropped {
+    fn path(&self) -> &Path {
+        &self.0
+    }
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        std::fs::read(&self.0).map_err(|e| e.to_string())
+    }
+}
+
+fn wait_loaded(h: &mut Harness<'_, Viewer>) {
+    for _ in 0..400 {
+        h.run_steps(1);
+        if !h.state().loading() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(25));
+    }
+    panic!("the file did not finish loading");
+}
+
+#[test]
+fn files_open_from_the_dialog_and_by_drag_and_drop_without_blocking() {
+    let dir = samples();
+    let mut h = harness(Viewer::new(LoadOptions::default()));
+    h.run_steps(2);
+    assert!(h.state().scene().is_none());
+    // The dialog: type a path, press Open; the file is read off the UI thread.
+    h.get_by_label("Open…").click();
+    h.run_steps(4);
+    h.get_by_label("Path").focus();
+    h.get_by_label("Path").set_text_value_accesskit(&dir.path().join("smoke_plume.vtp").display().to_string());
+    h.run_steps(1);
+    h.get_by_role_and_label(egui::accesskit::Role::Button, "Open").click();
+    h.run_steps(1);
+    wait_loaded(&mut h);
+    let scene = h.state().scene().expect("opened from the dialog");
+    assert_eq!(scene.nodes()[0].renderer.as_deref(), Some("smoke"));
+    assert_eq!(scene.particles(0).unwrap().positions.len(), 20_000);
+    // Drag and drop a DEM: it replaces the particles.
+    h.input_mut().dropped_files.push(std::sync::Arc::new(Dropped(dir.path().join("fractal_dem.tif"))));
+    h.run_steps(1);
+    wait_loaded(&mut h);
+    let scene = h.state().scene().unwrap();
+    assert_eq!(scene.nodes()[0].renderer.as_deref(), Some("terrain"));
+    // A file that cannot be read: one line naming it, in the status bar; the old scene stays.
+    let bad = dir.path().join("broken.nii");
+    std::fs::write(&bad, b"not a nifti file").unwrap();
+    h.input_mut().dropped_files.push(std::sync::Arc::new(Dropped(bad.clone())));
+    h.run_steps(1);
+    wait_loaded(&mut h);
+    let e = h.state().last_error().expect("an error for the broken file").to_string();
+    assert!(e.contains("broken.nii") && !e.contains('\n'), "{e}");
+    assert_eq!(h.state().scene().unwrap().nodes()[0].renderer.as_deref(), Some("terrain"));
 }

@@ -38,6 +38,32 @@ pub enum NavMode {
     Walk,
 }
 
+/// A document read off the UI thread, ready to show.
+struct Opened {
+    path: PathBuf,
+    scene: Scene,
+    stats: Vec<Option<ValueStats>>,
+    camera: Camera,
+}
+
+/// Reads a scene file or a data file, and everything the viewer derives from the data.
+fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
+    let is_scene = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    let scene = if is_scene { Scene::load(path, &[])? } else { scene_for_file(path, load)? };
+    let mut stats = vec![None; scene.nodes().len()];
+    for (i, n) in scene.nodes().iter().enumerate() {
+        if n.kind == NodeKind::Volume {
+            let volume = scene.volume(i)?;
+            stats[i] = Some(ValueStats::of(&volume));
+        } else if n.kind != NodeKind::Group {
+            // Read now, not on the render thread's first frame.
+            scene.data(i)?;
+        }
+    }
+    let camera = if is_scene { scene.camera(None)? } else { scene.file.camera.clone() };
+    Ok(Opened { path: path.to_path_buf(), scene, stats, camera })
+}
+
 /// The open scene and what the viewer derived from it.
 struct Document {
     scene: Arc<Scene>,
@@ -100,6 +126,10 @@ pub struct Viewer {
     /// Where the 3-D view was laid out last frame (its size is the render size).
     viewport_rect: Option<Rect>,
     last_size: Option<(usize, usize)>,
+    /// Frames shown so far, by quality (previews, full).
+    frames_shown: [usize; 3],
+    /// A file being read in the background.
+    opening: Option<(PathBuf, std::sync::mpsc::Receiver<Result<Opened>>)>,
 }
 
 #[derive(Default, PartialEq)]
@@ -156,6 +186,8 @@ impl Viewer {
             screenshot_state: Arc::default(),
             viewport_rect: None,
             last_size: None,
+            opening: None,
+            frames_shown: [0; 3],
         }
     }
 
@@ -164,36 +196,75 @@ impl Viewer {
         self.screenshot_then_quit = Some(path);
     }
 
-    /// Opens a scene file (.toml) or a data file / DICOM folder.
+    /// Opens a scene file (.toml) or a data file / DICOM folder, waiting for it to load.
     pub fn open(&mut self, path: &Path) -> Result<()> {
-        let is_scene = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-        let scene = if is_scene { Scene::load(path, &[])? } else { scene_for_file(path, &self.load)? };
-        let mut stats = vec![None; scene.nodes().len()];
-        for (i, n) in scene.nodes().iter().enumerate() {
-            if n.kind == NodeKind::Volume {
-                let v = scene.volume(i)?;
-                stats[i] = Some(ValueStats::of(&v));
+        let opened = load_document(path, &self.load)?;
+        self.install(opened);
+        Ok(())
+    }
+
+    /// Starts loading `path` on a thread; the UI keeps running and shows the document
+    /// when it is read (a DICOM series of a thousand slices takes seconds).
+    pub fn open_in_background(&mut self, path: PathBuf) {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let load = self.load.clone();
+        let wake = self.wake.clone();
+        let p = path.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(load_document(&p, &load));
+            if let Some(ctx) = wake.get() {
+                ctx.request_repaint();
+            }
+        });
+        self.message = Some(format!("reading {}", path.display()));
+        self.opening = Some((path, rx));
+    }
+
+    /// True while a file given to [`Self::open_in_background`] is still being read.
+    pub fn loading(&self) -> bool {
+        self.opening.is_some()
+    }
+
+    fn poll_opening(&mut self) {
+        let Some((_, rx)) = &self.opening else { return };
+        match rx.try_recv() {
+            Ok(Ok(opened)) => {
+                self.opening = None;
+                self.install(opened);
+            }
+            Ok(Err(e)) => {
+                self.opening = None;
+                self.render_error = Some(format!("{e:#}"));
+            }
+            Err(std::sync::mpsc::TryRecvError::Empty) => {}
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                self.opening = None;
+                self.render_error = Some("reading the file stopped unexpectedly".into());
             }
         }
-        self.camera = if is_scene { scene.camera(None)? } else { scene.file.camera.clone() };
-        if let Some(w) = &scene.file.walk {
+    }
+
+    fn install(&mut self, o: Opened) {
+        self.camera = o.camera;
+        if let Some(w) = &o.scene.file.walk {
             self.eye_height = w.eye_height;
             self.mode = NavMode::Walk;
         } else {
             self.mode = NavMode::Orbit;
         }
-        self.selected = scene.nodes().iter().position(|n| n.kind != NodeKind::Group).unwrap_or(0);
-        self.dialog.dir = start_dir(Some(path));
-        self.save_path = default_save_path(path);
-        self.doc = Some(Document { home: self.camera.clone(), scene: Arc::new(scene), stats });
+        self.selected = o.scene.nodes().iter().position(|n| n.kind != NodeKind::Group).unwrap_or(0);
+        self.dialog.dir = start_dir(Some(&o.path));
+        self.save_path = default_save_path(&o.path);
+        self.message = Some(format!("opened {}", o.path.display()));
+        self.doc = Some(Document { home: self.camera.clone(), scene: Arc::new(o.scene), stats: o.stats });
+        self.tf_editor = TfEditor::default();
         self.slices = None;
         self.shown = None;
         self.last_full = None;
         self.error_vs_reference = None;
         self.render_error = None;
-        self.message = Some(format!("opened {}", path.display()));
-        self.bump(false);
-        Ok(())
+        // A preview first, as after a camera move: something to look at within a moment.
+        self.bump(true);
     }
 
     /// The scene as the viewer shows it now (camera included).
@@ -208,6 +279,11 @@ impl Viewer {
     /// The newest full-quality frame, if it shows the current state.
     pub fn current_full_frame(&self) -> Option<&Frame> {
         self.last_full.as_ref().filter(|(v, _)| *v == self.version).map(|(_, f)| f)
+    }
+
+    /// How many frames of quality `q` have been shown (tests of progressive rendering).
+    pub fn frames_shown(&self, q: Quality) -> usize {
+        self.frames_shown[q as usize]
     }
 
     /// The last error a render or an action reported.
@@ -317,10 +393,9 @@ impl Viewer {
         let _ = self.wake.set(ctx.clone());
         self.receive(&ctx);
         self.handle_dropped_files(&ctx);
+        self.poll_opening();
         if let Some(p) = self.dialog.show(&ctx) {
-            if let Err(e) = self.open(&p) {
-                self.render_error = Some(format!("{e:#}"));
-            }
+            self.open_in_background(p);
         }
 
         egui::Panel::top("toolbar").show(ui, |ui| self.toolbar(ui));
@@ -387,6 +462,7 @@ impl Viewer {
             .iter()
             .find(|(n, _)| n == "steps")
             .map(|(_, s)| ctx.load_texture("steps", steps_image(&frame, s), egui::TextureOptions::NEAREST));
+        self.frames_shown[done.quality as usize] += 1;
         self.shown = Some(Shown {
             version: done.version,
             quality: done.quality,
@@ -404,10 +480,8 @@ impl Viewer {
     fn handle_dropped_files(&mut self, ctx: &egui::Context) {
         let dropped: Vec<PathBuf> =
             ctx.input(|i| i.raw.dropped_files.iter().map(|f| f.path().to_path_buf()).filter(|p| !p.as_os_str().is_empty()).collect());
-        if let Some(p) = dropped.first() {
-            if let Err(e) = self.open(p) {
-                self.render_error = Some(format!("{e:#}"));
-            }
+        if let Some(p) = dropped.into_iter().next() {
+            self.open_in_background(p);
         }
     }
 
@@ -491,7 +565,7 @@ impl Viewer {
 
     fn status_bar(&mut self, ui: &mut egui::Ui) {
         ui.horizontal_wrapped(|ui| {
-            if self.worker.busy() {
+            if self.worker.busy() || self.opening.is_some() {
                 ui.spinner();
                 if let Some((what, pos, len)) = crate::progress::current() {
                     ui.add(egui::ProgressBar::new(pos as f32 / len.max(1) as f32).desired_width(160.0).text(format!("{what} {pos}/{len}")));

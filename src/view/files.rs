@@ -56,7 +56,7 @@ impl FileDialog {
         let mut open = self.open;
         egui::Window::new("Open").open(&mut open).default_size([520.0, 420.0]).show(ctx, |ui| {
             ui.horizontal(|ui| {
-                if ui.button("⬆ Up").clicked() {
+                if ui.button("Up").clicked() {
                     if let Some(p) = self.dir.parent() {
                         self.dir = p.to_path_buf();
                     }
@@ -79,7 +79,7 @@ impl FileDialog {
             egui::ScrollArea::vertical().show(ui, |ui| {
                 let mut enter_dir = None;
                 for (name, is_dir) in &self.entries {
-                    let label = if *is_dir { format!("📁 {name}") } else { name.clone() };
+                    let label = if *is_dir { format!("{name}/") } else { name.clone() };
                     let r = ui.selectable_label(self.path_text == *name, label);
                     if r.clicked() {
                         self.path_text = name.clone();

@@ -24,8 +24,12 @@ use volterra_formats::LoadOptions;
 /// after the first full-quality frame, then close (checks a real window, e.g. under Xvfb).
 pub fn run(target: Option<PathBuf>, load: LoadOptions, screenshot: Option<PathBuf>) -> Result<()> {
     let mut viewer = Viewer::new(load);
-    if let Some(p) = &target {
-        viewer.open(p)?;
+    // With a screenshot to take, a file that cannot be read is an error of the command;
+    // otherwise the window opens at once and reads the file in the background.
+    match (&target, &screenshot) {
+        (Some(p), Some(_)) => viewer.open(p)?,
+        (Some(p), None) => viewer.open_in_background(p.clone()),
+        _ => {}
     }
     if let Some(s) = screenshot {
         if target.is_none() {

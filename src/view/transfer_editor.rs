@@ -219,6 +219,16 @@ impl TfEditor {
             }
         }
         ui.horizontal(|ui| {
+            // Slicer's "Shift": drag to move the whole function along the value axis.
+            let lbl = ui.label("Shift all points");
+            let mut shift = 0.0;
+            if ui.add(egui::DragValue::new(&mut shift).speed((hi - lo) / 500.0)).labelled_by(lbl.id).changed() && shift != 0.0 {
+                tf.scalar_opacity.iter_mut().for_each(|p| p[0] += shift);
+                tf.color.iter_mut().for_each(|p| p[0] += shift);
+                changed = true;
+            }
+        });
+        ui.horizontal(|ui| {
             let lbl = ui.label("Opacity unit distance (mm)");
             changed |= ui
                 .add(egui::DragValue::new(&mut tf.scalar_opacity_unit_distance).speed(0.01).range(0.001..=1000.0))

@@ -48,7 +48,6 @@ struct Mailbox {
 pub struct RenderWorker {
     mailbox: Arc<(Mutex<Mailbox>, Condvar)>,
     done: Receiver<Done>,
-    thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl RenderWorker {
@@ -57,9 +56,11 @@ impl RenderWorker {
         let mailbox: Arc<(Mutex<Mailbox>, Condvar)> = Arc::default();
         let (tx, done) = channel();
         let mb = mailbox.clone();
-        let thread =
-            std::thread::Builder::new().name("volterra-render".into()).spawn(move || work(mb, tx, wake)).expect("spawn render thread");
-        RenderWorker { mailbox, done, thread: Some(thread) }
+        // Detached: renderers cannot be interrupted, so a render in progress when the
+        // viewer closes is left to finish on its own (its result goes nowhere) rather than
+        // holding up the window's closing.
+        std::thread::Builder::new().name("volterra-render".into()).spawn(move || work(mb, tx, wake)).expect("spawn render thread");
+        RenderWorker { mailbox, done }
     }
 
     /// Queues `job`, replacing any job not yet started.
@@ -101,11 +102,6 @@ impl Drop for RenderWorker {
         let (lock, cv) = &*self.mailbox;
         lock.lock().unwrap().quit = true;
         cv.notify_all();
-        // A render in progress finishes first; the UI is gone by then, so nobody waits on
-        // it but the process exit.
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
     }
 }
 
