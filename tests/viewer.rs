@@ -161,6 +161,33 @@ fn opening_a_data_file_frames_it_and_measures_the_error() {
     settle(&mut h);
     let m = mean_rgba(h.state().current_full_frame().unwrap());
     assert!(m[3] > 0.01, "the framed volume is visible: {m:?}");
+    // Ctrl+click on the volume: the slice cross-hair jumps to the surface there.
+    let frame = h.state().current_full_frame().unwrap().clone();
+    let rect = h.state().viewport_rect().unwrap();
+    let (px, depth) = (0..frame.depth.len())
+        .map(|i| (i, frame.depth[i]))
+        .filter(|(_, d)| d.is_finite())
+        .nth(frame.depth.iter().filter(|d| d.is_finite()).count() / 2)
+        .unwrap();
+    let (x, y) = (px % frame.width, px / frame.width);
+    let ray = h.state().camera().rays(frame.width, frame.height).ray(x as f64 + 0.5, y as f64 + 0.5);
+    let expected = ray.origin + ray.dir * depth as f64;
+    let pos = egui::Pos2::new(
+        rect.left() + (x as f32 + 0.5) * rect.width() / frame.width as f32,
+        rect.top() + (y as f32 + 0.5) * rect.height() / frame.height as f32,
+    );
+    let before = h.state().slice_cross().unwrap();
+    h.hover_at(pos);
+    h.run_steps(1);
+    for pressed in [true, false] {
+        h.event_modifiers(
+            egui::Event::PointerButton { pos, button: egui::PointerButton::Primary, pressed, modifiers: egui::Modifiers::COMMAND },
+            egui::Modifiers::COMMAND,
+        );
+        h.run_steps(1);
+    }
+    let cross = h.state().slice_cross().unwrap();
+    assert!(cross.distance(expected) < 1e-6, "cross-hair {cross} should jump to {expected} (was {before})");
     // Error against the reference renderer, at the viewer's view.
     h.get_by_label("Measure error").click();
     h.run_steps(1);

@@ -281,6 +281,16 @@ impl Viewer {
         self.last_full.as_ref().filter(|(v, _)| *v == self.version).map(|(_, f)| f)
     }
 
+    /// The cross-hair of the slice views (world RAS+ mm), once they are shown.
+    pub fn slice_cross(&self) -> Option<DVec3> {
+        self.slices.as_ref().map(|s| s.cross)
+    }
+
+    /// Where the 3-D view lies in the window (points).
+    pub fn viewport_rect(&self) -> Option<Rect> {
+        self.viewport_rect
+    }
+
     /// How many frames of quality `q` have been shown (tests of progressive rendering).
     pub fn frames_shown(&self, q: Quality) -> usize {
         self.frames_shown[q as usize]
@@ -550,6 +560,15 @@ impl Viewer {
                     navigate::axis_view(&mut self.camera, v);
                     self.bump(false);
                 }
+            }
+            let mut parallel = self.camera.parallel_projection;
+            if ui
+                .add_enabled(has_doc, egui::Checkbox::new(&mut parallel, "Parallel"))
+                .on_hover_text("Parallel projection (shear-warp draws only these)")
+                .changed()
+            {
+                navigate::set_parallel(&mut self.camera, parallel);
+                self.bump(false);
             }
             ui.separator();
             for (m, label) in [(NavMode::Orbit, "Orbit"), (NavMode::Fly, "Fly"), (NavMode::Walk, "Walk")] {
@@ -985,6 +1004,14 @@ impl Viewer {
     }
 
     fn navigate(&mut self, ui: &mut egui::Ui, resp: &egui::Response, rect: Rect) {
+        // Double-click (or Ctrl+click) on the volume: the slice views jump there (the depth where the
+        // accumulated opacity passed 0.5 along that pixel's ray, from the full frame).
+        let command = ui.input(|i| i.modifiers.command);
+        if resp.double_clicked() || (resp.clicked() && command) {
+            if let Some(pos) = resp.interact_pointer_pos() {
+                self.jump_slices_to(rect, pos);
+            }
+        }
         let mut moved = false;
         let d = resp.drag_delta();
         let (shift, scroll) = ui.input(|i| (i.modifiers.shift, i.smooth_scroll_delta.y));
@@ -1029,6 +1056,25 @@ impl Viewer {
         if moved {
             self.bump(true);
         }
+    }
+
+    /// Moves the slice views' cross-hair to the surface under window position `pos`.
+    fn jump_slices_to(&mut self, rect: Rect, pos: Pos2) {
+        let (Some(s), Some((v, f))) = (&mut self.slices, &self.last_full) else { return };
+        if *v != self.version {
+            return;
+        }
+        let x = ((pos.x - rect.left()) / rect.width() * f.width as f32).floor() as usize;
+        let y = ((pos.y - rect.top()) / rect.height() * f.height as f32).floor() as usize;
+        let Some(&depth) = f.depth.get(y.min(f.height - 1) * f.width + x.min(f.width - 1)) else { return };
+        if !depth.is_finite() {
+            self.message = Some("nothing opaque under the pointer".into());
+            return;
+        }
+        let ray = self.camera.rays(f.width, f.height).ray(x as f64 + 0.5, y as f64 + 0.5);
+        let (lo, hi) = s.source.bounds();
+        s.cross = (ray.origin + ray.dir * depth as f64).clamp(lo, hi);
+        s.dirty = true;
     }
 
     /// Walk mode: puts the eye `eye_height` above the ground under it (the focal point

@@ -55,6 +55,21 @@ pub fn zoom(cam: &mut Camera, factor: f64) {
     }
 }
 
+/// Switches between perspective and parallel projection keeping what is at the focal
+/// point the same size: parallel_scale = distance · tan(view_angle / 2).
+pub fn set_parallel(cam: &mut Camera, parallel: bool) {
+    let (eye, fp, _, _) = frame(cam);
+    let half = (0.5 * cam.view_angle.to_radians()).tan();
+    if parallel && !cam.parallel_projection {
+        cam.parallel_scale = (eye - fp).length() * half;
+    } else if !parallel && cam.parallel_projection {
+        // Move the eye so the focal plane shows the same height.
+        let dir = (eye - fp).normalize();
+        cam.position = (fp + dir * (cam.parallel_scale / half)).to_array();
+    }
+    cam.parallel_projection = parallel;
+}
+
 /// Turns the view about the eye (fly/walk mouse look): `yaw` degrees about world +z,
 /// `pitch` degrees about the right vector, kept within ±89° of the horizon.
 pub fn look(cam: &mut Camera, yaw: f64, pitch: f64) {
@@ -193,6 +208,16 @@ mod tests {
         travel(&mut c, 1.0, 0.0, 0.0, true);
         assert!((c.position[2]).abs() < 1e-12, "walking does not climb: {:?}", c.position);
         assert!((c.position[1] + 9.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn switching_projection_keeps_the_focal_plane_size() {
+        let mut c = cam(false);
+        set_parallel(&mut c, true);
+        assert!((c.parallel_scale - 10.0 * 15f64.to_radians().tan()).abs() < 1e-12);
+        c.parallel_scale = 4.0;
+        set_parallel(&mut c, false);
+        assert!((DVec3::from(c.position).length() * 15f64.to_radians().tan() - 4.0).abs() < 1e-9);
     }
 
     #[test]
