@@ -213,7 +213,13 @@ fn a_terrain_walk_keeps_the_eye_above_the_ground() {
     viewer.open(&dir.path().join("terrain_walk.toml")).unwrap();
     let mut h = harness(viewer);
     settle(&mut h);
-    assert_eq!(h.state().current_full_frame().unwrap().stats.renderer, "terrain");
+    let frame = h.state().current_full_frame().unwrap();
+    assert_eq!(frame.stats.renderer, "terrain");
+    // The step counts behind the heat-map overlay come with every terrain frame.
+    let steps = &frame.extra.iter().find(|(n, _)| n == "steps").expect("a steps channel").1;
+    assert!(steps.iter().any(|&s| s > 0.0));
+    h.get_by_label("Step-count heat map").click();
+    h.run_steps(1);
     let start = h.state().camera().position;
     // W walks forward while the pointer is over the 3-D view.
     h.hover_at(egui::Pos2::new(640.0, 300.0));

@@ -1017,11 +1017,13 @@ impl Viewer {
         let (shift, scroll) = ui.input(|i| (i.modifiers.shift, i.smooth_scroll_delta.y));
         let h = rect.height().max(1.0) as f64;
         let primary = resp.dragged_by(egui::PointerButton::Primary);
-        let pan_drag = resp.dragged_by(egui::PointerButton::Middle)
-            || resp.dragged_by(egui::PointerButton::Secondary)
-            || (primary && shift && self.mode == NavMode::Orbit);
+        // As ParaView and pyvista: left rotates, middle (or Shift+left) pans, right zooms.
+        let pan_drag = resp.dragged_by(egui::PointerButton::Middle) || (primary && shift && self.mode == NavMode::Orbit);
         if d != Vec2::ZERO {
-            if pan_drag {
+            if resp.dragged_by(egui::PointerButton::Secondary) {
+                navigate::zoom(&mut self.camera, (-2.0 * d.y as f64 / h).exp());
+                moved = true;
+            } else if pan_drag {
                 navigate::pan(&mut self.camera, d.x as f64 / h, d.y as f64 / h);
                 moved = true;
             } else if primary {
