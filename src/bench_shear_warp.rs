@@ -134,6 +134,14 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
             )?);
         }
     }
+    // More ratios for the overlapped map, so the speed-against-error curve is visible.
+    for ratio in [1.5, 1.75, 2.0, 3.0] {
+        rows.extend(time_config(
+            format!("shear-warp overlapped ×{ratio}"),
+            BlendMode::Composite,
+            shear_warp::Settings { supersampling: ratio, ..Default::default() },
+        )?);
+    }
     rows.extend(time_config("shear-warp overlapped auto".into(), BlendMode::Composite, Default::default())?);
     rows.extend(time_config(
         "shear-warp mip overlapped ×2.26".into(),

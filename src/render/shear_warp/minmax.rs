@@ -13,6 +13,8 @@
 //!
 //! Both depend only on the volume, never on the transfer function.
 
+use rayon::prelude::*;
+
 /// min and max quanta of a block.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MinMax {
@@ -98,6 +100,72 @@ impl OverlappedMap {
     }
 }
 
+impl OverlappedMap {
+    /// All x blocks of one (slab, row start, variant), indexed by bx.
+    #[inline]
+    pub fn row(&self, zs: usize, row_start: isize, variant: usize) -> &[MinMax] {
+        let ny = self.dims[1];
+        let start = ((zs * (ny + 1) + (row_start + 1) as usize) * 2 + variant) * self.nbx;
+        &self.entries[start..start + self.nbx]
+    }
+
+    /// The map's test under one transfer function, done for every block at once: one bit
+    /// per block, set where the block is transparent. Built when the transfer function
+    /// changes (about 3 ms at 256³ on 2 cores), it lets the compositing loop leap a whole
+    /// stretch of transparent blocks with one bit scan instead of one test per block.
+    pub fn clear_mask(&self, clear: impl Fn(MinMax) -> bool + Sync) -> ClearMask {
+        let words = self.nbx.div_ceil(64);
+        let rows = self.entries.len() / self.nbx;
+        let mut bits = vec![0u64; rows * words];
+        bits.par_chunks_mut(words).zip(self.entries.par_chunks(self.nbx)).for_each(|(out, blocks)| {
+            for (bx, &mm) in blocks.iter().enumerate() {
+                if clear(mm) {
+                    out[bx / 64] |= 1 << (bx % 64);
+                }
+            }
+        });
+        ClearMask { ny: self.dims[1], nbx: self.nbx, words, bits }
+    }
+}
+
+/// Transparent blocks of an overlapped map under one transfer function (bit set: clear).
+pub struct ClearMask {
+    ny: usize,
+    pub nbx: usize,
+    words: usize,
+    bits: Vec<u64>,
+}
+
+impl ClearMask {
+    /// The words of one (slab, row start, variant), laid out as `OverlappedMap::row`.
+    #[inline]
+    pub fn row(&self, zs: usize, row_start: isize, variant: usize) -> &[u64] {
+        let start = ((zs * (self.ny + 1) + (row_start + 1) as usize) * 2 + variant) * self.words;
+        &self.bits[start..start + self.words]
+    }
+}
+
+/// The first block at or after `bx` whose bit is clear in `row` (not transparent), or
+/// `nbx` when every block from `bx` on is transparent.
+#[inline]
+pub fn next_unclear(row: &[u64], bx: usize, nbx: usize) -> usize {
+    let mut w = bx / 64;
+    if w >= row.len() {
+        return nbx;
+    }
+    let mut open = !row[w] & (u64::MAX << (bx % 64));
+    loop {
+        if open != 0 {
+            return (w * 64 + open.trailing_zeros() as usize).min(nbx);
+        }
+        w += 1;
+        if w == row.len() {
+            return nbx;
+        }
+        open = !row[w];
+    }
+}
+
 /// Non-overlapping n×1×1 scanline blocks (the multi-scanline baseline).
 pub struct ScanlineMap {
     pub n: usize,
@@ -149,6 +217,17 @@ impl ScanlineMap {
 mod tests {
     use super::*;
 
+    #[test]
+    fn next_unclear_scans_words() {
+        let row = [u64::MAX, 0b1011, 0];
+        assert_eq!(next_unclear(&row, 0, 150), 66);
+        assert_eq!(next_unclear(&row, 66, 150), 66);
+        assert_eq!(next_unclear(&row, 67, 150), 68);
+        let full = [u64::MAX, u64::MAX];
+        assert_eq!(next_unclear(&full, 3, 100), 100);
+        assert_eq!(next_unclear(&[0b0111], 0, 3), 3); // bits past nbx do not count
+    }
+
     /// Every overlapped block equals a brute-force min/max over its voxels, and the
     /// scanline baseline gives the same answer for the same region.
     #[test]
@@ -164,6 +243,7 @@ mod tests {
         let n = 4;
         let map = OverlappedMap::new(&data, dims, n);
         let scan = ScanlineMap::new(&data, dims, n);
+        let mask = map.clear_mask(|mm| mm.min > mm.max || mm.max < 20000);
         for zs in 0..dims[2] - 1 {
             for start in -1..dims[1] as isize {
                 for variant in 0..2 {
@@ -180,6 +260,10 @@ mod tests {
                             }
                         }
                         assert_eq!(map.get(zs, start, variant, bx), want, "zs {zs} start {start} var {variant} bx {bx}");
+                        // The mask marks exactly the blocks the test calls clear.
+                        let test = |mm: MinMax| mm.min > mm.max || mm.max < 20000;
+                        let bit = mask.row(zs, start, variant)[bx / 64] >> (bx % 64) & 1 == 1;
+                        assert_eq!(bit, test(map.get(zs, start, variant, bx)));
                         let region = scan.region(x_lo, x_hi, start, start + 2, zs, zs + 1);
                         // The scanline blocks may cover a little more than the region.
                         assert!(region.min <= want.min && region.max >= want.max);

@@ -17,8 +17,8 @@ use crate::scene::{BlendMode, RayGenerator, TransferFunction};
 use anyhow::{bail, Result};
 use factor::Factorization;
 use glam::DMat4;
-use minmax::{OverlappedMap, ScanlineMap};
-use preint::PreintTable;
+use minmax::{next_unclear, ClearMask, OverlappedMap, ScanlineMap};
+use preint::{ClearQuanta, PreintTable};
 use rayon::prelude::*;
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -66,12 +66,28 @@ struct Axis {
     data: Vec<u16>,
     /// Min-max maps by block size n.
     overlapped: Mutex<HashMap<usize, Arc<OverlappedMap>>>,
+    /// The overlapped map's test under the last transfer function used, by block size:
+    /// (the test's key, the mask).
+    clear_masks: Mutex<HashMap<usize, (u64, Arc<ClearMask>)>>,
     scanline: Mutex<HashMap<usize, Arc<ScanlineMap>>>,
 }
 
 impl Axis {
     fn overlapped(&self, n: usize) -> Arc<OverlappedMap> {
         self.overlapped.lock().unwrap().entry(n).or_insert_with(|| Arc::new(OverlappedMap::new(&self.data, self.dims, n))).clone()
+    }
+    /// The transparent-block mask of the size-n overlapped map under `clear`; rebuilt only
+    /// when the test changes (a new transfer function), never for a new view.
+    fn clear_mask(&self, map: &OverlappedMap, clear: &ClearQuanta) -> Arc<ClearMask> {
+        let mut masks = self.clear_masks.lock().unwrap();
+        match masks.get(&map.n) {
+            Some((key, mask)) if *key == clear.key => mask.clone(),
+            _ => {
+                let mask = Arc::new(map.clear_mask(|mm| clear.clear(mm.min, mm.max)));
+                masks.insert(map.n, (clear.key, mask.clone()));
+                mask
+            }
+        }
     }
     fn scanline(&self, n: usize) -> Arc<ScanlineMap> {
         self.scanline.lock().unwrap().entry(n).or_insert_with(|| Arc::new(ScanlineMap::new(&self.data, self.dims, n))).clone()
@@ -123,7 +139,7 @@ impl Prepared {
                     }
                 }
             });
-            Axis { dims: pd, data, overlapped: Mutex::default(), scanline: Mutex::default() }
+            Axis { dims: pd, data, overlapped: Mutex::default(), clear_masks: Mutex::default(), scanline: Mutex::default() }
         })
     }
 }
@@ -207,6 +223,48 @@ impl RowState {
     }
 }
 
+/// One slice's place on the intermediate scanlines, the same for every row: Mapping
+/// (U = ratio·x + Tz) and the runs of pixels whose x falls in each min-max block. Built
+/// once per frame, so the compositing loop finds a pixel's block and the block's end with
+/// two lookups; computing them per run (a division by n, a ceil, u64↔f64 conversions) was
+/// over half the time on the aneurism at ratio 1.
+struct SliceRuns {
+    /// Inverse Mapping offset: x = U / ratio + iz.
+    iz: f64,
+    /// Pixels where x lies inside the slice (clipped to the view), if any.
+    span: Option<(usize, usize)>,
+    /// Block of each pixel of `span`, from its first pixel.
+    block: Vec<u32>,
+    /// block_end[bx]: the first pixel past block bx.
+    block_end: Vec<usize>,
+}
+
+impl SliceRuns {
+    fn new(fac: &Factorization, z: usize, x_range: (f64, f64), u_clip: (usize, usize), n: usize, nbx: usize) -> SliceRuns {
+        let iz = fac.umin + z as f64 * fac.sx;
+        let tz = -fac.ratio * iz;
+        let lo = (fac.ratio * x_range.0 + tz).ceil().max(u_clip.0 as f64);
+        let hi = (fac.ratio * x_range.1 + tz).floor().min(u_clip.1 as f64);
+        let span = (lo <= hi).then_some((lo as usize, hi as usize));
+        let inv_ratio = 1.0 / fac.ratio;
+        let block = match span {
+            Some((ua, ub)) => (ua..=ub).map(|u| ((u as f64 * inv_ratio + iz).max(0.0) as usize / n) as u32).collect(),
+            None => Vec::new(),
+        };
+        // Pixels whose x falls in block bx: U < ratio·(n·(bx+1) − iz).
+        let block_end = (0..nbx).map(|bx| ((((bx + 1) * n) as f64 - iz) * fac.ratio).ceil().max(0.0) as usize).collect();
+        SliceRuns { iz, span, block, block_end }
+    }
+
+    /// The block of pixel u (in `span`) and the end of its run, at most `limit`.
+    #[inline]
+    fn run(&self, u: usize, limit: usize) -> (usize, usize) {
+        let ua = self.span.map_or(0, |s| s.0);
+        let bx = self.block[u - ua] as usize;
+        (bx, self.block_end[bx].max(u + 1).min(limit))
+    }
+}
+
 /// Next live (not yet opaque) pixel at or after u, with path halving.
 #[inline]
 fn next_live(links: &mut [u32], mut u: usize) -> usize {
@@ -248,10 +306,12 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let mip = input.blend == BlendMode::Mip;
     let leaping = if mip && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
     let n = settings.block;
+    let clear = table.clear_quanta(q_to_level);
     // Built once per volume, axis and block size; reused across views and transfer functions.
     let over_map = (leaping == Leaping::Overlapped && nz > 1).then(|| axis.overlapped(n));
     let scan_map = (leaping == Leaping::MultiScanline && nz > 1).then(|| axis.scanline(n));
-    let (over_map, scan_map) = (over_map.as_deref(), scan_map.as_deref());
+    let clear_mask = over_map.as_ref().filter(|_| !mip).map(|m| axis.clear_mask(m, &clear));
+    let (over_map, scan_map, clear_mask) = (over_map.as_deref(), scan_map.as_deref(), clear_mask.as_deref());
 
     // View clipping: only intermediate pixels the final image can see.
     let (w, h) = rays.size();
@@ -278,6 +338,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let (y_lo, y_hi) = if ny == 1 { (-0.5, 0.5) } else { (0.0, (ny - 1) as f64) };
     let slice_at = |zi: usize| if fac.z_forward { zi } else { nz - 1 - zi };
     let progress = crate::progress::bar((v_clip_hi + 1 - v_clip_lo) as u64, "shear-warp");
+    let nbx = nx / n + 2;
+    let slice_runs: Vec<SliceRuns> =
+        (0..nz).into_par_iter().map(|z| SliceRuns::new(&fac, z, (x_lo, x_hi), (u_clip_lo, u_clip_hi), n, nbx)).collect();
 
     // Bands of intermediate rows, one task each; inside a band the slices come first
     // (object order), so the slice rows that neighbouring intermediate rows read are
@@ -291,14 +354,6 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r));
             let mut n_samples = 0u64;
             let mut n_leapt = 0u64;
-            // The pixel range where x lies inside the slice, at slice z (Mapping through the
-            // per-slice offset: U = ratio·x + Tz[z]).
-            let u_range = |z: usize| -> Option<(usize, usize)> {
-                let tz = -fac.ratio * (fac.umin + z as f64 * fac.sx);
-                let lo = (fac.ratio * x_lo + tz).ceil().max(u_clip_lo as f64);
-                let hi = (fac.ratio * x_hi + tz).floor().min(u_clip_hi as f64);
-                (lo <= hi).then_some((lo as usize, hi as usize))
-            };
             // Inverse Mapping: x = U / ratio + Iz[z], one lookup (U/ratio) and one add.
             let x_of = |u: usize, iz: f64| u as f64 * inv_ratio + iz;
             let y_at = |vf: f64, z: usize| vf * inv_ratio + fac.vmin + z as f64 * fac.sy;
@@ -313,8 +368,8 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     continue;
                 }
                 let (y0, y1, wy) = rows(y, ny);
-                if let Some((ua, ub)) = u_range(0) {
-                    let iz = fac.umin;
+                if let Some((ua, ub)) = slice_runs[0].span {
+                    let iz = slice_runs[0].iz;
                     let slice = SliceRows::new(axis, 0, y0, y1, wy);
                     for u in ua..=ub {
                         let s = slice.at(x_of(u, iz)) * q_to_level;
@@ -342,18 +397,16 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     if nz == 1 || y < y_lo || y > y_hi {
                         continue;
                     }
-                    let Some((ua, ub)) = u_range(z) else { continue };
+                    let runs = &slice_runs[z];
+                    let Some((ua, ub)) = runs.span else { continue };
                     let (y0, y1, wy) = rows(y, ny);
-                    let iz = fac.umin + z as f64 * fac.sx;
+                    let iz = runs.iz;
                     let back_slice = SliceRows::new(axis, z, y0, y1, wy);
                     if mip {
                         // Sample every slice; skip runs whose block cannot raise any pixel's max.
                         let mut u = ua;
                         while u <= ub {
-                            let x = x_of(u, iz);
-                            let bx = ((x.max(0.0)) as usize) / n;
-                            let run_end = (((bx + 1) * n) as f64 * fac.ratio - fac.ratio * iz).ceil().max(u as f64 + 1.0) as usize;
-                            let run_end = run_end.min(ub + 1);
+                            let (bx, run_end) = runs.run(u, ub + 1);
                             if let Some(map) = over_map {
                                 let zs = if z + 1 < nz { z } else { z - 1 };
                                 let mm = map.get(zs, y0 as isize, 0, bx);
@@ -391,28 +444,39 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     });
                     let variant = usize::from(dxo < 0.0);
                     let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
+                    let mask_row = clear_mask.map(|m| m.row(zs, row_start, variant));
+                    let block_clear = |bx: usize| match leaping {
+                        Leaping::None => false,
+                        Leaping::Overlapped => mask_row.unwrap()[bx / 64] >> (bx % 64) & 1 == 1,
+                        Leaping::MultiScanline => {
+                            let xl = (n * bx) as isize - variant as isize;
+                            let mm = scan_map.unwrap().region(xl, xl + n as isize + 1, row_start, row_start + 2, zs, zs + 1);
+                            clear.clear(mm.min, mm.max)
+                        }
+                    };
                     let mut u = next_live(links, ua);
                     while u <= ub {
-                        let x = x_of(u, iz);
-                        let bx = (x.max(0.0) as usize) / n;
-                        // Pixels whose x falls in block bx: U < ratio·(n·(bx+1)) + Tz.
-                        let run_end = ((((bx + 1) * n) as f64 - iz) * fac.ratio).ceil().max(u as f64 + 1.0) as usize;
-                        let run_end = run_end.min(ub + 1);
-                        let empty = match leaping {
-                            Leaping::None => false,
-                            Leaping::Overlapped => {
-                                let mm = over_map.unwrap().get(zs, row_start, variant, bx);
-                                mm.min > mm.max || table.transparent(mm.min as f32 * q_to_level, mm.max as f32 * q_to_level)
-                            }
-                            Leaping::MultiScanline => {
-                                let xl = (n * bx) as isize - variant as isize;
-                                let mm = scan_map.unwrap().region(xl, xl + n as isize + 1, row_start, row_start + 2, zs, zs + 1);
-                                mm.min > mm.max || table.transparent(mm.min as f32 * q_to_level, mm.max as f32 * q_to_level)
-                            }
-                        };
-                        if empty {
-                            n_leapt += 1;
-                            u = next_live(links, run_end.min(iw));
+                        let (bx, run_end) = runs.run(u, ub + 1);
+                        if block_clear(bx) {
+                            // Leap this block and the transparent blocks after it (one bit
+                            // scan with the overlapped map's mask, one test per block for
+                            // the multi-scanline baseline), then find the next live pixel.
+                            let (b, end) = match mask_row {
+                                Some(mask_row) => {
+                                    let b = next_unclear(mask_row, bx + 1, nbx);
+                                    (b, if b < nbx { runs.block_end[b - 1].max(run_end) } else { usize::MAX })
+                                }
+                                None => {
+                                    let (mut b, mut end) = (bx + 1, run_end);
+                                    while end <= ub && b < nbx && block_clear(b) {
+                                        end = runs.block_end[b];
+                                        b += 1;
+                                    }
+                                    (b, end)
+                                }
+                            };
+                            n_leapt += (b - bx) as u64;
+                            u = if end > ub { ub + 1 } else { next_live(links, end) };
                             continue;
                         }
                         let mut uu = u;
@@ -502,6 +566,18 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     Ok(frame)
 }
 
+/// ⌊v⌋ without a libm call (x86-64 without SSE4.1 has no rounding instruction; the calls
+/// were a quarter of the warp's time).
+#[inline]
+fn floor_i64(v: f64) -> i64 {
+    let t = v as i64;
+    if (t as f64) > v {
+        t - 1
+    } else {
+        t
+    }
+}
+
 /// The 2-D warp: each final pixel samples the intermediate image bilinearly (premultiplied
 /// colour and opacity; depth from the finite neighbours).
 fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Frame {
@@ -511,16 +587,20 @@ fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Frame 
     f.rgba.par_chunks_mut(w).zip(f.depth.par_chunks_mut(w)).enumerate().for_each(|(y, (row, depth))| {
         for x in 0..w {
             let (u, v) = fac.to_intermediate(x as f64 + 0.5, y as f64 + 0.5);
-            if u < -1.0 || v < -1.0 || u > iw as f64 || v > ih as f64 {
+            if !(u >= -1.0 && v >= -1.0 && u <= iw as f64 && v <= ih as f64) {
                 continue;
             }
-            let (u0, v0) = (u.floor(), v.floor());
-            let (tu, tv) = ((u - u0) as f32, (v - v0) as f32);
+            let (u0, v0) = (floor_i64(u), floor_i64(v));
+            let (tu, tv) = ((u - u0 as f64) as f32, (v - v0 as f64) as f32);
+            let weights = [(0, 0, (1.0 - tu) * (1.0 - tv)), (1, 0, tu * (1.0 - tv)), (0, 1, (1.0 - tu) * tv), (1, 1, tu * tv)];
+            let inside = u0 >= 0 && v0 >= 0 && u0 + 1 < iw as i64 && v0 + 1 < ih as i64;
             let mut acc = [0f32; 4];
             let (mut zsum, mut zw) = (0f32, 0f32);
-            for (du, dv, wgt) in [(0, 0, (1.0 - tu) * (1.0 - tv)), (1, 0, tu * (1.0 - tv)), (0, 1, (1.0 - tu) * tv), (1, 1, tu * tv)] {
-                let (pu, pv) = (u0 as i64 + du, v0 as i64 + dv);
-                if pu < 0 || pv < 0 || pu >= iw as i64 || pv >= ih as i64 || wgt == 0.0 {
+            for (du, dv, wgt) in weights {
+                let (pu, pv) = (u0 + du, v0 + dv);
+                // Inside the image the bounds tests are known to pass; a zero weight adds
+                // exactly nothing, so skipping it is only needed at the edges.
+                if !inside && (pu < 0 || pv < 0 || pu >= iw as i64 || pv >= ih as i64 || wgt == 0.0) {
                     continue;
                 }
                 let i = pv as usize * iw + pu as usize;
@@ -528,8 +608,9 @@ fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Frame 
                 for k in 0..4 {
                     acc[k] += wgt * p[k];
                 }
-                if inter.depth[i].is_finite() {
-                    zsum += wgt * inter.depth[i];
+                let d = inter.depth[i];
+                if d.is_finite() {
+                    zsum += wgt * d;
                     zw += wgt;
                 }
             }

@@ -17,6 +17,7 @@
 //!   a steep ramp spans several levels and the bilinear lookup shows no banding.
 
 use crate::scene::TransferFunction;
+use rayon::prelude::*;
 
 /// Premultiplied colour and opacity of a segment.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -39,8 +40,9 @@ pub struct PreintTable {
     pub hi: f64,
     /// `entries[front * n + back]`.
     entries: Vec<Rgba>,
-    /// prefix[j] = Σ opacity of levels < j (for empty-space tests, level resolution).
-    opacity_prefix: Vec<f64>,
+    /// next_opaque[j] = the lowest level ≥ j with non-zero opacity (n if none): the
+    /// empty-space test at level resolution.
+    next_opaque: Vec<usize>,
     /// Segments whose front and back both lie below this level are empty (every table entry
     /// they interpolate has zero opacity): the compositing loop skips their lookup.
     pub clear_below: f32,
@@ -119,62 +121,77 @@ impl PreintTable {
             entries[a * n + a] = Rgba { c: col[a].map(|c| (c * alpha) as f32), a: alpha as f32 };
         }
         let levels = usize::BITS as usize - (m.max(1)).leading_zeros() as usize;
-        let mut fwd: Vec<Vec<Rgba>> = vec![vec![Rgba::default(); m]; levels];
-        let mut bwd: Vec<Vec<Rgba>> = vec![vec![Rgba::default(); m]; levels];
-        for d in 1..n {
-            let l = length / d as f64;
-            for j in 0..m {
-                let alpha = 1.0 - (-l * itau[j]).exp();
-                let s = Rgba { c: icol[j].map(|c| (c * alpha) as f32), a: alpha as f32 };
-                fwd[0][j] = s;
-                bwd[0][j] = s;
-            }
-            // fwd[p][j]: intervals j .. j+2^p−1 front to back; bwd[p][j]: the same
-            // intervals from the highest down.
-            let top = usize::BITS as usize - d.leading_zeros() as usize; // levels needed
-            for p in 1..top {
-                let half = 1 << (p - 1);
-                let (lo_f, hi_f) = fwd.split_at_mut(p);
-                let (lo_b, hi_b) = bwd.split_at_mut(p);
-                for j in 0..m.saturating_sub((1 << p) - 1) {
-                    hi_f[0][j] = over(lo_f[p - 1][j], lo_f[p - 1][j + half]);
-                    hi_b[0][j] = over(lo_b[p - 1][j + half], lo_b[p - 1][j]);
-                }
-            }
+        // Each difference d = |back − front| is independent: built in parallel (one
+        // scratch pair of sparse tables per worker), then scattered into the table.
+        let by_distance: Vec<(Vec<Rgba>, Vec<Rgba>)> = (1..n)
+            .into_par_iter()
+            .map_init(
+                || (vec![vec![Rgba::default(); m]; levels], vec![vec![Rgba::default(); m]; levels]),
+                |(fwd, bwd), d| {
+                    let l = length / d as f64;
+                    for j in 0..m {
+                        let alpha = 1.0 - (-l * itau[j]).exp();
+                        let s = Rgba { c: icol[j].map(|c| (c * alpha) as f32), a: alpha as f32 };
+                        fwd[0][j] = s;
+                        bwd[0][j] = s;
+                    }
+                    // fwd[p][j]: intervals j .. j+2^p−1 front to back; bwd[p][j]: the same
+                    // intervals from the highest down.
+                    let top = usize::BITS as usize - d.leading_zeros() as usize; // levels needed
+                    for p in 1..top {
+                        let half = 1 << (p - 1);
+                        let (lo_f, hi_f) = fwd.split_at_mut(p);
+                        let (lo_b, hi_b) = bwd.split_at_mut(p);
+                        for j in 0..m.saturating_sub((1 << p) - 1) {
+                            hi_f[0][j] = over(lo_f[p - 1][j], lo_f[p - 1][j + half]);
+                            hi_b[0][j] = over(lo_b[p - 1][j + half], lo_b[p - 1][j]);
+                        }
+                    }
+                    let mut rising = Vec::with_capacity(n - d);
+                    let mut falling = Vec::with_capacity(n - d);
+                    for a in 0..n - d {
+                        let b = a + d;
+                        // Rising segment a → b: intervals a .. b−1 in increasing order.
+                        let mut acc = Rgba::default();
+                        let mut j = a;
+                        for p in (0..top).rev() {
+                            if d & (1 << p) != 0 {
+                                acc = over(acc, fwd[p][j]);
+                                j += 1 << p;
+                            }
+                        }
+                        rising.push(acc);
+                        // Falling segment b → a: intervals b−1 down to a.
+                        let mut acc = Rgba::default();
+                        let mut hi_end = b; // exclusive upper end of the not-yet-composited part
+                        for p in (0..top).rev() {
+                            if d & (1 << p) != 0 {
+                                let start = hi_end - (1 << p);
+                                acc = over(acc, bwd[p][start]);
+                                hi_end = start;
+                            }
+                        }
+                        falling.push(acc);
+                    }
+                    (rising, falling)
+                },
+            )
+            .collect();
+        for (d, (rising, falling)) in (1..n).zip(by_distance) {
             for a in 0..n - d {
-                let b = a + d;
-                // Rising segment a → b: intervals a .. b−1 in increasing order.
-                let mut acc = Rgba::default();
-                let mut j = a;
-                for p in (0..top).rev() {
-                    if d & (1 << p) != 0 {
-                        acc = over(acc, fwd[p][j]);
-                        j += 1 << p;
-                    }
-                }
-                entries[a * n + b] = acc;
-                // Falling segment b → a: intervals b−1 down to a.
-                let mut acc = Rgba::default();
-                let mut hi_end = b; // exclusive upper end of the not-yet-composited part
-                for p in (0..top).rev() {
-                    if d & (1 << p) != 0 {
-                        let start = hi_end - (1 << p);
-                        acc = over(acc, bwd[p][start]);
-                        hi_end = start;
-                    }
-                }
-                entries[b * n + a] = acc;
+                entries[a * n + a + d] = rising[a];
+                entries[(a + d) * n + a] = falling[a];
             }
         }
-        let mut opacity_prefix = vec![0.0; n + 1];
-        for j in 0..n {
-            opacity_prefix[j + 1] = opacity_prefix[j] + tau[j];
+        let mut next_opaque = vec![n; n + 1];
+        for j in (0..n).rev() {
+            next_opaque[j] = if tau[j] > 0.0 { j } else { next_opaque[j + 1] };
         }
         // The lowest max(front, back) index of an entry with opacity: entries below it on
         // both axes are empty, and a lookup reads indices up to ⌊level⌋ + 1.
         let first_opaque = (0..n * n).filter(|&i| entries[i].a > 0.0).map(|i| (i / n).max(i % n)).min().unwrap_or(n);
         let clear_below = first_opaque as f32 - 1.0;
-        PreintTable { n, lo, hi, entries, opacity_prefix, clear_below }
+        PreintTable { n, lo, hi, entries, next_opaque, clear_below }
     }
 
     /// Table level (fractional) of a real-world value.
@@ -188,31 +205,83 @@ impl PreintTable {
         self.entries[front * self.n + back]
     }
 
-    /// Bilinear lookup at fractional levels.
-    #[inline]
+    /// Bilinear lookup at fractional levels. Written out over four lanes and always
+    /// inlined: as a call with closures it was a tenth of the compositing time.
+    #[inline(always)]
     pub fn lookup(&self, front: f32, back: f32) -> Rgba {
         let n = self.n;
         let f0 = (front as usize).min(n - 2);
         let b0 = (back as usize).min(n - 2);
         let (tf, tb) = (front - f0 as f32, back - b0 as f32);
         let e = &self.entries;
-        let (p00, p01, p10, p11) = (e[f0 * n + b0], e[f0 * n + b0 + 1], e[(f0 + 1) * n + b0], e[(f0 + 1) * n + b0 + 1]);
-        let mix = |x00: f32, x01: f32, x10: f32, x11: f32| {
-            let a = x00 + tb * (x01 - x00);
-            let b = x10 + tb * (x11 - x10);
-            a + tf * (b - a)
-        };
-        Rgba { c: [0, 1, 2].map(|k| mix(p00.c[k], p01.c[k], p10.c[k], p11.c[k])), a: mix(p00.a, p01.a, p10.a, p11.a) }
+        let lanes = |r: Rgba| [r.c[0], r.c[1], r.c[2], r.a];
+        let (p00, p01) = (lanes(e[f0 * n + b0]), lanes(e[f0 * n + b0 + 1]));
+        let (p10, p11) = (lanes(e[(f0 + 1) * n + b0]), lanes(e[(f0 + 1) * n + b0 + 1]));
+        let mut out = [0f32; 4];
+        for k in 0..4 {
+            let a = p00[k] + tb * (p01[k] - p00[k]);
+            let b = p10[k] + tb * (p11[k] - p10[k]);
+            out[k] = a + tf * (b - a);
+        }
+        Rgba { c: [out[0], out[1], out[2]], a: out[3] }
     }
 
     /// True when every value between levels `lo` and `hi` (fractional, inclusive) has
-    /// zero opacity: any segment within that range is empty. A summed table of the
-    /// opacity transfer function makes this one subtraction.
+    /// zero opacity: any segment within that range is empty.
     #[inline]
     pub fn transparent(&self, lo: f32, hi: f32) -> bool {
         let a = (lo.floor() as usize).min(self.n - 1);
         let b = (hi.ceil() as usize).min(self.n - 1);
-        self.opacity_prefix[b + 1] - self.opacity_prefix[a] == 0.0
+        b < self.next_opaque[a]
+    }
+
+    /// The empty-space test in quanta, for the leaping loop: one lookup per block instead
+    /// of two float conversions, a floor and a ceil (measured: those were a fifth of the
+    /// compositing time on the aneurism at ratio 1). Same answers as `transparent` on the
+    /// levels `q · q_to_level`.
+    pub fn clear_quanta(&self, q_to_level: f32) -> ClearQuanta {
+        let n = self.n;
+        let floor_level = |q: usize| ((q as f32 * q_to_level) as usize).min(n - 1);
+        let ceil_level = |q: usize| {
+            // ⌈l⌉ for l ≥ 0 without a libm call.
+            let l = q as f32 * q_to_level;
+            let t = l as usize;
+            (if (t as f32) < l { t + 1 } else { t }).min(n - 1)
+        };
+        // The ceiling level grows with q, and so does the limit below: one sweep.
+        let mut max_clear = vec![-1i32; 65536];
+        let mut q_hi = 0usize; // first quantum whose ceiling level reaches the limit
+        for (q_min, slot) in max_clear.iter_mut().enumerate() {
+            let limit = self.next_opaque[floor_level(q_min)];
+            while q_hi < 65536 && ceil_level(q_hi) < limit {
+                q_hi += 1;
+            }
+            *slot = q_hi as i32 - 1;
+        }
+        let key = {
+            use std::hash::{Hash, Hasher};
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            max_clear.hash(&mut h);
+            h.finish()
+        };
+        ClearQuanta { max_clear, key }
+    }
+}
+
+/// For each minimum quantum, the largest maximum quantum whose range is fully transparent
+/// (−1: none).
+pub struct ClearQuanta {
+    max_clear: Vec<i32>,
+    /// A hash of the whole test: equal keys, equal answers (caches of the test's results
+    /// are keyed by it).
+    pub key: u64,
+}
+
+impl ClearQuanta {
+    /// Every value in quanta [min, max] has zero opacity (an empty block, min > max, too).
+    #[inline]
+    pub fn clear(&self, min: u16, max: u16) -> bool {
+        min > max || max as i32 <= self.max_clear[min as usize]
     }
 }
 
@@ -290,5 +359,27 @@ mod tests {
         assert!((e.c[0] - 0.5).abs() < 0.02, "{:?}", e);
         assert!(p.transparent(0.0, (p.n / 2 - 2) as f32));
         assert!(!p.transparent(0.0, (p.n / 2 + 2) as f32));
+    }
+
+    /// The quanta test used by the leaping loop answers exactly as the level test, for
+    /// ranges on both sides of and across opacity steps.
+    #[test]
+    fn clear_quanta_agrees_with_the_level_test() {
+        let t = tf(vec![[0.0, 0.0], [30.0, 0.0], [31.0, 0.4], [60.0, 0.0], [80.0, 0.0], [80.5, 0.9], [100.0, 0.9]], 1.0);
+        let p = PreintTable::new(&t, 0.0, 100.0, 256, 1.0);
+        let q_to_level = 255.0 / 65535.0;
+        let clear = p.clear_quanta(q_to_level);
+        let mut s = 99u64;
+        let mut seen = [0usize; 2];
+        for _ in 0..200_000 {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let a = (s >> 48) as u16;
+            let b = a.saturating_add((s >> 20) as u16 % 9000);
+            let want = p.transparent(a as f32 * q_to_level, b as f32 * q_to_level);
+            assert_eq!(clear.clear(a, b), want, "[{a}, {b}]");
+            seen[want as usize] += 1;
+        }
+        assert!(seen[0] > 1000 && seen[1] > 1000, "both answers exercised: {seen:?}");
+        assert!(clear.clear(65535, 0), "an empty block is clear");
     }
 }
