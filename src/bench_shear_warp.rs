@@ -124,25 +124,29 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         Ok(Some(row))
     };
+    // The paper's renderer (one sample per slab) with each leaping mode at its ratios.
     for leaping in [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped] {
         for ratio in [1.0, 1.13, 2.26] {
-            let name = format!("shear-warp {} ×{ratio}", leaping_name(leaping));
+            let name = format!("shear-warp {} ×{ratio} 1/slab", leaping_name(leaping));
             rows.extend(time_config(
                 name,
                 BlendMode::Composite,
-                shear_warp::Settings { leaping, supersampling: ratio, ..Default::default() },
+                shear_warp::Settings { leaping, supersampling: ratio, slab_samples: 1, ..Default::default() },
             )?);
         }
     }
-    // More ratios for the overlapped map, so the speed-against-error curve is visible.
-    for ratio in [1.5, 1.75, 2.0, 3.0] {
-        rows.extend(time_config(
-            format!("shear-warp overlapped ×{ratio}"),
-            BlendMode::Composite,
-            shear_warp::Settings { supersampling: ratio, ..Default::default() },
-        )?);
+    // More ratios, and two samples per slab (the default), so the speed-against-error
+    // curves are visible.
+    for (per_slab, ratios) in [(1, &[1.5, 1.75, 2.0, 3.0][..]), (2, &[1.0, 1.5, 2.0, 2.26, 3.0][..])] {
+        for &ratio in ratios {
+            rows.extend(time_config(
+                format!("shear-warp overlapped ×{ratio} {per_slab}/slab"),
+                BlendMode::Composite,
+                shear_warp::Settings { supersampling: ratio, slab_samples: per_slab, ..Default::default() },
+            )?);
+        }
     }
-    rows.extend(time_config("shear-warp overlapped auto".into(), BlendMode::Composite, Default::default())?);
+    rows.extend(time_config("shear-warp overlapped auto (default)".into(), BlendMode::Composite, Default::default())?);
     rows.extend(time_config(
         "shear-warp mip overlapped ×2.26".into(),
         BlendMode::Mip,

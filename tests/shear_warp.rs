@@ -182,8 +182,12 @@ fn hard_cases_stay_close_to_the_reference() {
     // A volume one slice thick, seen face-on and obliquely.
     let d: Vec<u8> = (0..16 * 12).map(|i| (i * 7 % 256) as u8).collect();
     let v = volume([16, 12, 1], [1.0; 3], VoxelData::U8(d), Rescale::IDENTITY);
+    // Every voxel differs from its neighbours: at the auto ratio (one intermediate pixel
+    // per final pixel, here 2.2 per voxel) the two resamplings blur it by 6–7 %; at ratio
+    // 4 the one-slice path itself is what is measured.
+    let fine = shear_warp::Settings { supersampling: 4.0, ..Default::default() };
     for dir in [[0.0, 0.0, 1.0], [0.2, 0.1, 1.0]] {
-        let (sw, rf) = render_both(&v, &tf, &camera(dir, 9.0), 40, BlendMode::Composite, &Default::default());
+        let (sw, rf) = render_both(&v, &tf, &camera(dir, 9.0), 40, BlendMode::Composite, &fine);
         // The bilinear warp softens the slab's hard outline by half an intermediate pixel:
         // compare the interior closely, the outline loosely.
         let (interior, count) = interior_rel_rmse(&sw, &rf, 40);
@@ -234,4 +238,35 @@ fn perspective_views_are_refused_with_the_reason() {
     .unwrap_err()
     .to_string();
     assert!(err.contains("parallel projections only") && err.contains("perspective"), "{err}");
+}
+
+/// Thin vessels seen obliquely: between two slices the ray crosses voxel boundaries, and
+/// the trilinear field along it is not the straight line through the two slice samples.
+/// Two samples per slab must remove most of the one-sample error (measured: 7.7 % → 2.1 %);
+/// three or four leave the rest, which is the in-plane resampling, where it is.
+#[test]
+fn samples_between_slices_recover_thin_oblique_vessels() {
+    let n = 40;
+    let (a, b) = (glam::DVec3::new(4.0, 6.0, 5.0), glam::DVec3::new(35.0, 31.0, 22.0));
+    let axis = (b - a).normalize();
+    let mut d = vec![0u8; n * n * n];
+    for (i, v) in d.iter_mut().enumerate() {
+        let p = glam::DVec3::new((i % n) as f64, ((i / n) % n) as f64, (i / (n * n)) as f64);
+        let t = (p - a).dot(axis).clamp(0.0, (b - a).length());
+        let r = (p - (a + axis * t)).length();
+        *v = (255.0 * (1.0 - r / 1.1).max(0.0)) as u8; // about two voxels across, peaked
+    }
+    let v = volume([n; 3], [1.0; 3], VoxelData::U8(d), Rescale::IDENTITY);
+    let tf = tf_ramp(30.0, 255.0, 0.8);
+    let cam = camera([0.55, 0.8, 0.35], 24.0);
+    let errors: Vec<f64> = (1..=4)
+        .map(|k| {
+            let s = shear_warp::Settings { supersampling: 4.0, slab_samples: k, ..Default::default() };
+            let (sw, rf) = render_both(&v, &tf, &cam, 96, BlendMode::Composite, &s);
+            rel_rmse(&sw, &rf)
+        })
+        .collect();
+    eprintln!("relative RMSE by samples per slab 1..4: {errors:?}");
+    assert!(errors[1] < 0.4 * errors[0], "two samples per slab: {errors:?}");
+    assert!(errors[2] < 1.1 * errors[1] && errors[3] < 1.1 * errors[1], "{errors:?}");
 }

@@ -738,6 +738,15 @@ impl Viewer {
                     });
                 }
             });
+            let mut per_slab = n.settings.get("slab_samples").and_then(|v| v.as_integer()).unwrap_or(2);
+            ui.horizontal(|ui| {
+                let lbl = ui.label("Samples per slab");
+                if ui.add(egui::Slider::new(&mut per_slab, 1..=4)).labelled_by(lbl.id).changed() {
+                    self.edit(false, |f| {
+                        f.nodes[i].settings.insert("slab_samples".into(), toml::Value::Integer(per_slab));
+                    });
+                }
+            });
             let leaping = n.settings.get("leaping").and_then(|v| v.as_str()).unwrap_or("overlapped").to_string();
             let mut pick = None;
             egui::ComboBox::from_label("Empty-space leaping").selected_text(&leaping).show_ui(ui, |ui| {

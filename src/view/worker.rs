@@ -148,7 +148,8 @@ fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn
 }
 
 /// The scene with cheaper settings for previews: one camera ray per pixel for smoke, no
-/// supersampling for shear-warp, a 0.25-voxel step for the reference ray caster. Only
+/// supersampling and one sample per slab for shear-warp, a 0.25-voxel step for the
+/// reference ray caster. Only
 /// keys the user did not make cheaper already are touched.
 fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
     let number = |s: &toml::Table, key: &str, default: f64| {
@@ -162,8 +163,11 @@ fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
                 s.insert("samples".into(), toml::Value::Integer(1));
             }
             // 0 is "auto", which can pick up to 4 intermediate pixels per voxel.
-            Some("shear-warp") if !(number(s, "supersampling", 0.0) > 0.0 && number(s, "supersampling", 0.0) <= 1.0) => {
-                s.insert("supersampling".into(), toml::Value::Float(1.0));
+            Some("shear-warp") => {
+                if !(number(s, "supersampling", 0.0) > 0.0 && number(s, "supersampling", 0.0) <= 1.0) {
+                    s.insert("supersampling".into(), toml::Value::Float(1.0));
+                }
+                s.insert("slab_samples".into(), toml::Value::Integer(1));
             }
             Some("reference") if number(s, "step", 0.05) < 0.25 => {
                 s.insert("step".into(), toml::Value::Float(0.25));

@@ -50,11 +50,21 @@ pub struct Settings {
     pub termination: f64,
     /// Pre-integration table levels; 0 chooses from the transfer function (256..1024).
     pub table_levels: usize,
+    /// Samples per slab along the ray (1..=4, default 2): 1 is the paper's shear-warp
+    /// (one sample per slice, the scalar taken as linear in between); k > 1 adds
+    /// trilinear samples at k − 1 evenly spaced points between the slices and
+    /// pre-integrates k shorter segments. Between slices the trilinear field along an
+    /// oblique ray has kinks at every voxel boundary it crosses, and the straight line
+    /// through the slice samples cuts below thin bright structures: on the aneurism at
+    /// 512² (view 0) the image is 1–3 % too faint with k = 1, and the relative RMSE
+    /// from the reference stops at 3.9 % however high the ratio; k = 2 gives 2.4 % at
+    /// ratio 2 and 1.3 % at ratio 4, k = 4 0.7 % at ratio 4.
+    pub slab_samples: usize,
 }
 
 impl Default for Settings {
     fn default() -> Self {
-        Settings { supersampling: 0.0, leaping: Leaping::Overlapped, block: 8, termination: 0.995, table_levels: 0 }
+        Settings { supersampling: 0.0, leaping: Leaping::Overlapped, block: 8, termination: 0.995, table_levels: 0, slab_samples: 2 }
     }
 }
 
@@ -176,7 +186,7 @@ impl<'a> SliceRows<'a> {
         SliceRows { r0: &axis.data[base + y0 * nx..base + (y0 + 1) * nx], r1: &axis.data[base + y1 * nx..base + (y1 + 1) * nx], wy }
     }
 
-    #[inline]
+    #[inline(always)]
     fn at(&self, x: f64) -> f32 {
         let nx = self.r0.len();
         let xc = x.clamp(0.0, (nx - 1) as f64);
@@ -276,12 +286,139 @@ fn next_live(links: &mut [u32], mut u: usize) -> usize {
     u
 }
 
+const MAX_SLAB_SAMPLES: usize = 4;
+
+/// One slab (the front slice zp to the back slice z) of one intermediate row: what
+/// compositing its runs needs.
+struct Slab<'a> {
+    back: SliceRows<'a>,
+    /// None where the rays enter the volume between the slices.
+    front: Option<SliceRows<'a>>,
+    axis: &'a Axis,
+    /// The back sample's row, and the front sample's relative to it.
+    y: f64,
+    dyo: f64,
+    iz: f64,
+    inv_ratio: f64,
+    /// x of the front slice's sample relative to the back slice's.
+    dxo: f64,
+    x_range: (f64, f64),
+    /// Compositing-order index of the back slice.
+    zi: u32,
+    z: usize,
+    zp: usize,
+    /// The intermediate row.
+    vf: f64,
+    table: &'a PreintTable,
+    q_to_level: f32,
+    termination: f32,
+    fac: &'a Factorization,
+}
+
+impl Slab<'_> {
+    /// Composites the live pixels of u..run_end through K segments per slab and returns
+    /// the next live pixel at or after run_end. Generic over K so that the paper's one
+    /// segment per slab compiles without the loop over samples between the slices (a
+    /// runtime count cost it a fifth of its speed).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
+    fn composite_run<const K: usize>(
+        &self,
+        links: &mut [u32],
+        prev: &mut [f32],
+        stamp: &mut [u32],
+        row: &mut [[f32; 4]],
+        depth: &mut [f32],
+        u: usize,
+        run_end: usize,
+        n_samples: &mut u64,
+    ) -> usize {
+        let (table, q) = (self.table, self.q_to_level);
+        // Slices zp and z at the rows of the K − 1 samples between them: point j lies at
+        // fraction j/K from the front slice to the back one, where the trilinear value is
+        // the mix of both slices at that point's (x, y). Looked up once per run.
+        let between: Option<[(SliceRows, SliceRows); MAX_SLAB_SAMPLES - 1]> = (K > 1).then(|| {
+            std::array::from_fn(|i| {
+                let j = (i + 1).min(K.max(2) - 1);
+                let yj = self.y + self.dyo * (1.0 - j as f64 / K as f64);
+                let (r0, r1, rw) = rows(yj, self.axis.dims[1]);
+                (SliceRows::new(self.axis, self.zp, r0, r1, rw), SliceRows::new(self.axis, self.z, r0, r1, rw))
+            })
+        });
+        let mut uu = u;
+        while uu < run_end {
+            let xb = uu as f64 * self.inv_ratio + self.iz;
+            let back = self.back.at(xb) * q;
+            *n_samples += 1;
+            let front = if stamp[uu] == self.zi - 1 {
+                Some(prev[uu])
+            } else {
+                let xf = xb + self.dxo;
+                match &self.front {
+                    Some(front) if xf >= self.x_range.0 && xf <= self.x_range.1 => {
+                        *n_samples += 1;
+                        Some(front.at(xf) * q)
+                    }
+                    _ => None, // the ray entered the volume between these slices
+                }
+            };
+            prev[uu] = back;
+            stamp[uu] = self.zi;
+            if let Some(front) = front {
+                // K segments, front to back, through the trilinear values between the
+                // slices; stop once the pixel is opaque.
+                let mut f = front;
+                for j in 0..K {
+                    let b = if j + 1 == K {
+                        back
+                    } else {
+                        let (fs, bs) = &between.as_ref().unwrap()[j];
+                        let w = (j + 1) as f32 / K as f32;
+                        let xj = xb + self.dxo * (1.0 - w as f64);
+                        let (sf, sb) = (fs.at(xj), bs.at(xj));
+                        *n_samples += 2;
+                        (sf + w * (sb - sf)) * q
+                    };
+                    if f.max(b) >= table.clear_below {
+                        let e = table.lookup(f, b);
+                        if e.a > 0.0 {
+                            let p = &mut row[uu];
+                            let t = 1.0 - p[3];
+                            let before = p[3];
+                            p[0] += t * e.c[0];
+                            p[1] += t * e.c[1];
+                            p[2] += t * e.c[2];
+                            p[3] += t * e.a;
+                            if before < 0.5 && p[3] >= 0.5 {
+                                // Where inside the segment opacity passed 0.5 (uniform extinction).
+                                let f = if e.a < 1.0 { ((0.5 / (1.0 - before)).ln() / (1.0 - e.a).ln()).clamp(0.0, 1.0) } else { 0.0 };
+                                let zf = self.zp as f64 + (j as f64 + f as f64) / K as f64 * (self.z as f64 - self.zp as f64);
+                                depth[uu] = self.fac.depth(uu as f64, self.vf, zf) as f32;
+                            }
+                            if p[3] >= self.termination {
+                                links[uu] = uu as u32 + 1; // early ray termination
+                                break;
+                            }
+                        }
+                    }
+                    f = b;
+                }
+            }
+            uu = next_live(links, uu + 1);
+        }
+        uu
+    }
+}
+
 pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
     if !rays.is_parallel() {
         bail!("shear-warp renders parallel projections only (perspective shear-warp is not implemented); set camera.parallel_projection = true or use renderer = \"reference\"");
     }
     if settings.supersampling < 0.0 || settings.supersampling > 16.0 || !settings.supersampling.is_finite() {
         bail!("shear-warp: supersampling {} must be 0 (auto) or in (0, 16]", settings.supersampling);
+    }
+    if !(1..=MAX_SLAB_SAMPLES).contains(&settings.slab_samples) {
+        bail!("shear-warp: slab_samples {} must be in 1..={MAX_SLAB_SAMPLES}", settings.slab_samples);
     }
     if settings.block == 0 || settings.block > 256 {
         bail!("shear-warp: block {} must be in 1..=256", settings.block);
@@ -299,8 +436,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let [nx, ny, nz] = axis.dims;
     let n_levels = if settings.table_levels >= 2 { settings.table_levels.min(4096) } else { preint::level_count(tf, prep.lo, prep.hi) };
     // A one-slice stack has no slab between slices: its slab is the slice itself, one
-    // voxel thick.
-    let table = PreintTable::new(tf, prep.lo, prep.hi, n_levels, fac.slab_length);
+    // voxel thick, and nothing lies between slices.
+    let k = if nz == 1 { 1 } else { settings.slab_samples };
+    let table = PreintTable::new(tf, prep.lo, prep.hi, n_levels, fac.slab_length / k as f64);
     let q_to_level = (n_levels - 1) as f32 / 65535.0;
     let level_to_value = |l: f32| prep.lo + (prep.hi - prep.lo) * l as f64 / (n_levels - 1) as f64;
     let mip = input.blend == BlendMode::Mip;
@@ -442,6 +580,25 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         let (f0, f1, fw) = rows(yp, ny);
                         SliceRows::new(axis, zp, f0, f1, fw)
                     });
+                    let slab = Slab {
+                        back: back_slice,
+                        front: front_slice,
+                        axis,
+                        y,
+                        dyo,
+                        iz,
+                        inv_ratio,
+                        dxo,
+                        x_range: (x_lo, x_hi),
+                        zi: zi as u32,
+                        z,
+                        zp,
+                        vf,
+                        table: &table,
+                        q_to_level,
+                        termination,
+                        fac: &fac,
+                    };
                     let variant = usize::from(dxo < 0.0);
                     let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
                     let mask_row = clear_mask.map(|m| m.row(zs, row_start, variant));
@@ -479,50 +636,12 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                             u = if end > ub { ub + 1 } else { next_live(links, end) };
                             continue;
                         }
-                        let mut uu = u;
-                        while uu < run_end {
-                            let xb = x_of(uu, iz);
-                            let back = back_slice.at(xb) * q_to_level;
-                            n_samples += 1;
-                            let front = if stamp[uu] == (zi - 1) as u32 {
-                                Some(prev[uu])
-                            } else {
-                                let xf = xb + dxo;
-                                match &front_slice {
-                                    Some(front_slice) if xf >= x_lo && xf <= x_hi => {
-                                        n_samples += 1;
-                                        Some(front_slice.at(xf) * q_to_level)
-                                    }
-                                    _ => None, // the ray entered the volume between these slices
-                                }
-                            };
-                            prev[uu] = back;
-                            stamp[uu] = zi as u32;
-                            if let Some(front) = front.filter(|f| f.max(back) >= table.clear_below) {
-                                let e = table.lookup(front, back);
-                                if e.a > 0.0 {
-                                    let p = &mut row[uu];
-                                    let t = 1.0 - p[3];
-                                    let before = p[3];
-                                    p[0] += t * e.c[0];
-                                    p[1] += t * e.c[1];
-                                    p[2] += t * e.c[2];
-                                    p[3] += t * e.a;
-                                    if before < 0.5 && p[3] >= 0.5 {
-                                        // Where inside the slab opacity passed 0.5 (uniform extinction).
-                                        let f =
-                                            if e.a < 1.0 { ((0.5 / (1.0 - before)).ln() / (1.0 - e.a).ln()).clamp(0.0, 1.0) } else { 0.0 };
-                                        let zf = zp as f64 + f as f64 * (z as f64 - zp as f64);
-                                        depth[uu] = fac.depth(uu as f64, vf, zf) as f32;
-                                    }
-                                    if p[3] >= termination {
-                                        links[uu] = uu as u32 + 1; // early ray termination
-                                    }
-                                }
-                            }
-                            uu = next_live(links, uu + 1);
-                        }
-                        u = uu;
+                        u = match k {
+                            1 => slab.composite_run::<1>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                            2 => slab.composite_run::<2>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                            3 => slab.composite_run::<3>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                            _ => slab.composite_run::<4>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                        };
                     }
                 }
             }
