@@ -4,7 +4,7 @@
 //! views and the relative RMSE from the reference ray caster (cached per view).
 
 use crate::bench::median;
-use crate::compare::{rgba_pixels as rgba_of, rgba_rel_rmse as rel_rmse};
+use crate::compare::{rgba_pixels as rgba_of, rgba_psnr, rgba_rel_rmse as rel_rmse};
 use crate::render::{reference_volume, shear_warp, Frame};
 use crate::scene::{BlendMode, Camera, Scene, TransferFunction};
 use anyhow::{bail, Context, Result};
@@ -29,17 +29,19 @@ pub struct Row {
     pub config: String,
     pub median_ms: f64,
     pub rel_rmse: f64,
+    /// Mean PSNR over the views, dB (peak 1).
+    pub psnr_db: f64,
     /// Median ms per million intermediate pixels (shear-warp only).
     pub ms_per_mpixel: Option<f64>,
 }
 
-/// The scene's view and three more: oblique, exactly 45° between two axes, and a second
-/// oblique from below.
+/// The scene's view and four more: oblique, exactly 45° between two axes (where the
+/// principal axis switches), a second oblique from below, and exactly axis-aligned.
 fn views(cam: &Camera) -> Vec<Camera> {
     let fp = glam::DVec3::from(cam.focal_point);
     let dist = (glam::DVec3::from(cam.position) - fp).length();
     let mut out = vec![cam.clone()];
-    for dir in [[0.55, 0.75, 0.3], [1.0, 1.0, 0.0], [-0.6, 0.3, -0.7]] {
+    for dir in [[0.55, 0.75, 0.3], [1.0, 1.0, 0.0], [-0.6, 0.3, -0.7], [0.0, -1.0, 0.0]] {
         let d = glam::DVec3::from(dir).normalize() * dist;
         let mut c = cam.clone();
         c.position = (fp + d).to_array();
@@ -97,12 +99,13 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
             return Ok(None);
         }
         let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend };
-        let (mut ms, mut err, mut mpix) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut ms, mut err, mut psnr, mut mpix) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (v, cam) in cams.iter().enumerate() {
             let rays = cam.rays(w, h);
             let warm: Frame = shear_warp::render(&input, &rays, &s)?; // builds the axis copy and maps once
             let reference = if blend == BlendMode::Mip { &refs_mip[v] } else { &refs[v] };
             err.push(rel_rmse(&warm.rgba, reference));
+            psnr.push(rgba_psnr(&warm.rgba, reference));
             let fac_pixels = intermediate_pixels(&warm);
             for _ in 0..b.runs {
                 let t = Instant::now();
@@ -117,10 +120,11 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
             config: name,
             median_ms: median(&mut ms),
             rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+            psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
             ms_per_mpixel: Some(median(&mut mpix)),
         };
         if !b.json {
-            eprintln!("{:<34} {:>9.1} ms {:>8.2} %", row.config, row.median_ms, 100.0 * row.rel_rmse);
+            eprintln!("{:<38} {:>9.1} ms {:>8.2} %", row.config, row.median_ms, 100.0 * row.rel_rmse);
         }
         Ok(Some(row))
     };
@@ -175,10 +179,10 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {
         println!("{w}×{h}, {} views, median of {} runs per view, {} threads", cams.len(), b.runs, rayon::current_num_threads());
-        println!("{:<34} {:>10} {:>10} {:>12}", "config", "median ms", "rel. RMSE", "ms/Mpixel");
+        println!("{:<38} {:>10} {:>10} {:>9} {:>12}", "config", "median ms", "rel. RMSE", "PSNR dB", "ms/Mpixel");
         for r in &rows {
             let mp = r.ms_per_mpixel.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
-            println!("{:<34} {:>10.1} {:>9.2}% {:>12}", r.config, r.median_ms, 100.0 * r.rel_rmse, mp);
+            println!("{:<38} {:>10.1} {:>9.2}% {:>9.2} {:>12}", r.config, r.median_ms, 100.0 * r.rel_rmse, r.psnr_db, mp);
         }
     }
     Ok(())
@@ -223,15 +227,17 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Resu
         .flat_map(|r| r.as_array().cloned().unwrap_or_default())
         .filter_map(|x| x.as_f64())
         .collect();
-    let mut err = Vec::new();
+    let (mut err, mut psnr) = (Vec::new(), Vec::new());
     for (i, r) in refs.iter().enumerate() {
         let img = volterra_formats::exr_io::read_exr(&b.work_dir.join(format!("vtk_{i}.exr")))?;
         err.push(rel_rmse(&rgba_of(&img), r));
+        psnr.push(rgba_psnr(&rgba_of(&img), r));
     }
     let row = Row {
         config: format!("vtk fixed-point {}", v["vtk"].as_str().unwrap_or("")),
         median_ms: median(&mut ms),
         rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+        psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
         ms_per_mpixel: None,
     };
     Ok(vec![row])

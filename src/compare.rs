@@ -94,6 +94,14 @@ pub fn rgba_rel_rmse(a: &[[f32; 4]], b: &[[f32; 4]]) -> f64 {
     (se / rs.max(1e-300)).sqrt()
 }
 
+/// PSNR in dB of premultiplied RGBA pixels against `b`, with peak 1 (colours and opacity
+/// are in [0, 1]).
+pub fn rgba_psnr(a: &[[f32; 4]], b: &[[f32; 4]]) -> f64 {
+    let se: f64 = a.iter().zip(b).map(|(p, q)| (0..4).map(|k| ((p[k] - q[k]) as f64).powi(2)).sum::<f64>()).sum();
+    let mse = se / (4 * a.len().max(1)) as f64;
+    -10.0 * mse.max(1e-30).log10()
+}
+
 /// An image's R, G, B, A channels as pixels (missing channels read as 0).
 pub fn rgba_pixels(img: &FloatImage) -> Vec<[f32; 4]> {
     let n = img.width * img.height;

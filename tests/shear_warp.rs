@@ -184,7 +184,7 @@ fn hard_cases_stay_close_to_the_reference() {
     let v = volume([16, 12, 1], [1.0; 3], VoxelData::U8(d), Rescale::IDENTITY);
     // Every voxel differs from its neighbours: at the auto ratio (one intermediate pixel
     // per final pixel, here 2.2 per voxel) the two resamplings blur it by 6–7 %; at ratio
-    // 4 the one-slice path itself is what is measured.
+    // 4 what is measured is the one-slice path itself.
     let fine = shear_warp::Settings { supersampling: 4.0, ..Default::default() };
     for dir in [[0.0, 0.0, 1.0], [0.2, 0.1, 1.0]] {
         let (sw, rf) = render_both(&v, &tf, &camera(dir, 9.0), 40, BlendMode::Composite, &fine);
