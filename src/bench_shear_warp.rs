@@ -151,13 +151,15 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
     }
     rows.extend(time_config("shear-warp overlapped auto (default)".into(), BlendMode::Composite, Default::default())?);
+    for per_slab in [1, 2] {
+        rows.extend(time_config(
+            format!("shear-warp mip overlapped ×2.26 {per_slab}/slab"),
+            BlendMode::Mip,
+            shear_warp::Settings { supersampling: 2.26, slab_samples: per_slab, ..Default::default() },
+        )?);
+    }
     rows.extend(time_config(
-        "shear-warp mip overlapped ×2.26".into(),
-        BlendMode::Mip,
-        shear_warp::Settings { supersampling: 2.26, ..Default::default() },
-    )?);
-    rows.extend(time_config(
-        "shear-warp mip none ×2.26".into(),
+        "shear-warp mip none ×2.26 2/slab".into(),
         BlendMode::Mip,
         shear_warp::Settings { supersampling: 2.26, leaping: shear_warp::Leaping::None, ..Default::default() },
     )?);
