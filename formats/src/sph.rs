@@ -101,6 +101,28 @@ impl PointGrid {
         }
     }
 
+    /// Like `for_each_candidate`, but hands over runs of positions in [`Self::order`]:
+    /// the cells of one grid row are consecutive there, so each (y, z) row of the search
+    /// cube is one run `a..b`.
+    pub fn for_each_run(&self, p: [f64; 3], r: f64, mut f: impl FnMut(usize, usize)) {
+        let lo = [0, 1, 2].map(|a| (((p[a] - r - self.lo[a]) / self.cell).max(0.0) as usize).min(self.dims[a] - 1));
+        let hi = [0, 1, 2].map(|a| (((p[a] + r - self.lo[a]) / self.cell).max(0.0) as usize).min(self.dims[a] - 1));
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                let row = self.dims[0] * (y + self.dims[1] * z);
+                let (a, b) = (self.starts[row + lo[0]] as usize, self.starts[row + hi[0] + 1] as usize);
+                if a < b {
+                    f(a, b);
+                }
+            }
+        }
+    }
+
+    /// Point indices in cell order.
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+
     pub fn cell_size(&self) -> f64 {
         self.cell
     }
@@ -209,6 +231,35 @@ pub fn fill_defaults(set: &mut ParticleSet) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The runs hold exactly the candidates the cell-by-cell search gives, and every point
+    /// within r of the query is among them.
+    #[test]
+    fn runs_cover_the_same_candidates_as_cells() {
+        let mut s = 7u64;
+        let mut next = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let pts: Vec<[f64; 3]> = (0..3000).map(|_| [next(), 2.0 * next(), 0.5 * next()]).collect();
+        let grid = PointGrid::new(&pts, 0.05);
+        for _ in 0..200 {
+            let p = [1.2 * next() - 0.1, 2.2 * next() - 0.1, 0.6 * next() - 0.05];
+            let r = 0.1 * next();
+            let mut cells = Vec::new();
+            grid.for_each_candidate(p, r, |i| cells.push(i));
+            let mut runs = Vec::new();
+            grid.for_each_run(p, r, |a, b| runs.extend(grid.order()[a..b].iter().map(|&i| i as usize)));
+            cells.sort_unstable();
+            runs.sort_unstable();
+            assert_eq!(cells, runs);
+            for (i, q) in pts.iter().enumerate() {
+                if dist2(*q, p) <= r * r {
+                    assert!(runs.binary_search(&i).is_ok(), "point {i} within r is missed");
+                }
+            }
+        }
+    }
 
     #[test]
     fn kernel_integrates_to_one() {

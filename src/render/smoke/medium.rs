@@ -22,7 +22,48 @@ pub enum Kernel {
     Poly6,
 }
 
+/// One particle of a class, laid out in its grid's cell order with what the kernel needs
+/// precomputed: a density query then reads memory in sequence and does no division.
+#[derive(Clone, Copy)]
+struct Packed {
+    p: [f64; 3],
+    /// (2h)², the support.
+    support2: f64,
+    inv_h: f64,
+    /// The kernel's normalisation at this h: 1/(πh³) (cubic spline), 315/(64π(2h)⁹) (poly6).
+    norm: f64,
+    mass: f64,
+    id: u32,
+}
+
 impl Kernel {
+    /// W(r, h) from r² < (2h)² and the particle's constants; equal to `eval` up to rounding.
+    #[inline(always)]
+    fn eval_packed(self, r2: f64, q: &Packed) -> f64 {
+        match self {
+            Kernel::CubicSpline => {
+                let x = r2.sqrt() * q.inv_h;
+                if x < 1.0 {
+                    q.norm * (1.0 - 1.5 * x * x + 0.75 * x * x * x)
+                } else {
+                    let t = (2.0 - x).max(0.0); // r² < (2h)² may still round x to 2
+                    q.norm * 0.25 * t * t * t
+                }
+            }
+            Kernel::Poly6 => {
+                let d = q.support2 - r2;
+                q.norm * d * d * d
+            }
+        }
+    }
+
+    fn norm(self, h: f64) -> f64 {
+        match self {
+            Kernel::CubicSpline => 1.0 / (std::f64::consts::PI * h * h * h),
+            Kernel::Poly6 => 315.0 / (64.0 * std::f64::consts::PI * (2.0 * h).powi(9)),
+        }
+    }
+
     #[inline]
     pub fn eval(self, r: f64, h: f64) -> f64 {
         match self {
@@ -119,8 +160,9 @@ pub struct SphMedium {
     h: Vec<f64>,
     kernel: Kernel,
     /// Particles binned by smoothing length (each class within a factor of 2), one grid
-    /// per class with cells of that class's largest support: a query then visits about
-    /// 27 cells per class whatever the spread of h (smoke h varies 8× in one plume).
+    /// per class with cells of half that class's largest support: a query then reads
+    /// 25 runs of 5 cells per class whatever the spread of h (smoke h varies 8× in one
+    /// plume), each run one stretch of memory.
     classes: Vec<HClass>,
     lo: DVec3,
     hi: DVec3,
@@ -168,7 +210,27 @@ impl SphMedium {
             .map(|index| {
                 let support = 2.0 * index.iter().map(|&i| h[i as usize]).fold(0.0, f64::max);
                 let pts: Vec<[f64; 3]> = index.iter().map(|&i| positions[i as usize]).collect();
-                HClass { grid: PointGrid::new(&pts, support), index, support }
+                // Cells of half the support: the 5×5×5 cells a query reads hold 42 % fewer
+                // candidates than 3×3×3 cells of the whole support (the 110k plume at
+                // 250², 640k photons: 9.9 s → 9.2 s).
+                let grid = PointGrid::new(&pts, 0.5 * support);
+                let packed = grid
+                    .order()
+                    .iter()
+                    .map(|&k| {
+                        let i = index[k as usize] as usize;
+                        let hh = h[i];
+                        Packed {
+                            p: positions[i],
+                            support2: 4.0 * hh * hh,
+                            inv_h: 1.0 / hh,
+                            norm: kernel.norm(hh),
+                            mass: mass[i],
+                            id: i as u32,
+                        }
+                    })
+                    .collect();
+                HClass { grid, packed, support }
             })
             .collect();
         let majorants = sph_majorants(&positions, &mass, &h, kernel, lo, hi, typical);
@@ -199,18 +261,25 @@ impl SphMedium {
         self.kernel
     }
 
-    /// Calls `f(i, W(|p − x_i|, h_i))` for every particle whose support holds `p`.
-    pub fn for_each_neighbour(&self, p: DVec3, mut f: impl FnMut(usize, f64)) {
+    /// Calls `f(particle, W(|p − x_i|, h_i))` for every particle whose support holds `p`.
+    #[inline]
+    fn for_each_packed(&self, p: DVec3, mut f: impl FnMut(&Packed, f64)) {
+        let pa = p.to_array();
         for class in &self.classes {
-            class.grid.for_each_candidate(p.to_array(), class.support, |k| {
-                let i = class.index[k] as usize;
-                let h = self.h[i];
-                let r2 = (p - DVec3::from(self.positions[i])).length_squared();
-                if r2 < 4.0 * h * h {
-                    f(i, self.kernel.eval(r2.sqrt(), h));
+            class.grid.for_each_run(pa, class.support, |a, b| {
+                for q in &class.packed[a..b] {
+                    let r2 = (pa[0] - q.p[0]).powi(2) + (pa[1] - q.p[1]).powi(2) + (pa[2] - q.p[2]).powi(2);
+                    if r2 < q.support2 {
+                        f(q, self.kernel.eval_packed(r2, q));
+                    }
                 }
             });
         }
+    }
+
+    /// Calls `f(i, W(|p − x_i|, h_i))` for every particle whose support holds `p`.
+    pub fn for_each_neighbour(&self, p: DVec3, mut f: impl FnMut(usize, f64)) {
+        self.for_each_packed(p, |q, w| f(q.id as usize, w));
     }
 }
 
@@ -220,7 +289,7 @@ impl Medium for SphMedium {
             return 0.0;
         }
         let mut rho = 0.0;
-        self.for_each_neighbour(p, |i, w| rho += self.mass[i] * w);
+        self.for_each_packed(p, |q, w| rho += q.mass * w);
         rho
     }
     fn bounds(&self) -> (DVec3, DVec3) {
@@ -233,8 +302,8 @@ impl Medium for SphMedium {
 
 struct HClass {
     grid: PointGrid,
-    /// Particle indices of the class, in the grid's point order.
-    index: Vec<u32>,
+    /// The class's particles in the grid's cell order.
+    packed: Vec<Packed>,
     support: f64,
 }
 
