@@ -2,6 +2,8 @@
 # System packages volterra needs to build and test (Debian/Ubuntu). Installs only what is
 # missing; uses sudo when not root.
 #   libcharls-dev   CharLS, the JPEG-LS decoder dicom-pixeldata links
+#   cmake           charls-sys 2.4 builds its bundled CharLS with CMake (not every
+#                   machine has it: a fresh one here did not)
 #   python3-venv    the venv for the reference readers (tests only)
 #   mesa-vulkan-drivers, libvulkan1  lavapipe, the software Vulkan adapter the terrain
 #                   ray-caster's tests run on where there is no GPU
@@ -10,7 +12,7 @@
 #                   test of a real window runs it under Xvfb
 set -euo pipefail
 need=()
-for pkg in libcharls-dev python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0; do
+for pkg in libcharls-dev cmake python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

@@ -348,3 +348,45 @@ fn traced_photons_are_cached_and_reused_for_another_view() {
     let other = MediumParams { c_ext: 40.0, albedo: 0.8, g: 0.5 };
     assert_eq!(hit(&render(&set, &lights, other, &front, &s).unwrap()), 0.0);
 }
+
+/// A stretch of ray gathers the same densities as one query per point: smoothing lengths
+/// spread over several size classes (one grid each), rays along an axis, oblique and
+/// grazing, samples unevenly spaced, both kernels.
+#[test]
+fn densities_gathered_along_a_ray_equal_point_queries() {
+    let mut rng = Rng::new(3);
+    let n = 3000;
+    let positions: Vec<[f64; 3]> = (0..n).map(|_| [rng.uniform(), 0.5 * rng.uniform(), 0.3 * rng.uniform()]).collect();
+    let mass: Vec<f64> = (0..n).map(|_| 0.5 + rng.uniform()).collect();
+    let h: Vec<f64> = (0..n).map(|_| 0.01 * (1.0 + 7.0 * rng.uniform().powi(3))).collect();
+    for kernel in [Kernel::CubicSpline, Kernel::Poly6] {
+        let medium = SphMedium::new(positions.clone(), mass.clone(), h.clone(), kernel).unwrap();
+        let (lo, hi) = medium.bounds();
+        let mut nonzero = 0;
+        for ray in 0..60 {
+            let o = DVec3::new(-0.5, 0.25 + 0.2 * (rng.uniform() - 0.5), 0.15 + 0.1 * (rng.uniform() - 0.5));
+            let d = match ray % 3 {
+                0 => DVec3::X,
+                1 => DVec3::new(1.0, 0.3 * (rng.uniform() - 0.5), 0.2 * (rng.uniform() - 0.5)).normalize(),
+                _ => DVec3::new(1.0, 1e-3, -1e-3).normalize(),
+            };
+            let Some((t0, t1)) = volterra::render::geometry::clip_box(o, d, lo, hi) else { continue };
+            let mut t = t0;
+            while t < t1 {
+                let mut ts = Vec::new();
+                for _ in 0..32 {
+                    t += 0.02 * (0.2 + rng.uniform());
+                    ts.push(t);
+                }
+                let mut gathered = vec![0.0; ts.len()];
+                medium.densities_along(o, d, &ts, &mut gathered);
+                for (&tk, &g) in ts.iter().zip(&gathered) {
+                    let point = medium.density(o + tk * d);
+                    assert!((g - point).abs() <= 1e-9 * point.max(1.0), "{kernel:?} ray {ray} t {tk}: gathered {g}, point query {point}");
+                    nonzero += (point > 0.0) as usize;
+                }
+            }
+        }
+        assert!(nonzero > 1000, "{kernel:?}: only {nonzero} samples inside the particles");
+    }
+}

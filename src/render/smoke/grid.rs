@@ -56,30 +56,42 @@ impl LazyGrid {
     /// evaluated once, on first need).
     pub fn sample(&self, x: DVec3, eval: &(dyn Fn(DVec3) -> [f64; 3] + Sync)) -> [f64; 3] {
         let g = (x - self.lo) / self.cell;
-        let mut base = [0usize; 3];
+        let mut base = 0usize;
         let mut f = [0.0f64; 3];
+        // Index strides per axis; 0 along an axis of one point (its "second" corner is the
+        // first again, with weight 0).
+        let mut stride = [0usize; 3];
+        let mut scale = 1;
         for k in 0..3 {
             let c = g[k].clamp(0.0, (self.dims[k] - 1) as f64);
-            let i = (c.floor() as usize).min(self.dims[k].saturating_sub(2));
-            base[k] = i;
-            f[k] = if self.dims[k] > 1 { c - i as f64 } else { 0.0 };
+            let i = (c as usize).min(self.dims[k].saturating_sub(2));
+            base += i * scale;
+            if self.dims[k] > 1 {
+                f[k] = c - i as f64;
+                stride[k] = scale;
+            }
+            scale *= self.dims[k];
         }
         let mut out = [0.0; 3];
         for corner in 0..8 {
-            let o = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
             let mut w = 1.0;
-            let mut idx = [0usize; 3];
+            let mut i = base;
             for k in 0..3 {
-                idx[k] = (base[k] + o[k]).min(self.dims[k] - 1);
-                w *= if o[k] == 1 { f[k] } else { 1.0 - f[k] };
+                if corner >> k & 1 == 1 {
+                    w *= f[k];
+                    i += stride[k];
+                } else {
+                    w *= 1.0 - f[k];
+                }
             }
             if w == 0.0 {
                 continue;
             }
-            let i = idx[0] + self.dims[0] * (idx[1] + self.dims[1] * idx[2]);
             let v = self.values[i].get_or_init(|| {
                 self.computed.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let p = self.lo + DVec3::new(idx[0] as f64, idx[1] as f64, idx[2] as f64) * self.cell;
+                let (ix, rest) = (i % self.dims[0], i / self.dims[0]);
+                let (iy, iz) = (rest % self.dims[1], rest / self.dims[1]);
+                let p = self.lo + DVec3::new(ix as f64, iy as f64, iz as f64) * self.cell;
                 eval(p).map(|v| v as f32)
             });
             for c in 0..3 {

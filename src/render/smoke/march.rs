@@ -80,48 +80,97 @@ impl MarchView<'_> {
     pub fn trace(&self, o: DVec3, d: DVec3, jitter: f64) -> ([f64; 3], f64) {
         let (lo, hi) = self.medium.bounds();
         let Some((t0, t1)) = crate::render::geometry::clip_box(o, d, lo, hi) else { return ([0.0; 3], 1.0) };
-        let mut radiance = [0.0; 3];
-        let mut tr = 1.0;
-        let out = -d;
-        // Steps of Δ on a lattice t0 + (jitter + k)·Δ, so that the samples of neighbouring
-        // pixels do not line up (no banding); cells of the majorant grid with no particle
-        // are skipped without a step.
-        let phase = jitter * self.step;
+        let mut state = Along { radiance: [0.0; 3], tr: 1.0 };
+        // Steps [base + kΔ, base + (k+1)Δ] (k ≥ −1) clipped to [t0, t1], so that the
+        // samples of neighbouring pixels do not line up (no banding). A step whose middle
+        // lies in a cell of zero majorant has zero density there and is skipped; the
+        // others are marched in batches whose densities are gathered at once.
+        let base = t0 + jitter * self.step;
+        let mut batch = Batch { t: [0.0; BATCH], dt: [0.0; BATCH], n: 0 };
+        let mut alive = true;
         self.medium.majorants().walk(o, d, t0, t1, |ca, cb, maj| {
             if maj <= 0.0 {
                 return true;
             }
-            let k0 = ((ca - t0 - phase) / self.step).floor();
-            let mut ta = ca;
-            let mut k = k0 + 1.0;
-            while ta < cb {
-                let tb = (t0 + phase + k * self.step).min(cb);
-                if tb > ta {
-                    let dt = tb - ta;
-                    let x = o + 0.5 * (ta + tb) * d;
-                    let sigma_t = self.c_ext * self.medium.density(x);
-                    if sigma_t > 0.0 {
-                        let ss = self.single(x, out);
-                        let ms = self.multiple.map(|f| f(x, out)).unwrap_or([0.0; 3]);
-                        let sigma_s = self.albedo * sigma_t;
-                        // ∫ over the step of T e^{−σ_t s} ds = T (1 − e^{−σ_t Δ}) / σ_t.
-                        let weight = tr * -(-sigma_t * dt).exp_m1() / sigma_t;
-                        for c in 0..3 {
-                            radiance[c] += weight * (sigma_s * ss[c] + ms[c]);
-                        }
-                        tr *= (-sigma_t * dt).exp();
-                        if tr < 1e-5 {
-                            return false;
-                        }
+            let mut k = (((ca - base) / self.step).floor() - 1.0).max(-1.0);
+            loop {
+                let start = base + k * self.step;
+                if start >= cb {
+                    return true;
+                }
+                k += 1.0;
+                let (a, b) = (start.max(t0), (start + self.step).min(t1));
+                let mid = 0.5 * (a + b);
+                if b <= a || mid < ca {
+                    continue;
+                }
+                if mid >= cb {
+                    return true;
+                }
+                batch.t[batch.n] = mid;
+                batch.dt[batch.n] = b - a;
+                batch.n += 1;
+                if batch.n == BATCH {
+                    alive = self.composite(o, d, &batch, &mut state);
+                    batch.n = 0;
+                    if !alive {
+                        return false;
                     }
                 }
-                ta = tb;
-                k += 1.0;
             }
-            true
         });
-        (radiance, tr)
+        if alive && batch.n > 0 {
+            self.composite(o, d, &batch, &mut state);
+        }
+        (state.radiance, state.tr)
     }
+
+    /// Adds a batch of steps to the ray's radiance and transmittance; false once the
+    /// transmittance is negligible (the rest of the ray cannot show).
+    fn composite(&self, o: DVec3, d: DVec3, batch: &Batch, state: &mut Along) -> bool {
+        let n = batch.n;
+        let mut density = [0.0; BATCH];
+        self.medium.densities_along(o, d, &batch.t[..n], &mut density[..n]);
+        let out = -d;
+        for k in 0..n {
+            let sigma_t = self.c_ext * density[k];
+            if sigma_t <= 0.0 {
+                continue;
+            }
+            let (x, dt) = (o + batch.t[k] * d, batch.dt[k]);
+            let ss = self.single(x, out);
+            let ms = self.multiple.map(|f| f(x, out)).unwrap_or([0.0; 3]);
+            let sigma_s = self.albedo * sigma_t;
+            // ∫ over the step of T e^{−σ_t s} ds = T (1 − e^{−σ_t Δ}) / σ_t.
+            let weight = state.tr * -(-sigma_t * dt).exp_m1() / sigma_t;
+            for c in 0..3 {
+                state.radiance[c] += weight * (sigma_s * ss[c] + ms[c]);
+            }
+            state.tr *= (-sigma_t * dt).exp();
+            if state.tr < 1e-5 {
+                return false;
+            }
+        }
+        true
+    }
+}
+
+/// Steps marched together: their middles (rising) and lengths. 32 steps of h span 16
+/// kernel supports, so the particles gathered beyond a batch's ends (a support on either
+/// side) are few against those within it: 32 marched 8 % faster than 16, 64 only 3 %
+/// faster than 32 while gathering more past an early termination.
+const BATCH: usize = 32;
+
+struct Batch {
+    t: [f64; BATCH],
+    dt: [f64; BATCH],
+    n: usize,
+}
+
+/// What a ray has gathered so far.
+struct Along {
+    radiance: [f64; 3],
+    tr: f64,
 }
 
 /// Renders the smoke: premultiplied RGBA (colour = in-scattered radiance, alpha = 1 − T),
@@ -132,13 +181,22 @@ pub fn render(view: &MarchView, rays: &RayGenerator) -> Frame {
     let mut frame = Frame::empty(w, h);
     let spp = view.samples.max(1);
     let (lo, hi) = view.medium.bounds();
+    // Samples stratified over the pixel, one jittered sample per cell of an a×b grid with
+    // a·b = spp (a the largest divisor not above √spp): at 4 rays per pixel the error
+    // against Mitsuba's 8192 spp falls from 5.7 % (centre + 3 uniform) to 4.3 %.
+    let across = (1..=spp).filter(|a| spp.is_multiple_of(*a) && a * a <= spp).max().unwrap_or(1);
+    let down = spp / across;
     frame.rgba.par_chunks_mut(w).zip(frame.depth.par_chunks_mut(w)).enumerate().for_each(|(y, (row, depth))| {
         for x in 0..w {
             let mut rng = Rng::stream(view.seed ^ 0x005E_EDCA_3E7A, (y * w + x) as u64);
             let mut acc = [0.0; 4];
             for s in 0..spp {
-                // One sample at the pixel centre; the rest jittered inside the pixel.
-                let (jx, jy) = if s == 0 { (0.5, 0.5) } else { (rng.uniform(), rng.uniform()) };
+                // One ray: through the pixel centre; more: one per stratum.
+                let (jx, jy) = if spp == 1 {
+                    (0.5, 0.5)
+                } else {
+                    (((s % across) as f64 + rng.uniform()) / across as f64, ((s / across) as f64 + rng.uniform()) / down as f64)
+                };
                 let ray = rays.ray(x as f64 + jx, y as f64 + jy);
                 let (l, t) = view.trace(ray.origin, ray.dir, rng.uniform());
                 for c in 0..3 {

@@ -87,6 +87,14 @@ pub trait Medium: Sync {
     fn bounds(&self) -> (DVec3, DVec3);
     /// Upper bounds of the density over cells of the box.
     fn majorants(&self) -> &MajorantGrid;
+    /// Densities at o + t_k·d (d unit) for rising `t` into `out`: what a ray march needs
+    /// for a stretch of ray at once. Equal to [`Medium::density`] at each point up to
+    /// rounding.
+    fn densities_along(&self, o: DVec3, d: DVec3, t: &[f64], out: &mut [f64]) {
+        for (v, &tk) in out.iter_mut().zip(t) {
+            *v = self.density(o + tk * d);
+        }
+    }
 }
 
 /// A regular grid over a box with, per cell, an upper bound of the density inside it.
@@ -194,7 +202,11 @@ impl SphMedium {
         }
         let mut sorted = h.clone();
         sorted.sort_by(f64::total_cmp);
-        let typical = 2.0 * sorted[sorted.len() / 2];
+        // Majorant cells of h/2 (at most 96 per axis): tighter bounds than cells of a
+        // support, so fewer tentative collisions in delta tracking (the 110k plume, 640k
+        // photons: 2.56M density queries with cells of h, 1.94M with h/2, which the cap
+        // makes 96³); cells finer still cost more in walking and building than they save.
+        let typical = 0.5 * sorted[sorted.len() / 2];
         let h_min = sorted[0];
         let mut members: Vec<Vec<u32>> = Vec::new();
         for (i, &hh) in h.iter().enumerate() {
@@ -292,6 +304,57 @@ impl Medium for SphMedium {
         self.for_each_packed(p, |q, w| rho += q.mass * w);
         rho
     }
+    /// The particles near the stretch of ray are gathered once (a slanted band of grid
+    /// cells) and each is added to just the samples its support's chord covers: per sample
+    /// this reads ~4× fewer candidates than a density query per point, with the same sum.
+    fn densities_along(&self, o: DVec3, d: DVec3, t: &[f64], out: &mut [f64]) {
+        out.fill(0.0);
+        let (Some(&first), Some(&last)) = (t.first(), t.last()) else { return };
+        // Positions relative to the stretch's start keep |v|² − (v·d)² free of cancellation.
+        let a = o + first * d;
+        let b = o + last * d;
+        // The first sample at or past a value: guessed from the mean spacing (the steps are
+        // nearly even) and corrected by a step or two — a binary search per candidate was
+        // a tenth of the time.
+        let n = t.len();
+        let per_unit = if last > first { (n - 1) as f64 / (last - first) } else { 0.0 };
+        let first_past = |v: f64| {
+            let mut k = (((v - first) * per_unit).max(0.0) as usize).min(n);
+            while k > 0 && t[k - 1] > v {
+                k -= 1;
+            }
+            while k < n && t[k] <= v {
+                k += 1;
+            }
+            k
+        };
+        for class in &self.classes {
+            class.grid.for_each_run_along(a.to_array(), b.to_array(), class.support, |ra, rb| {
+                for q in &class.packed[ra..rb] {
+                    let v = DVec3::from(q.p) - a;
+                    let along = v.dot(d);
+                    let perp2 = v.length_squared() - along * along;
+                    if perp2 >= q.support2 {
+                        continue;
+                    }
+                    // The chord of the support on the ray: |t − first − along| < half.
+                    let half = (q.support2 - perp2).sqrt();
+                    let centre = first + along;
+                    let k0 = first_past(centre - half);
+                    for (k, &tk) in t.iter().enumerate().skip(k0) {
+                        let dt = tk - centre;
+                        if dt >= half {
+                            break;
+                        }
+                        let r2 = perp2 + dt * dt;
+                        if r2 < q.support2 {
+                            out[k] += q.mass * self.kernel.eval_packed(r2, q);
+                        }
+                    }
+                }
+            });
+        }
+    }
     fn bounds(&self) -> (DVec3, DVec3) {
         (self.lo, self.hi)
     }
@@ -313,7 +376,7 @@ struct HClass {
 /// and every excess is a wasted tentative collision in delta tracking.)
 fn sph_majorants(positions: &[[f64; 3]], mass: &[f64], h: &[f64], kernel: Kernel, lo: DVec3, hi: DVec3, typical: f64) -> MajorantGrid {
     let extent = hi - lo;
-    // Cells of about one typical support, at most 96 per axis.
+    // Cells of about the typical size (the caller's), at most 96 per axis.
     let dims = [0, 1, 2].map(|k| ((extent[k] / typical).ceil() as usize).clamp(1, 96));
     let size = extent / DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
     let mut max = vec![0.0; dims[0] * dims[1] * dims[2]];

@@ -80,7 +80,10 @@ pub struct Settings {
     pub irradiance_map: bool,
     /// Irradiance-map spacing in metres (0: the median h); the transmittance grid's is twice it.
     pub irradiance_cell: f64,
-    /// March step as a fraction of the median h.
+    /// March step as a fraction of the median h. One h by default: against Mitsuba on the
+    /// 110k plume (1M photons, 32 rays per pixel) steps of h/2, 3h/4 and h all came within
+    /// 3.448 ± 0.001 % — the kernel spans 2h and the jittered starts average the rest —
+    /// while h/2 marched 30 % longer.
     pub step: f64,
     /// Camera rays per pixel.
     pub samples: usize,
@@ -103,7 +106,7 @@ impl Default for Settings {
             gather_radius: 0.0,
             irradiance_map: true,
             irradiance_cell: 0.0,
-            step: 0.5,
+            step: 1.0,
             samples: 4,
             seed: 1,
             free_flight: FreeFlight::Delta,
