@@ -167,7 +167,7 @@ pub struct SphMedium {
     mass: Vec<f64>,
     h: Vec<f64>,
     kernel: Kernel,
-    /// Particles binned by smoothing length (each class within a factor of 2), one grid
+    /// Particles binned by smoothing length (each class within a factor of √2), one grid
     /// per class with cells of half that class's largest support: a query then reads
     /// 25 runs of 5 cells per class whatever the spread of h (smoke h varies 8× in one
     /// plume), each run one stretch of memory.
@@ -210,7 +210,11 @@ impl SphMedium {
         let h_min = sorted[0];
         let mut members: Vec<Vec<u32>> = Vec::new();
         for (i, &hh) in h.iter().enumerate() {
-            let k = ((hh / h_min).log2().floor().max(0.0) as usize).min(40);
+            // A query reads its class's cells out to the class's largest support, so
+            // narrower classes read fewer particles beyond their own supports: photon
+            // tracing of the 110k plume ran ~10 % faster with classes of √2 than of 2
+            // (six same-session A/B pairs, median 3.9 s vs 4.3 s).
+            let k = ((2.0 * (hh / h_min).log2()).floor().max(0.0) as usize).min(80);
             if members.len() <= k {
                 members.resize(k + 1, Vec::new());
             }
