@@ -158,20 +158,31 @@ impl Walk<'_, BufReader<File>> {
     /// The file meta group (always explicit VR little endian); returns the transfer syntax.
     fn file_meta(&mut self, file_len: u64) -> Result<String> {
         let mut syntax = String::new();
+        // Where (0002,0000) FileMetaInformationGroupLength says the group ends. dicom-rs
+        // reads the meta group to there whatever the elements' groups (a fuzzed file had
+        // (0003,0012) inside it), so the data set starts there for us too: stopping at the
+        // first other group instead began the deflate stream 60 bytes early, inflated
+        // nothing, and let a 2.5 GB element length through to dicom-rs.
+        let mut declared_end: Option<u64> = None;
         loop {
-            // Peek at the group: the meta group ends where group 0002 does.
+            if declared_end.is_some_and(|end| self.pos >= end) {
+                return Ok(syntax);
+            }
+            // Peek at the group: without a group length, the meta group ends where group
+            // 0002 does.
             let mut g = [0u8; 2];
             if read_up_to(&mut self.src, &mut g).map_err(|e| FormatError::io(self.path, e))? < 2 {
                 return Ok(syntax);
             }
-            if u16::from_le_bytes(g) != 0x0002 {
+            let group = u16::from_le_bytes(g);
+            if group != 0x0002 && declared_end.is_none() {
                 // Step back over the peeked group: the data set starts there.
                 self.src.seek_relative(-2).map_err(|e| FormatError::io(self.path, e))?;
                 return Ok(syntax);
             }
             self.pos += 2;
             let e = u16::from_le_bytes(self.read::<2>("the file meta group")?);
-            let tag = Tag(0x0002, e);
+            let tag = Tag(group, e);
             let vr = self.read::<2>("the file meta group")?;
             let len = if has_long_length(VR::from_binary(vr).unwrap_or(VR::UN)) {
                 self.read::<2>("the file meta group")?;
@@ -180,7 +191,10 @@ impl Walk<'_, BufReader<File>> {
                 u16::from_le_bytes(self.read::<2>("the file meta group")?) as u64
             };
             self.fits(tag, len, file_len)?;
-            if e == 0x0010 && len <= 256 {
+            if group == 0x0002 && e == 0x0000 && len == 4 && declared_end.is_none() {
+                let value = u32::from_le_bytes(self.read::<4>("the file meta group")?) as u64;
+                declared_end = Some(self.pos + value);
+            } else if group == 0x0002 && e == 0x0010 && len <= 256 {
                 let mut v = vec![0u8; len as usize];
                 self.src.read_exact(&mut v).map_err(|e| FormatError::io(self.path, e))?;
                 self.pos += len;
@@ -330,4 +344,18 @@ impl<S: Source> Walk<'_, S> {
 
 fn show(tag: Tag) -> String {
     format!("({:04X},{:04X})", tag.0, tag.1)
+}
+
+#[cfg(test)]
+mod tests {
+    /// A meta group holding an element of another group within its declared length (as a
+    /// fuzzer made it): the deflated data set starts where the group length says, as
+    /// dicom-rs reads it, and its lying pixel-data length is refused before dicom-rs would
+    /// reserve 4 GB for it.
+    #[test]
+    fn the_data_set_starts_where_the_meta_group_length_says() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/dicom_file/meta_foreign_group_deflated.dcm");
+        let err = super::check_lengths(&path).expect_err("the lying length must be refused").to_string();
+        assert!(err.contains("element (7FE0,0010) declares 4294967280 bytes but only 84 remain"), "{err}");
+    }
 }
