@@ -288,16 +288,21 @@ pub fn fill_defaults(set: &mut ParticleSet) {
 mod tests {
     use super::*;
 
+    /// Uniform numbers in [0, 1) from a 64-bit LCG: reproducible point sets for the tests.
+    fn uniform_stream(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     /// The runs along a segment hold every point within r of it, each once, and fewer
     /// candidates than the segment's bounding box would: axis-aligned, oblique, degenerate
     /// (a = b) and partly outside the grid.
     #[test]
     fn runs_along_a_segment_hold_every_point_near_it_once() {
-        let mut s = 11u64;
-        let mut next = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform_stream(11);
         let pts: Vec<[f64; 3]> = (0..4000).map(|_| [next(), 2.0 * next(), 0.5 * next()]).collect();
         let grid = PointGrid::new(&pts, 0.04);
         let seg_dist2 = |p: [f64; 3], a: [f64; 3], b: [f64; 3]| {
@@ -341,11 +346,7 @@ mod tests {
     /// within r of the query is among them.
     #[test]
     fn runs_cover_the_same_candidates_as_cells() {
-        let mut s = 7u64;
-        let mut next = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform_stream(7);
         let pts: Vec<[f64; 3]> = (0..3000).map(|_| [next(), 2.0 * next(), 0.5 * next()]).collect();
         let grid = PointGrid::new(&pts, 0.05);
         for _ in 0..200 {
