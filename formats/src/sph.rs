@@ -158,6 +158,11 @@ impl PointGrid {
     pub fn cell_size(&self) -> f64 {
         self.cell
     }
+
+    /// The grid's lowest corner (the points' bounding box's).
+    pub fn lower_corner(&self) -> [f64; 3] {
+        self.lo
+    }
 }
 
 /// The parameters s ∈ [s0, s1] at which u + s·e lies in [lo, hi], if any.

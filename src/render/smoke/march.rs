@@ -88,7 +88,7 @@ impl MarchView<'_> {
         let base = t0 + jitter * self.step;
         let mut batch = StepBatch::default();
         let mut alive = true;
-        self.medium.majorants().walk(o, d, t0, t1, |ca, cb, maj| {
+        self.medium.majorants().walk(o, d, t0, t1, 0.0, |ca, cb, maj| {
             if maj <= 0.0 {
                 return true;
             }

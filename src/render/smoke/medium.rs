@@ -22,24 +22,22 @@ pub enum Kernel {
     Poly6,
 }
 
-/// One particle of a class, laid out in its grid's cell order with what the kernel needs
-/// precomputed: a density query then reads memory in sequence and does no division.
+/// What a density query reads of a particle once its support holds the point: the
+/// kernel's constants precomputed (no division per query) and the particle's index.
 #[derive(Clone, Copy)]
-struct Packed {
-    p: [f64; 3],
-    /// (2h)², the support.
-    support2: f64,
+struct Coef {
     inv_h: f64,
     /// The kernel's normalisation at this h: 1/(πh³) (cubic spline), 315/(64π(2h)⁹) (poly6).
     norm: f64,
-    mass: f64,
+    mass: f32,
     id: u32,
 }
 
 impl Kernel {
-    /// W(r, h) from r² < (2h)² and the particle's constants; equal to `eval` up to rounding.
+    /// W(r, h) from r² < (2h)² = `support2` and the particle's constants; equal to `eval`
+    /// up to rounding.
     #[inline(always)]
-    fn eval_packed(self, r2: f64, q: &Packed) -> f64 {
+    fn eval_coef(self, r2: f64, support2: f64, q: &Coef) -> f64 {
         match self {
             Kernel::CubicSpline => {
                 let x = r2.sqrt() * q.inv_h;
@@ -51,7 +49,7 @@ impl Kernel {
                 }
             }
             Kernel::Poly6 => {
-                let d = q.support2 - r2;
+                let d = (support2 - r2).max(0.0);
                 q.norm * d * d * d
             }
         }
@@ -97,66 +95,159 @@ pub trait Medium: Sync {
     }
 }
 
-/// A regular grid over a box with, per cell, an upper bound of the density inside it.
+/// A regular grid over a box with, per cell, an upper bound of the density inside it, and
+/// the same bound per brick of 4×4×4 cells, so that a walk crosses an empty brick (62 % of
+/// the 110k plume's cells are empty) or an optically thin one in one step.
 pub struct MajorantGrid {
     pub lo: DVec3,
     pub hi: DVec3,
     pub dims: [usize; 3],
     pub max: Vec<f64>,
+    brick_dims: [usize; 3],
+    brick_max: Vec<f64>,
+}
+
+/// Cells per brick edge.
+const BRICK: usize = 4;
+
+/// A 3D DDA's state along one ray: the current cell, the direction of the steps, and the
+/// ray parameters at which it next crosses a cell boundary on each axis.
+struct Dda {
+    cell: [usize; 3],
+    step: [i64; 3],
+    next: [f64; 3],
+    delta: [f64; 3],
+}
+
+impl Dda {
+    /// Starts in the cell of o + t·d among cells of `size` from `lo`, the cell index
+    /// clamped to `first..=last` per axis (a point on a boundary may round outside).
+    fn new(o: DVec3, d: DVec3, t: f64, lo: DVec3, size: DVec3, first: [usize; 3], last: [usize; 3]) -> Dda {
+        let p = o + t * d;
+        let mut dda = Dda { cell: [0; 3], step: [0; 3], next: [f64::INFINITY; 3], delta: [f64::INFINITY; 3] };
+        for k in 0..3 {
+            let c = ((p[k] - lo[k]) / size[k]).floor().clamp(first[k] as f64, last[k] as f64);
+            dda.cell[k] = c as usize;
+            if d[k] > 0.0 {
+                dda.step[k] = 1;
+                dda.next[k] = (lo[k] + (c + 1.0) * size[k] - o[k]) / d[k];
+                dda.delta[k] = size[k] / d[k];
+            } else if d[k] < 0.0 {
+                dda.step[k] = -1;
+                dda.next[k] = (lo[k] + c * size[k] - o[k]) / d[k];
+                dda.delta[k] = -size[k] / d[k];
+            }
+        }
+        dda
+    }
+
+    /// The axis of the next boundary crossing.
+    #[inline]
+    fn axis(&self) -> usize {
+        if self.next[0] <= self.next[1] && self.next[0] <= self.next[2] {
+            0
+        } else if self.next[1] <= self.next[2] {
+            1
+        } else {
+            2
+        }
+    }
+
+    /// The stretch [t, tb] in the current cell ending no later than `t_end`, and whether
+    /// it is the last before `t_end` or before leaving `first..=last`; else steps on.
+    #[inline]
+    fn advance(&mut self, t: f64, t_end: f64, first: &[usize; 3], last: &[usize; 3]) -> (f64, bool) {
+        let k = self.axis();
+        let c = self.cell[k] as i64 + self.step[k];
+        let leaves = c < first[k] as i64 || c > last[k] as i64;
+        if self.next[k] >= t_end || leaves {
+            return (t_end, true);
+        }
+        let tb = self.next[k].max(t);
+        self.cell[k] = c as usize;
+        self.next[k] += self.delta[k];
+        (tb, false)
+    }
 }
 
 impl MajorantGrid {
+    pub fn new(lo: DVec3, hi: DVec3, dims: [usize; 3], max: Vec<f64>) -> MajorantGrid {
+        let brick_dims = dims.map(|n| n.div_ceil(BRICK));
+        let mut brick_max = vec![0.0f64; brick_dims[0] * brick_dims[1] * brick_dims[2]];
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    let b = &mut brick_max[x / BRICK + brick_dims[0] * (y / BRICK + brick_dims[1] * (z / BRICK))];
+                    *b = b.max(max[x + dims[0] * (y + dims[1] * z)]);
+                }
+            }
+        }
+        MajorantGrid { lo, hi, dims, max, brick_dims, brick_max }
+    }
+
     fn cell_size(&self) -> DVec3 {
         (self.hi - self.lo) / DVec3::new(self.dims[0] as f64, self.dims[1] as f64, self.dims[2] as f64)
     }
 
+    /// The density below which a brick is optically thin for σ_t = c_ext·ρ: a ray crossing
+    /// it meets on average at most one tentative collision at the brick's majorant, so
+    /// walking it as one cell costs less than stepping through its cells. (Photon tracing
+    /// of the 110k plume, one thread, medians of five alternating runs: 2.96 s cell by
+    /// cell, 3.01 s skipping empty bricks only, 2.56 / 2.53 / 2.64 s with bricks thinner
+    /// than 1/2, 1, 4 tentative collisions walked whole.)
+    pub fn thin_below(&self, c_ext: f64) -> f64 {
+        let diagonal = (self.cell_size() * BRICK as f64).length();
+        if c_ext > 0.0 {
+            1.0 / (c_ext * diagonal)
+        } else {
+            f64::INFINITY
+        }
+    }
+
     /// Walks the ray o + t·d (d unit) through the grid for t ∈ [t0, t1], calling
-    /// `f(ta, tb, majorant)` per cell in order until it returns false.
-    pub fn walk(&self, o: DVec3, d: DVec3, t0: f64, t1: f64, mut f: impl FnMut(f64, f64, f64) -> bool) {
+    /// `f(ta, tb, majorant)` per cell in order until it returns false. A brick whose
+    /// majorant is at most `coarse` (0: empty bricks only) comes as one stretch with the
+    /// brick's majorant. The stretches cover [t0, t1] ∩ box without gaps.
+    pub fn walk(&self, o: DVec3, d: DVec3, t0: f64, t1: f64, coarse: f64, mut f: impl FnMut(f64, f64, f64) -> bool) {
         let Some((a, b)) = clip_box(o, d, self.lo, self.hi) else { return };
         let (mut t, t_end) = (a.max(t0), b.min(t1));
         if t >= t_end {
             return;
         }
         let size = self.cell_size();
-        let p = o + t * d;
-        let mut cell = [0usize; 3];
-        let mut step = [0i64; 3];
-        let mut next = [f64::INFINITY; 3];
-        let mut delta = [f64::INFINITY; 3];
-        for k in 0..3 {
-            let c = ((p[k] - self.lo[k]) / size[k]).floor().clamp(0.0, (self.dims[k] - 1) as f64);
-            cell[k] = c as usize;
-            if d[k] > 0.0 {
-                step[k] = 1;
-                next[k] = (self.lo[k] + (c + 1.0) * size[k] - o[k]) / d[k];
-                delta[k] = size[k] / d[k];
-            } else if d[k] < 0.0 {
-                step[k] = -1;
-                next[k] = (self.lo[k] + c * size[k] - o[k]) / d[k];
-                delta[k] = -size[k] / d[k];
-            }
-        }
+        let brick_size = size * BRICK as f64;
+        let brick_last = self.brick_dims.map(|n| n - 1);
+        let cell_last = self.dims.map(|n| n - 1);
+        let mut bricks = Dda::new(o, d, t, self.lo, brick_size, [0; 3], brick_last);
         loop {
-            let k = if next[0] <= next[1] && next[0] <= next[2] {
-                0
-            } else if next[1] <= next[2] {
-                1
+            let brick = bricks.cell;
+            let (tb, done) = bricks.advance(t, t_end, &[0; 3], &brick_last);
+            let bmax = self.brick_max[brick[0] + self.brick_dims[0] * (brick[1] + self.brick_dims[1] * brick[2])];
+            if bmax <= coarse {
+                if !f(t, tb, bmax) {
+                    return;
+                }
             } else {
-                2
-            };
-            let tb = next[k].min(t_end).max(t);
-            let index = cell[0] + self.dims[0] * (cell[1] + self.dims[1] * cell[2]);
-            if !f(t, tb, self.max[index]) || tb >= t_end {
+                let first = brick.map(|b| b * BRICK);
+                let last = [0, 1, 2].map(|k| (first[k] + BRICK - 1).min(cell_last[k]));
+                let mut cells = Dda::new(o, d, t, self.lo, size, first, last);
+                let mut tc = t;
+                loop {
+                    let c = cells.cell;
+                    let (tcb, end) = cells.advance(tc, tb, &first, &last);
+                    if !f(tc, tcb, self.max[c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])]) {
+                        return;
+                    }
+                    if end {
+                        break;
+                    }
+                    tc = tcb;
+                }
+            }
+            if done {
                 return;
             }
             t = tb;
-            let c = cell[k] as i64 + step[k];
-            if c < 0 || c >= self.dims[k] as i64 {
-                return;
-            }
-            cell[k] = c as usize;
-            next[k] += delta[k];
         }
     }
 }
@@ -230,23 +321,19 @@ impl SphMedium {
                 // candidates than 3×3×3 cells of the whole support (the 110k plume at
                 // 250², 640k photons: 9.9 s → 9.2 s).
                 let grid = PointGrid::new(&pts, 0.5 * support);
-                let packed = grid
+                let origin = DVec3::from(grid.lower_corner());
+                let (scan, coef) = grid
                     .order()
                     .iter()
                     .map(|&k| {
                         let i = index[k as usize] as usize;
                         let hh = h[i];
-                        Packed {
-                            p: positions[i],
-                            support2: 4.0 * hh * hh,
-                            inv_h: 1.0 / hh,
-                            norm: kernel.norm(hh),
-                            mass: mass[i],
-                            id: i as u32,
-                        }
+                        let r = (DVec3::from(positions[i]) - origin).as_vec3();
+                        let coef = Coef { inv_h: 1.0 / hh, norm: kernel.norm(hh), mass: mass[i] as f32, id: i as u32 };
+                        ([r.x, r.y, r.z, (4.0 * hh * hh) as f32], coef)
                     })
-                    .collect();
-                HClass { grid, packed, support }
+                    .unzip();
+                HClass { grid, scan, coef, origin, support }
             })
             .collect();
         let majorants = sph_majorants(&positions, &mass, &h, kernel, lo, hi, typical);
@@ -279,14 +366,16 @@ impl SphMedium {
 
     /// Calls `f(particle, W(|p − x_i|, h_i))` for every particle whose support holds `p`.
     #[inline]
-    fn for_each_packed(&self, p: DVec3, mut f: impl FnMut(&Packed, f64)) {
+    fn for_each_coef(&self, p: DVec3, mut f: impl FnMut(&Coef, f64)) {
         let pa = p.to_array();
         for class in &self.classes {
+            let pf = class.relative(p);
             class.grid.for_each_run(pa, class.support, |a, b| {
-                for q in &class.packed[a..b] {
-                    let r2 = (pa[0] - q.p[0]).powi(2) + (pa[1] - q.p[1]).powi(2) + (pa[2] - q.p[2]).powi(2);
-                    if r2 < q.support2 {
-                        f(q, self.kernel.eval_packed(r2, q));
+                for (k, s) in class.scan[a..b].iter().enumerate() {
+                    let r2 = (pf[0] - s[0]).powi(2) + (pf[1] - s[1]).powi(2) + (pf[2] - s[2]).powi(2);
+                    if r2 < s[3] {
+                        let q = &class.coef[a + k];
+                        f(q, self.kernel.eval_coef(r2 as f64, s[3] as f64, q));
                     }
                 }
             });
@@ -295,7 +384,7 @@ impl SphMedium {
 
     /// Calls `f(i, W(|p − x_i|, h_i))` for every particle whose support holds `p`.
     pub fn for_each_neighbour(&self, p: DVec3, mut f: impl FnMut(usize, f64)) {
-        self.for_each_packed(p, |q, w| f(q.id as usize, w));
+        self.for_each_coef(p, |q, w| f(q.id as usize, w));
     }
 }
 
@@ -305,7 +394,7 @@ impl Medium for SphMedium {
             return 0.0;
         }
         let mut rho = 0.0;
-        self.for_each_packed(p, |q, w| rho += q.mass * w);
+        self.for_each_coef(p, |q, w| rho += q.mass as f64 * w);
         rho
     }
     /// The particles near the stretch of ray are gathered once (a slanted band of grid
@@ -314,7 +403,6 @@ impl Medium for SphMedium {
     fn densities_along(&self, o: DVec3, d: DVec3, t: &[f64], out: &mut [f64]) {
         out.fill(0.0);
         let (Some(&first), Some(&last)) = (t.first(), t.last()) else { return };
-        // Positions relative to the stretch's start keep |v|² − (v·d)² free of cancellation.
         let a = o + first * d;
         let b = o + last * d;
         // The first sample at or past a value: guessed from the mean spacing (the steps are
@@ -332,18 +420,23 @@ impl Medium for SphMedium {
             }
             k
         };
+        let df = d.as_vec3();
         for class in &self.classes {
+            let af = glam::Vec3::from(class.relative(a));
             class.grid.for_each_run_along(a.to_array(), b.to_array(), class.support, |ra, rb| {
-                for q in &class.packed[ra..rb] {
-                    let v = DVec3::from(q.p) - a;
-                    let along = v.dot(d);
-                    let perp2 = v.length_squared() - along * along;
-                    if perp2 >= q.support2 {
+                for (k, s) in class.scan[ra..rb].iter().enumerate() {
+                    // The distance from the ray's line by the cross product (no
+                    // cancellation), and how far along it the particle lies.
+                    let v = glam::Vec3::new(s[0], s[1], s[2]) - af;
+                    let perp2 = v.cross(df).length_squared();
+                    if perp2 >= s[3] {
                         continue;
                     }
+                    let q = &class.coef[ra + k];
+                    let (support2, perp2) = (s[3] as f64, perp2 as f64);
                     // The chord of the support on the ray: |t − first − along| < half.
-                    let half = (q.support2 - perp2).sqrt();
-                    let centre = first + along;
+                    let half = (support2 - perp2).sqrt();
+                    let centre = first + v.dot(df) as f64;
                     let k0 = first_past(centre - half);
                     for (k, &tk) in t.iter().enumerate().skip(k0) {
                         let dt = tk - centre;
@@ -351,8 +444,8 @@ impl Medium for SphMedium {
                             break;
                         }
                         let r2 = perp2 + dt * dt;
-                        if r2 < q.support2 {
-                            out[k] += q.mass * self.kernel.eval_packed(r2, q);
+                        if r2 < support2 {
+                            out[k] += q.mass as f64 * self.kernel.eval_coef(r2, support2, q);
                         }
                     }
                 }
@@ -369,9 +462,26 @@ impl Medium for SphMedium {
 
 struct HClass {
     grid: PointGrid,
-    /// The class's particles in the grid's cell order.
-    packed: Vec<Packed>,
+    /// In the grid's cell order, what a search reads of every candidate: the position
+    /// relative to `origin` and the support (2h)², in f32 — 16 bytes: a query reads ~240
+    /// candidates to find ~30 particles, and the reads, not the arithmetic, set its speed
+    /// (photon tracing of the 110k plume spent 56 % of its time in density queries, a
+    /// third of that loading 64-byte f64 records; tracing ran ~14 % faster). f32 offsets
+    /// from the class's corner resolve ~1e-7 of the smoke's extent, as finely as the f32
+    /// positions particle files store; densities move by ~1e-5 relative.
+    scan: Vec<[f32; 4]>,
+    /// The same order, what a hit reads.
+    coef: Vec<Coef>,
+    origin: DVec3,
     support: f64,
+}
+
+impl HClass {
+    /// `p` relative to the class's origin, in f32.
+    #[inline(always)]
+    fn relative(&self, p: DVec3) -> [f32; 3] {
+        (p - self.origin).as_vec3().to_array()
+    }
 }
 
 /// Per cell, Σ m·W(d, h) over the particles, d the distance from the particle to the cell
@@ -400,7 +510,7 @@ fn sph_majorants(positions: &[[f64; 3]], mass: &[f64], h: &[f64], kernel: Kernel
             }
         }
     }
-    MajorantGrid { lo, hi, dims, max }
+    MajorantGrid::new(lo, hi, dims, max)
 }
 
 /// Constant density inside a box or a sphere, zero outside: the closed-form cases.
@@ -422,7 +532,7 @@ impl Homogeneous {
             Shape::Box { lo, hi } => (lo, hi),
             Shape::Sphere { centre, radius } => (centre - radius, centre + radius),
         };
-        Homogeneous { density, shape, majorants: MajorantGrid { lo, hi, dims: [1, 1, 1], max: vec![density] } }
+        Homogeneous { density, shape, majorants: MajorantGrid::new(lo, hi, [1, 1, 1], vec![density]) }
     }
 }
 

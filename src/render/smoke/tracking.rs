@@ -24,7 +24,8 @@ fn tentative_collisions(
     rng: &mut Rng,
     mut f: impl FnMut(f64, f64, f64, &mut Rng) -> bool,
 ) {
-    medium.majorants().walk(o, d, 0.0, t_max, |ta, tb, maj| {
+    let grid = medium.majorants();
+    grid.walk(o, d, 0.0, t_max, grid.thin_below(c_ext), |ta, tb, maj| {
         let mu = c_ext * maj;
         if mu <= 0.0 {
             return true;
@@ -97,7 +98,7 @@ pub fn marched_transmittance(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3
         let rho = batch.densities(medium, o, d);
         *tau += c_ext * rho.iter().zip(batch.lengths()).map(|(r, w)| r * w).sum::<f64>();
     };
-    medium.majorants().walk(o, d, 0.0, t_max, |ta, tb, maj| {
+    medium.majorants().walk(o, d, 0.0, t_max, 0.0, |ta, tb, maj| {
         if maj <= 0.0 {
             return true;
         }
