@@ -51,8 +51,7 @@ pub fn write_samples(dir: &Path) -> Result<()> {
     let grey: Vec<u16> = dem.elevations.iter().map(|&z| (z as f64 / DEM_PNG_SCALE).round().clamp(0.0, 65535.0) as u16).collect();
     image::write_png_grey16(&dir.join("fractal_dem.png"), dem.width, dem.height, &grey)?;
     image::write_png_rgb8(&dir.join("fractal_dem_texture.png"), &dem_texture(&dem))?;
-    let plume = smoke_plume(20_000, 3);
-    volterra_formats::vtk::write_vtp(&dir.join("smoke_plume.vtp"), &plume, &ParticleArrayNames::default())?;
+    write_smoke_plume(dir)?;
     for (name, text) in SCENES {
         volterra_formats::atomic::write_bytes_atomically(&dir.join(name), text.as_bytes())?;
     }
@@ -287,6 +286,14 @@ pub fn dem_texture(dem: &Heightfield) -> RgbImage {
         }
     }
     RgbImage { width: w, height: h, data }
+}
+
+/// The built-in plume, `smoke_plume.vtp` in `dir`: the particles `volterra demo` renders
+/// (tests/smoke_mitsuba.rs compares them with Mitsuba).
+pub fn write_smoke_plume(dir: &Path) -> Result<()> {
+    let plume = smoke_plume(20_000, 3);
+    volterra_formats::vtk::write_vtp(&dir.join("smoke_plume.vtp"), &plume, &ParticleArrayNames::default())?;
+    Ok(())
 }
 
 /// A rising, widening, swirling plume of `count` SPH particles in a 1 m box (z up), with

@@ -13,6 +13,12 @@ mkdir -p target
 set +e
 cargo test --workspace --all-targets --no-fail-fast 2>&1 | tee target/test-output.log
 status=${PIPESTATUS[0]}
+# The Mitsuba reference of the built-in plume, from the particles the built binary writes.
+if [ -x target/debug/volterra ]; then
+    "$VENV_PY" tests/reference/check_references.py --builtin target/debug/volterra target/reference-regen || status=1
+else
+    echo "no target/debug/volterra: built-in references not checked"; status=1
+fi
 set -e
 # Every reader under libFuzzer for a bounded time (tests/fuzz.sh; 60 s per target, two at once).
 set +e

@@ -230,6 +230,26 @@ fn aneurysm_sample_scene_renders_the_shared_scan() {
     assert!(f.rgba.iter().filter(|p| p[3] > 0.3).count() > 100, "the vessels are visible");
 }
 
+/// samples/smoke_plume110k.toml reads the real particle set beside the repository.
+#[test]
+fn smoke_sample_scene_renders_the_shared_plume() {
+    if common::shared_data().is_none() {
+        return;
+    }
+    let sets = [
+        "image.width=48",
+        "image.height=48",
+        "node.plume.settings.photons=20000",
+        "node.plume.settings.samples=1",
+        "node.plume.settings.cache=false",
+    ];
+    let s = Scene::load(&repo_path("samples/smoke_plume110k.toml"), &sets.map(String::from)).unwrap();
+    assert_eq!(s.particles(0).unwrap().len(), 110_401);
+    let f = render::render_scene(&s, None).unwrap();
+    assert!(f.rgba.iter().filter(|p| p[3] > 0.3).count() > 100, "the plume is visible");
+    assert!(f.rgba.iter().all(|p| p.iter().all(|v| v.is_finite())));
+}
+
 /// [walk] puts the eye eye_height above the bilinear ground, and keyframed frames pass
 /// through every key.
 #[test]

@@ -193,6 +193,107 @@ fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
     (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
+/// A balanced kd-tree over points, stored implicitly: the range `lo..hi` of `order` has
+/// its node at the middle, split on `axis[middle]` (the range's widest axis), the lower
+/// half before it. Unlike a uniform grid it adapts to clustered points (a star catalogue
+/// crowded near the Sun: a grid sized by the mean spacing put thousands of points in a
+/// cell, and the neighbour search for 108k stars took 17 s).
+pub struct KdTree<'a> {
+    points: &'a [[f64; 3]],
+    order: Vec<u32>,
+    axis: Vec<u8>,
+}
+
+impl<'a> KdTree<'a> {
+    pub fn new(points: &'a [[f64; 3]]) -> KdTree<'a> {
+        let mut tree = KdTree { points, order: (0..points.len() as u32).collect(), axis: vec![0; points.len()] };
+        tree.build(0, points.len());
+        tree
+    }
+
+    fn build(&mut self, lo: usize, hi: usize) {
+        if hi - lo <= 1 {
+            return;
+        }
+        let (mut min, mut max) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for &i in &self.order[lo..hi] {
+            let p = self.points[i as usize];
+            for a in 0..3 {
+                min[a] = min[a].min(p[a]);
+                max[a] = max[a].max(p[a]);
+            }
+        }
+        let axis = (0..3).max_by(|&a, &b| (max[a] - min[a]).total_cmp(&(max[b] - min[b]))).unwrap_or(0);
+        let mid = (lo + hi) / 2;
+        let points = self.points;
+        self.order[lo..hi].select_nth_unstable_by(mid - lo, |&i, &j| points[i as usize][axis].total_cmp(&points[j as usize][axis]));
+        self.axis[mid] = axis as u8;
+        self.build(lo, mid);
+        self.build(mid + 1, hi);
+    }
+
+    /// The distance from `p` to its k-th nearest point other than point `skip` (the
+    /// largest distance found when fewer than k others exist).
+    pub fn kth_distance(&self, p: [f64; 3], k: usize, skip: usize) -> f64 {
+        // The k smallest squared distances so far, as a max-heap of their bits (the bits of
+        // non-negative floats order as the floats do).
+        let mut best = std::collections::BinaryHeap::with_capacity(k + 1);
+        self.search_k(p, k, skip, 0, self.order.len(), &mut best);
+        best.peek().map(|&b| f64::from_bits(b).sqrt()).unwrap_or(0.0)
+    }
+
+    fn search_k(&self, p: [f64; 3], k: usize, skip: usize, lo: usize, hi: usize, best: &mut std::collections::BinaryHeap<u64>) {
+        if lo >= hi {
+            return;
+        }
+        let mid = (lo + hi) / 2;
+        let i = self.order[mid] as usize;
+        let q = self.points[i];
+        if i != skip {
+            let d2 = dist2(p, q);
+            if best.len() < k {
+                best.push(d2.to_bits());
+            } else if d2 < f64::from_bits(*best.peek().unwrap()) {
+                best.pop();
+                best.push(d2.to_bits());
+            }
+        }
+        let a = self.axis[mid] as usize;
+        let diff = p[a] - q[a];
+        let (near, far) = if diff < 0.0 { ((lo, mid), (mid + 1, hi)) } else { ((mid + 1, hi), (lo, mid)) };
+        self.search_k(p, k, skip, near.0, near.1, best);
+        if best.len() < k || diff * diff < f64::from_bits(*best.peek().unwrap()) {
+            self.search_k(p, k, skip, far.0, far.1, best);
+        }
+    }
+
+    /// Calls `f(index, squared distance)` for every point within `r` of `p`.
+    pub fn for_each_within(&self, p: [f64; 3], r: f64, mut f: impl FnMut(usize, f64)) {
+        self.within(p, r * r, 0, self.order.len(), &mut f);
+    }
+
+    fn within(&self, p: [f64; 3], r2: f64, lo: usize, hi: usize, f: &mut impl FnMut(usize, f64)) {
+        if lo >= hi {
+            return;
+        }
+        let mid = (lo + hi) / 2;
+        let i = self.order[mid] as usize;
+        let q = self.points[i];
+        let d2 = dist2(p, q);
+        if d2 <= r2 {
+            f(i, d2);
+        }
+        let a = self.axis[mid] as usize;
+        let diff = p[a] - q[a];
+        if diff <= 0.0 || diff * diff <= r2 {
+            self.within(p, r2, lo, mid, f);
+        }
+        if diff >= 0.0 || diff * diff <= r2 {
+            self.within(p, r2, mid + 1, hi, f);
+        }
+    }
+}
+
 /// Distance from each point to its k-th nearest other point (or the farthest, when there
 /// are fewer than k others; 0 for a single point).
 pub fn kth_neighbour_distance(points: &[[f64; 3]], k: usize) -> Vec<f64> {
@@ -202,53 +303,14 @@ pub fn kth_neighbour_distance(points: &[[f64; 3]], k: usize) -> Vec<f64> {
         return vec![0.0; n];
     }
     let k = k.min(n - 1);
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    let volume: f64 = (0..3).map(|a| (hi[a] - lo[a]).max(1e-9)).product();
-    // A cell expected to hold about k points if they were spread evenly.
-    let grid = PointGrid::new(points, (volume * k as f64 / n as f64).cbrt());
-    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max).max(1e-12);
-    points
-        .par_iter()
-        .enumerate()
-        .map(|(i, &p)| {
-            let mut r = grid.cell_size();
-            let mut d: Vec<f64> = Vec::with_capacity(4 * k);
-            loop {
-                d.clear();
-                grid.for_each_candidate(p, r, |j| {
-                    if j != i {
-                        let dd = dist2(p, points[j]);
-                        if dd <= r * r {
-                            d.push(dd);
-                        }
-                    }
-                });
-                // Enough neighbours inside the searched sphere: the k-th is exact.
-                if d.len() >= k || r > 2.0 * extent {
-                    break;
-                }
-                r *= 2.0;
-            }
-            if d.len() < k {
-                return d.iter().cloned().fold(0.0, f64::max).sqrt();
-            }
-            let (_, kth, _) = d.select_nth_unstable_by(k - 1, f64::total_cmp);
-            kth.sqrt()
-        })
-        .collect()
+    let tree = KdTree::new(points);
+    points.par_iter().enumerate().map(|(i, &p)| tree.kth_distance(p, k, i)).collect()
 }
 
 /// SPH density at each particle with its own h: ρ_i = Σ_j m_j W(|r_i − r_j|, h_i).
 pub fn sph_density(points: &[[f64; 3]], mass: &[f32], h: &[f32]) -> Vec<f32> {
     use rayon::prelude::*;
-    let hmax = h.iter().cloned().fold(0.0f32, f32::max) as f64;
-    let grid = PointGrid::new(points, 2.0 * hmax);
+    let tree = KdTree::new(points);
     points
         .par_iter()
         .enumerate()
@@ -258,10 +320,7 @@ pub fn sph_density(points: &[[f64; 3]], mass: &[f32], h: &[f32]) -> Vec<f32> {
                 return 0.0;
             }
             let mut rho = 0.0;
-            grid.for_each_candidate(p, 2.0 * hi, |j| {
-                let r = dist2(p, points[j]).sqrt();
-                rho += mass[j] as f64 * cubic_spline(r, hi);
-            });
+            tree.for_each_within(p, 2.0 * hi, |j, d2| rho += mass[j] as f64 * cubic_spline(d2.sqrt(), hi));
             rho as f32
         })
         .collect()
@@ -420,6 +479,36 @@ mod tests {
         let centre = 7 + 14 * (7 + 14 * 7);
         let want = m as f64 / (a * a * a);
         assert!(((rho[centre] as f64) - want).abs() / want < 0.01, "{} vs {want}", rho[centre]);
+    }
+
+    /// Clustered points (a dense core in a sparse halo, duplicates): k-th neighbour
+    /// distances and SPH densities through the kd-tree equal a brute-force search.
+    #[test]
+    fn kd_tree_searches_equal_brute_force_on_clustered_points() {
+        let mut next = uniform_stream(5);
+        let mut p: Vec<[f64; 3]> = (0..1500)
+            .map(|k| {
+                let s = if k % 3 == 0 { 100.0 } else { 1.0 };
+                [s * (next() - 0.5), s * (next() - 0.5), s * (next() - 0.5)]
+            })
+            .collect();
+        p.extend_from_slice(&p[..40].to_vec());
+        let n = p.len();
+        for k in [1, 7, 32] {
+            let fast = kth_neighbour_distance(&p, k);
+            for i in (0..n).step_by(13) {
+                let mut d: Vec<f64> = (0..n).filter(|&j| j != i).map(|j| dist2(p[i], p[j]).sqrt()).collect();
+                d.sort_by(f64::total_cmp);
+                assert_eq!(fast[i], d[k - 1], "point {i}, k {k}");
+            }
+        }
+        let mass = vec![0.5f32; n];
+        let h: Vec<f32> = kth_neighbour_distance(&p, 32).iter().map(|&d| (0.5 * d) as f32).collect();
+        let rho = sph_density(&p, &mass, &h);
+        for i in (0..n).step_by(7) {
+            let exact: f64 = (0..n).map(|j| 0.5 * cubic_spline(dist2(p[i], p[j]).sqrt(), h[i] as f64)).sum();
+            assert!((rho[i] as f64 - exact).abs() <= 1e-6 * exact, "point {i}: {} vs {exact}", rho[i]);
+        }
     }
 
     #[test]

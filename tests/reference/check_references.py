@@ -4,6 +4,7 @@ match what is committed (floats to 1e-9 relative: numpy's summation order may di
 between CPUs). Proves the references are reproducible from the scripts beside this file.
 
 Usage: check_references.py SHARED_DATA_DIR SCRATCH_DIR
+       check_references.py --builtin VOLTERRA_BINARY SCRATCH_DIR   (after a build)
 """
 import json
 import math
@@ -33,7 +34,42 @@ def same(a, b, path, errors):
         errors.append(f"{path}: {a!r} vs {b!r}")
 
 
+def check_mitsuba(folder, scratch, errors):
+    """Renders the smoke scenes in tests/reference/FOLDER with Mitsuba (8192 spp, fixed
+    seed) and compares them with the committed images."""
+    import glob
+    import numpy as np
+    import OpenEXR
+    scenes = sorted(glob.glob(os.path.join(HERE, folder, "*.toml")))
+    subprocess.run([sys.executable, os.path.join(HERE, "mitsuba_smoke.py"), os.path.join(scratch, "mitsuba"), "8192"] + scenes,
+                   check=True, stderr=subprocess.DEVNULL)
+    for scene in scenes:
+        name = "mitsuba_" + os.path.splitext(os.path.basename(scene))[0] + ".exr"
+        a = OpenEXR.File(os.path.join(REPO, "tests/reference/data", name)).channels()["RGB"].pixels.astype(np.float64)
+        b = OpenEXR.File(os.path.join(scratch, "mitsuba", name)).channels()["RGB"].pixels.astype(np.float64)
+        rel = float(np.sqrt(((a - b) ** 2).mean() / max((b ** 2).mean(), 1e-30)))
+        if rel > 1e-3:
+            errors.append(f"{name}: Mitsuba render differs from the committed one by {rel} (relative RMSE)")
+
+
+def report(errors):
+    if errors:
+        print("\n".join(errors[:50]), file=sys.stderr)
+        print(f"references differ from the committed ones in {len(errors)} places", file=sys.stderr)
+        sys.exit(1)
+    print("references regenerate identically")
+
+
 def main():
+    if sys.argv[1] == "--builtin":
+        # The references of our own built-in samples: VOLTERRA (a built binary) writes
+        # them where the scenes in tests/reference/builtin_scenes read them.
+        volterra, scratch = sys.argv[2], sys.argv[3]
+        subprocess.run([volterra, "samples", os.path.join(REPO, "target/builtin-samples")], check=True, stdout=subprocess.DEVNULL)
+        errors = []
+        check_mitsuba("builtin_scenes", scratch, errors)
+        report(errors)
+        return
     shared, scratch = sys.argv[1], sys.argv[2]
     os.makedirs(scratch, exist_ok=True)
     py = sys.executable
@@ -80,26 +116,13 @@ def main():
             if rel > 1e-4:
                 errors.append(f"{name}: VTK depth differs from the committed one by {rel} (median relative)")
         # Mitsuba's render of the smoke comparison scene (8192 spp, deterministic seed).
-        scenes = sorted(glob.glob(os.path.join(HERE, "smoke_scenes", "*.toml")))
-        subprocess.run([py, os.path.join(HERE, "mitsuba_smoke.py"), os.path.join(scratch, "mitsuba"), "8192"] + scenes, check=True,
-                       stderr=subprocess.DEVNULL)
-        for scene in scenes:
-            name = "mitsuba_" + os.path.splitext(os.path.basename(scene))[0] + ".exr"
-            a = OpenEXR.File(os.path.join(REPO, "tests/reference/data", name)).channels()["RGB"].pixels.astype(np.float64)
-            b = OpenEXR.File(os.path.join(scratch, "mitsuba", name)).channels()["RGB"].pixels.astype(np.float64)
-            rel = float(np.sqrt(((a - b) ** 2).mean() / max((b ** 2).mean(), 1e-30)))
-            if rel > 1e-3:
-                errors.append(f"{name}: Mitsuba render differs from the committed one by {rel} (relative RMSE)")
+        check_mitsuba("smoke_scenes", scratch, errors)
     elif os.environ.get("CI") == "true":
         print(f"shared data not found at {shared} (CI=true: must not skip)", file=sys.stderr)
         sys.exit(1)
     else:
         print(f"SKIPPED shared-data references: {shared} not found", file=sys.stderr)
-    if errors:
-        print("\n".join(errors[:50]), file=sys.stderr)
-        print(f"references differ from the committed ones in {len(errors)} places", file=sys.stderr)
-        sys.exit(1)
-    print("references regenerate identically")
+    report(errors)
 
 
 if __name__ == "__main__":

@@ -13,12 +13,20 @@ use std::path::PathBuf;
 
 const MAGIC: &[u8; 8] = b"VTPHOT01";
 
+/// Changes whenever photon tracing draws its random numbers differently (the photons for
+/// a seed change): photons traced by an older version are then traced again, not reused.
+/// 2: majorant bricks walked whole, f32 density geometry.
+const TRACER: &str = "tracer 2";
+
 /// FNV-1a, 64 bits: stable across runs and platforms (std's hasher is not).
 pub struct Key(u64);
 
 impl Key {
+    /// A key salted with [`TRACER`].
     pub fn new() -> Key {
-        Key(0xcbf2_9ce4_8422_2325)
+        let mut k = Key(0xcbf2_9ce4_8422_2325);
+        k.str(TRACER);
+        k
     }
     pub fn bytes(&mut self, b: &[u8]) -> &mut Key {
         for &x in b {

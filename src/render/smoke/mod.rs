@@ -271,7 +271,12 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         }
         ShadowMode::Marched => Vec::new(),
     };
-    let has_ms = traced.is_some();
+    // No photon stored (thin smoke, or none reached it): multiple scattering is zero, and
+    // neither the irradiance map nor the store is consulted.
+    let has_ms = traced.as_ref().is_some_and(|t| !t.photons.is_empty());
+    if traced.as_ref().is_some_and(|t| t.photons.is_empty()) {
+        notes.push("no photon scattered twice in the smoke: single scattering only".into());
+    }
     let direct: &(dyn Fn(DVec3, DVec3) -> [f64; 3] + Sync) = &source;
     let gridded: &(dyn Fn(DVec3, DVec3) -> [f64; 3] + Sync) = &mapped;
     let view = march::MarchView {
