@@ -1,13 +1,15 @@
 //! `volterra bench smoke`: the four configurations of the paper's Table 1 — photon map or
-//! particle map, with or without the irradiance map — on the 110k-particle plume with
-//! 640k photons and 4 rays per pixel: photon tracing, store, irradiance-map + ray-marching
-//! times and memory at the timing image size, and each one's error against Mitsuba 3 on
-//! the comparison view (tests/reference/smoke_scenes/plume110k.toml, 8192 spp, committed).
-//! Then Mitsuba's own time to reach comparable errors at rising sample counts; `view s` is
-//! each one's time for the comparison view itself, so time and error compare on one image.
+//! particle map, with or without the irradiance map — and two variants of the default
+//! (shadow rays instead of the transmittance grid; the paper's biased local free path), on
+//! the 110k-particle plume with 640k photons and 4 rays per pixel: photon tracing, store,
+//! irradiance-map + ray-marching times and memory at the timing image size, and each one's
+//! error against Mitsuba 3 on the comparison view
+//! (tests/reference/smoke_scenes/plume110k.toml, 8192 spp, committed). Then Mitsuba's own
+//! time to reach comparable errors at rising sample counts; `view s` is each one's time for
+//! the comparison view itself, so time and error compare on one image.
 
 use crate::compare::{rgba_pixels, rgba_rel_rmse};
-use crate::render::smoke::{self, Settings, SmokeInput, Store};
+use crate::render::smoke::{self, FreeFlight, Settings, ShadowMode, SmokeInput, Store};
 use crate::render::Frame;
 use crate::scene::{NodeKind, Scene};
 use anyhow::{bail, Context, Result};
@@ -67,18 +69,36 @@ pub fn run(b: &SmokeBench) -> Result<()> {
     let err_of = |f: &Frame| rgba_rel_rmse(&f.rgba.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect::<Vec<_>>(), &reference);
 
     let mut rows = Vec::new();
-    let bar = crate::progress::bar(4, "smoke bench");
-    for (store, irradiance) in
-        [(Store::PhotonMap, false), (Store::PhotonMap, true), (Store::ParticleMap, false), (Store::ParticleMap, true)]
-    {
+    // The four combinations of the paper's Table 1, then the default's two alternatives:
+    // a shadow ray per sample instead of the transmittance grid, and the paper's local
+    // free path −ln ξ / σ_t(x) instead of delta tracking (its bias shows as error).
+    let configs = [
+        (Store::PhotonMap, false, ShadowMode::Grid, FreeFlight::Delta, ""),
+        (Store::PhotonMap, true, ShadowMode::Grid, FreeFlight::Delta, ""),
+        (Store::ParticleMap, false, ShadowMode::Grid, FreeFlight::Delta, ""),
+        (Store::ParticleMap, true, ShadowMode::Grid, FreeFlight::Delta, ""),
+        (Store::ParticleMap, true, ShadowMode::Marched, FreeFlight::Delta, ", shadow rays"),
+        (Store::ParticleMap, true, ShadowMode::Grid, FreeFlight::Local, ", local free path"),
+    ];
+    let bar = crate::progress::bar(configs.len() as u64, "smoke bench");
+    for (store, irradiance, shadows, free_flight, variant) in configs {
         let name = format!(
-            "{} {}",
+            "{} {}{variant}",
             if store == Store::PhotonMap { "photon map" } else { "particle map" },
             if irradiance { "+ irradiance map" } else { "direct" }
         );
         // The paper gathers up to 500 photons; 100 keeps the direct photon-map row in minutes.
-        let s =
-            Settings { store, irradiance_map: irradiance, photons: b.photons, samples: 4, gather: 100, cache: false, ..Default::default() };
+        let s = Settings {
+            store,
+            irradiance_map: irradiance,
+            shadows,
+            free_flight,
+            photons: b.photons,
+            samples: 4,
+            gather: 100,
+            cache: false,
+            ..Default::default()
+        };
         let timed = render(&scene, node, &s, (b.width, b.height))?;
         let check = render(&scene, node, &s, ref_size)?;
         let memory = ["particle map MB", "photon map MB", "irradiance map MB"].iter().map(|k| counter(&timed, k)).sum::<f64>();
@@ -114,12 +134,12 @@ pub fn run(b: &SmokeBench) -> Result<()> {
         rayon::current_num_threads()
     );
     println!(
-        "{:<34} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10} {:>8}",
+        "{:<50} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10} {:>8}",
         "config", "total s", "trace s", "store s", "march s", "rel. RMSE", "memory MB", "view s"
     );
     for r in &rows {
         println!(
-            "{:<34} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2}% {:>10.1} {:>8.2}",
+            "{:<50} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2}% {:>10.1} {:>8.2}",
             r.config,
             r.total_s,
             r.trace_s,

@@ -7,7 +7,7 @@ use volterra::render::smoke::medium::{Homogeneous, Kernel, Medium, Shape, SphMed
 use volterra::render::smoke::phase::{hg, sample_hg, sample_hg_cos};
 use volterra::render::smoke::photons::{trace, TraceSettings};
 use volterra::render::smoke::rng::Rng;
-use volterra::render::smoke::tracking::{delta_track, marched_transmittance, ratio_track};
+use volterra::render::smoke::tracking::{delta_track, local_free_path, marched_transmittance, ratio_track};
 use volterra::render::smoke::{self, FreeFlight, Settings, SmokeInput, Store};
 use volterra::scene::camera::Camera;
 use volterra::scene::{Light, LightKind, Medium as MediumParams};
@@ -498,4 +498,27 @@ fn delta_tracking_through_sph_smoke_escapes_at_the_marched_transmittance() {
         checked += (exact > 0.05 && exact < 0.95) as usize;
     }
     assert!(checked >= 2, "the rays should cross the cloud with partial transmittance");
+}
+
+/// The paper's local free path is exact where σ_t is constant: photons from outside a
+/// homogeneous slab (the empty space before it crossed at once) cross it without a
+/// collision with probability e^(−σ_t L), and collide inside it.
+#[test]
+fn local_free_path_is_exact_in_a_homogeneous_slab() {
+    let slab = Homogeneous::new(1.0, Shape::Box { lo: DVec3::new(-5.0, -5.0, 0.0), hi: DVec3::new(5.0, 5.0, 0.6) });
+    let (sigma, o, d) = (2.0, DVec3::new(0.1, 0.2, 3.0), DVec3::new(0.1, 0.0, -1.0).normalize());
+    let length = 0.6 / d.z.abs();
+    let exact = (-sigma * length).exp();
+    let mut rng = Rng::new(41);
+    let n = 100_000;
+    let mut escaped = 0;
+    for _ in 0..n {
+        match local_free_path(&slab, sigma, o, d, 10.0, 0.01, &mut rng) {
+            None => escaped += 1,
+            Some(t) => assert!((o + t * d).z >= -1e-12 && (o + t * d).z <= 0.6 + 1e-12, "collision outside the slab at t {t}"),
+        }
+    }
+    let f = escaped as f64 / n as f64;
+    let se = (exact * (1.0 - exact) / n as f64).sqrt();
+    assert!((f - exact).abs() < 4.0 * se, "escaped {f} vs e^(−σL) {exact} (σ {se})");
 }

@@ -60,17 +60,34 @@ pub fn delta_track(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3, t_max: f
 }
 
 /// The paper's free path: d = −ln ξ / σ_t(x) with σ_t evaluated at the photon's current
-/// position x (where σ_t = 0 there, the photon advances by half a step and tries again).
+/// position x (where σ_t = 0 there, the photon advances by half a step and tries again;
+/// stretches of empty majorant cells, where σ_t is 0 throughout, are crossed at once; a
+/// jump landing where there is no smoke is no collision).
 /// Biased in a heterogeneous medium — a setting, so that the bias can be measured.
 pub fn local_free_path(medium: &dyn Medium, c_ext: f64, o: DVec3, d: DVec3, t_max: f64, step: f64, rng: &mut Rng) -> Option<f64> {
     let mut t = 0.0;
     while t < t_max {
+        // The start of the next cell with smoke in it, from t on.
+        let mut next = None;
+        medium.majorants().walk(o, d, t, t_max, 0.0, |ta, _, maj| {
+            if maj > 0.0 {
+                next = Some(ta);
+                return false;
+            }
+            true
+        });
+        t = t.max(next?);
         let sigma = c_ext * medium.density(o + t * d);
-        if sigma > 0.0 {
-            let s = -(1.0 - rng.uniform()).ln() / sigma;
-            return (t + s < t_max).then_some(t + s);
+        if sigma <= 0.0 {
+            t += 0.5 * step;
+            continue;
         }
-        t += 0.5 * step;
+        t -= (1.0 - rng.uniform()).ln() / sigma;
+        // A collision needs smoke where it happens: a jump that lands in clear air flies
+        // on from there.
+        if t < t_max && medium.density(o + t * d) > 0.0 {
+            return Some(t);
+        }
     }
     None
 }
