@@ -85,7 +85,9 @@ impl PointGrid {
     }
 
     /// Calls `f(index)` for every point in cells overlapping the cube of half-size `r`
-    /// around `p` (the caller filters by distance).
+    /// around `p` (the caller filters by distance): cell by cell, the plain form the tests
+    /// check [`Self::for_each_run`] against (the searches use runs, or the kd-tree).
+    #[cfg(test)]
     pub fn for_each_candidate(&self, p: [f64; 3], r: f64, mut f: impl FnMut(usize)) {
         let lo = [0, 1, 2].map(|a| (((p[a] - r - self.lo[a]) / self.cell).floor().max(0.0) as usize).min(self.dims[a] - 1));
         let hi = [0, 1, 2].map(|a| (((p[a] + r - self.lo[a]) / self.cell).floor().max(0.0) as usize).min(self.dims[a] - 1));
@@ -153,10 +155,6 @@ impl PointGrid {
     /// Point indices in cell order.
     pub fn order(&self) -> &[u32] {
         &self.order
-    }
-
-    pub fn cell_size(&self) -> f64 {
-        self.cell
     }
 
     /// The grid's lowest corner (the points' bounding box's).
