@@ -27,9 +27,10 @@ struct ReadArgs {
     /// DICOM: resample slices with non-uniform spacing or gaps instead of refusing them.
     #[arg(long)]
     resample: bool,
-    /// NIfTI 4-D: which volume to read (0-based).
-    #[arg(long, default_value_t = 0)]
-    volume: usize,
+    /// NIfTI 4-D: which volume to read (0-based; default the first, and for `convert` all of
+    /// them).
+    #[arg(long)]
+    volume: Option<usize>,
     /// PNG heightmap: metres per grey level.
     #[arg(long)]
     vertical_scale: Option<f64>,
@@ -49,7 +50,7 @@ impl ReadArgs {
         let mut o = LoadOptions::default();
         o.dicom.series = self.series.clone();
         o.dicom.resample = self.resample;
-        o.nifti.volume_index = self.volume;
+        o.nifti.volume_index = self.volume.unwrap_or(0);
         if let Some(v) = self.vertical_scale {
             o.png.vertical_scale = v;
         }
@@ -89,10 +90,11 @@ enum Command {
         #[command(flatten)]
         read: ReadArgs,
     },
-    /// Render a scene to EXR (colour, alpha, depth Z, extra channels), optionally a PNG.
+    /// Render a scene to EXR (colour, alpha, depth Z, extra channels) or PNG (an sRGB
+    /// preview), as the output's extension says; optionally a PNG beside an EXR.
     Render {
         scene: PathBuf,
-        /// Output EXR.
+        /// Output image: `.exr` (every channel, linear) or `.png` (sRGB preview).
         #[arg(short, long)]
         output: PathBuf,
         /// Also write an sRGB PNG preview.
@@ -168,6 +170,12 @@ enum Command {
         #[arg(long, default_value = "tests/reference/.venv/bin/python")]
         python: PathBuf,
     },
+    /// The photon cache of the smoke renderer: where it is and how large (`cache`), or empty
+    /// it (`cache --clear`). Its limit is VOLTERRA_CACHE_MAX (default 1G; 0 turns it off).
+    Cache {
+        #[arg(long)]
+        clear: bool,
+    },
     /// Compare two EXR images: RMSE, PSNR, max error, relative RMSE per channel.
     Compare {
         a: PathBuf,
@@ -199,7 +207,35 @@ fn exit_cleanly_on_signals() {
 #[cfg(not(unix))]
 fn exit_cleanly_on_signals() {}
 
+/// A closed pipe (`volterra info --json F | head -1`) ends the program quietly, as Unix
+/// tools do: Rust ignores SIGPIPE, so `println!` would panic on the failed write instead.
+#[cfg(unix)]
+fn default_sigpipe() {
+    // SAFETY: restoring a signal's default disposition at start-up, before any thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+#[cfg(not(unix))]
+fn default_sigpipe() {}
+
+/// Without a usable XDG_RUNTIME_DIR (CI shells, cron, ssh without a login session), Mesa's
+/// device-select Vulkan layer asks libwayland for a display while wgpu lists adapters, and
+/// libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set" on every GPU render. The
+/// layer only orders GPUs for a desktop session, which is not there: turn it off, as its
+/// manifest allows (NODEVICE_SELECT=1), unless the user chose otherwise.
+fn quiet_vulkan_device_select() {
+    let runtime_ok = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| Path::new(&d).is_dir());
+    if !runtime_ok && std::env::var_os("NODEVICE_SELECT").is_none() {
+        // Before any thread exists: nothing reads the environment concurrently.
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
+}
+
 fn main() -> ExitCode {
+    quiet_vulkan_device_select();
+    default_sigpipe();
     exit_cleanly_on_signals();
     let cli = Cli::parse();
     match run(cli) {
@@ -222,6 +258,22 @@ fn run(cli: Cli) -> Result<()> {
         Command::Info { path, json, read } => cmd_info(&path, json, &read),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read),
         Command::Compare { a, b, json } => cmd_compare(&a, &b, json),
+        Command::Cache { clear } => {
+            use volterra::render::smoke::cache;
+            if clear {
+                println!("removed {} cached photon file(s)", cache::clear());
+            }
+            match cache::usage() {
+                Some((dir, n, bytes)) => println!(
+                    "{}: {n} file(s), {:.1} MB of at most {:.1} MB (VOLTERRA_CACHE_MAX)",
+                    dir.display(),
+                    bytes as f64 / 1e6,
+                    cache::max_bytes() as f64 / 1e6
+                ),
+                None => println!("no cache directory (set VOLTERRA_CACHE_DIR)"),
+            }
+            Ok(())
+        }
         Command::Render { scene, output, png, sets, frames } => match frames {
             None => cmd_render(&scene, &output, png.as_deref(), &sets),
             Some(n) => cmd_render_frames(&scene, &output, png.as_deref(), &sets, n),
@@ -322,11 +374,27 @@ fn lower_name(p: &Path) -> String {
 
 fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
     let opts = read.options()?;
+    check_output_dir(output)?;
+    let out = lower_name(output);
+    let nifti_out = out.ends_with(".nii") || out.ends_with(".nii.gz");
+    // A 4-D NIfTI converts whole (a 4-D file out) unless --volume names one: never only the
+    // first volume without a word.
+    if read.volume.is_none() && nifti_out && formats::detect(input)? == formats::FileKind::Nifti {
+        let header = formats::nifti::read_nifti_header(input)?;
+        if (4..=header.dim[0]).any(|i| header.dim[i as usize] > 1) {
+            let spin = volterra::progress::spinner(&format!("reading {}", input.display()));
+            let all = formats::nifti::read_nifti_volumes(input);
+            spin.finish_and_clear();
+            let all = all?;
+            formats::nifti::write_nifti_volumes(output, &all.volumes, &all.extra_dims, all.time_step, all.time_unit)?;
+            eprintln!("wrote {} ({} volumes)", output.display(), all.volumes.len());
+            return Ok(());
+        }
+    }
     let spin = volterra::progress::spinner(&format!("reading {}", input.display()));
     let data = formats::load(input, &opts);
     spin.finish_and_clear();
     let data = data?;
-    let out = lower_name(output);
     match data {
         Dataset::Volume(v) if out.ends_with(".nii") || out.ends_with(".nii.gz") => formats::nifti::write_nifti(output, &v)?,
         Dataset::Heightfield(h) if out.ends_with(".tif") || out.ends_with(".tiff") => formats::geotiff::write_geotiff(output, &h)?,
@@ -366,6 +434,11 @@ fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
 }
 
 fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String]) -> Result<()> {
+    output_format(output)?;
+    check_output_dir(output)?;
+    if let Some(p) = png {
+        check_output_dir(p)?;
+    }
     let scene = Scene::load(scene_path, sets)?;
     write_frame(&scene, None, output, png)
 }
@@ -380,9 +453,38 @@ fn write_frame(scene: &Scene, frame: Option<(usize, usize)>, output: &Path, png:
         }
     }
     let bg = scene.file.image.background;
-    formats::exr_io::write_exr(output, &image.to_image(bg))?;
+    match output_format(output)? {
+        OutputFormat::Exr => formats::exr_io::write_exr(output, &image.to_image(bg))?,
+        OutputFormat::Png => formats::image::write_png_preview(output, image.width, image.height, &image.preview_rgba(bg))?,
+    }
     if let Some(p) = png {
         formats::image::write_png_preview(p, image.width, image.height, &image.preview_rgba(bg))?;
+    }
+    Ok(())
+}
+
+/// What a rendered image is written as: decided by the output's extension, never assumed.
+#[derive(Clone, Copy, PartialEq)]
+enum OutputFormat {
+    Exr,
+    Png,
+}
+
+fn output_format(path: &Path) -> Result<OutputFormat> {
+    match path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).as_deref() {
+        Some("exr") => Ok(OutputFormat::Exr),
+        Some("png") => Ok(OutputFormat::Png),
+        _ => bail!("{}: unsupported output format (render writes .exr or .png)", path.display()),
+    }
+}
+
+/// Refuses an output whose directory does not exist before any work is done (the atomic
+/// writer would otherwise fail at the end with a bare "No such file or directory").
+fn check_output_dir(path: &Path) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !dir.is_dir() {
+            bail!("{}: the output directory {} does not exist", path.display(), dir.display());
+        }
     }
     Ok(())
 }
@@ -400,6 +502,11 @@ fn numbered(path: &Path, k: usize) -> PathBuf {
 fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], n: usize) -> Result<()> {
     if n == 0 {
         bail!("--frames must be at least 1");
+    }
+    output_format(output)?;
+    check_output_dir(output)?;
+    if let Some(p) = png {
+        check_output_dir(p)?;
     }
     let scene = Scene::load(scene_path, sets)?;
     if scene.file.keyframes.is_empty() {

@@ -10,14 +10,16 @@ VENV_PY=tests/reference/.venv/bin/python
 SHARED="${VOLTERRA_SHARED_DATA:-$(cd .. && pwd)/shared/data}"
 "$VENV_PY" tests/reference/check_references.py "$SHARED" target/reference-regen
 mkdir -p target
+# Where cargo puts the binaries: CARGO_TARGET_DIR or a config may move them out of ./target.
+TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | "$VENV_PY" -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
 set +e
 cargo test --workspace --all-targets --no-fail-fast 2>&1 | tee target/test-output.log
 status=${PIPESTATUS[0]}
 # The Mitsuba reference of the built-in plume, from the particles the built binary writes.
-if [ -x target/debug/volterra ]; then
-    "$VENV_PY" tests/reference/check_references.py --builtin target/debug/volterra target/reference-regen || status=1
+if [ -x "$TARGET_DIR/debug/volterra" ]; then
+    "$VENV_PY" tests/reference/check_references.py --builtin "$TARGET_DIR/debug/volterra" target/reference-regen || status=1
 else
-    echo "no target/debug/volterra: built-in references not checked"; status=1
+    echo "no $TARGET_DIR/debug/volterra: built-in references not checked"; status=1
 fi
 set -e
 # Every reader under libFuzzer for a bounded time (tests/fuzz.sh; 60 s per target, two at once).

@@ -348,3 +348,50 @@ fn files_open_from_the_dialog_and_by_drag_and_drop_without_blocking() {
     assert!(e.contains("broken.nii") && !e.contains('\n'), "{e}");
     assert_eq!(h.state().scene().unwrap().nodes()[0].renderer.as_deref(), Some("terrain"));
 }
+
+/// `volterra view SCENE --screenshot W.png` hung for ever when the first frame failed (a
+/// perspective camera on a shear-warp node): it prints the error and exits 1, no PNG.
+#[test]
+fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
+    let xvfb = Path::new("/usr/bin/xvfb-run");
+    if !xvfb.exists() {
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            panic!("xvfb-run missing under CI (tests/setup-system.sh installs xvfb)");
+        }
+        eprintln!("skipped: xvfb-run not installed");
+        return;
+    }
+    let dir = samples();
+    let text = std::fs::read_to_string(dir.path().join("angio_shear_warp.toml")).unwrap();
+    let scene = dir.path().join("perspective.toml");
+    std::fs::write(&scene, text.replace("parallel_projection = true", "parallel_projection = false")).unwrap();
+    let shot = dir.path().join("never.png");
+    let runtime = tempfile::tempdir().unwrap();
+    let mut child = Command::new(xvfb)
+        .args(["-a", "-s", "-screen 0 1280x800x24"])
+        .arg(env!("CARGO_BIN_EXE_volterra"))
+        .arg("view")
+        .arg(&scene)
+        .arg("--screenshot")
+        .arg(&shot)
+        .env("XDG_RUNTIME_DIR", runtime.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            panic!("the viewer still runs after 120 s: it waits for a frame that cannot come");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(1), "{err}");
+    assert!(err.contains("perspective") || err.contains("parallel"), "the error names the cause: {err}");
+    assert!(!shot.exists());
+}

@@ -7,10 +7,13 @@
 use crate::error::{ErrorKind, FormatError, Result};
 use crate::memory::check_alloc;
 use crate::volume::{spacing_of, Affine, Rescale, ScalarType, Volume, VoxelData};
-use dicom_dictionary_std::tags;
+use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry, VirtualVr};
+use dicom_core::{PrimitiveValue, VR};
+use dicom_dictionary_std::{tags, StandardDataDictionary};
 use dicom_object::{InMemDicomObject, OpenFileOptions};
 use dicom_pixeldata::PixelDecoder;
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -61,12 +64,82 @@ struct ImageInfo {
     frame_positions: Vec<[f64; 3]>,
     /// Per-frame rescale of enhanced multi-frame files, where it varies.
     frame_rescale: Vec<Rescale>,
+    /// How the file was read where not as a plain Part 10 file (no meta header, say).
+    read_note: Option<String>,
 }
 
 type Obj = InMemDicomObject;
 
+/// The value of `tag` as its dictionary VR reads it. dicom-rs hands elements stored with VR
+/// UN (some exporters write position, orientation, spacing, Modality and DoseGridScaling so)
+/// as raw bytes, which read as numbers give the bytes' codes; pydicom resolves them through
+/// the DICOM dictionary, and so do we. UN values are in the data set's byte order.
+fn value(obj: &Obj, tag: dicom_core::Tag) -> Option<Cow<'_, PrimitiveValue>> {
+    let e = obj.get(tag)?;
+    let p = e.value().primitive()?;
+    if e.vr() != VR::UN {
+        return Some(Cow::Borrowed(p));
+    }
+    let Some(VirtualVr::Exact(vr)) = StandardDataDictionary.by_tag(tag).map(|d| d.vr()) else {
+        return Some(Cow::Borrowed(p));
+    };
+    let bytes = p.to_bytes();
+    let big = BIG_ENDIAN_DATA_SET.with(|b| b.get());
+    macro_rules! words {
+        ($t:ty, $n:expr, $variant:ident) => {
+            PrimitiveValue::$variant(
+                bytes
+                    .chunks_exact($n)
+                    .map(|c| {
+                        let a: [u8; $n] = c.try_into().unwrap();
+                        if big {
+                            <$t>::from_be_bytes(a)
+                        } else {
+                            <$t>::from_le_bytes(a)
+                        }
+                    })
+                    .collect(),
+            )
+        };
+    }
+    Some(Cow::Owned(match vr {
+        VR::AE
+        | VR::AS
+        | VR::CS
+        | VR::DA
+        | VR::DS
+        | VR::DT
+        | VR::IS
+        | VR::LO
+        | VR::LT
+        | VR::PN
+        | VR::SH
+        | VR::ST
+        | VR::TM
+        | VR::UC
+        | VR::UI
+        | VR::UR
+        | VR::UT => {
+            let text = String::from_utf8_lossy(&bytes);
+            PrimitiveValue::Strs(text.split('\\').map(|v| v.trim_matches(|c: char| c == '\0' || c == ' ').to_string()).collect())
+        }
+        VR::US => words!(u16, 2, U16),
+        VR::SS => words!(i16, 2, I16),
+        VR::UL => words!(u32, 4, U32),
+        VR::SL => words!(i32, 4, I32),
+        VR::FL => words!(f32, 4, F32),
+        VR::FD => words!(f64, 8, F64),
+        _ => return Some(Cow::Borrowed(p)),
+    }))
+}
+
+thread_local! {
+    /// Whether the data set being read is big endian (for UN values): set by `image_info`.
+    static BIG_ENDIAN_DATA_SET: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
 fn floats(obj: &Obj, tag: dicom_core::Tag) -> Option<Vec<f64>> {
-    obj.get(tag).and_then(|e| e.to_multi_float64().ok()).filter(|v| v.iter().all(|x| x.is_finite()))
+    value(obj, tag).and_then(|v| v.to_multi_float64().ok()).filter(|v| v.iter().all(|x| x.is_finite()))
 }
 fn float(obj: &Obj, tag: dicom_core::Tag) -> Option<f64> {
     floats(obj, tag).and_then(|v| v.first().copied())
@@ -75,8 +148,8 @@ fn float(obj: &Obj, tag: dicom_core::Tag) -> Option<f64> {
 /// naming the element when it holds something that is not finite numbers (a NaN slope or
 /// spacing must not be ignored silently).
 fn checked_floats(path: &Path, obj: &Obj, tag: dicom_core::Tag, name: &str) -> Result<Option<Vec<f64>>> {
-    let Some(e) = obj.get(tag) else { return Ok(None) };
-    let raw = e.to_str().map(|s| s.trim_matches(|c: char| c == '\0' || c.is_whitespace()).to_string()).unwrap_or_default();
+    let Some(e) = value(obj, tag) else { return Ok(None) };
+    let raw = e.to_str().trim_matches(|c: char| c == '\0' || c.is_whitespace()).to_string();
     if raw.is_empty() && e.to_multi_float64().map(|v| v.is_empty()).unwrap_or(true) {
         return Ok(None);
     }
@@ -98,10 +171,10 @@ fn rescale_of(path: &Path, obj: &Obj) -> Result<Rescale> {
 }
 
 fn int(obj: &Obj, tag: dicom_core::Tag) -> Option<i64> {
-    obj.get(tag).and_then(|e| e.to_int::<i64>().ok())
+    value(obj, tag).and_then(|v| v.to_int::<i64>().ok())
 }
 fn text(obj: &Obj, tag: dicom_core::Tag) -> Option<String> {
-    obj.get(tag).and_then(|e| e.to_str().ok()).map(|s| s.trim_matches(|c: char| c == '\0' || c.is_whitespace()).to_string())
+    value(obj, tag).map(|v| v.to_str().trim_matches(|c: char| c == '\0' || c.is_whitespace()).to_string())
 }
 fn item(obj: &Obj, seq: dicom_core::Tag) -> Option<&Obj> {
     obj.get(seq).and_then(|e| e.items()).and_then(|items| items.first())
@@ -110,12 +183,40 @@ fn items(obj: &Obj, seq: dicom_core::Tag) -> &[Obj] {
     obj.get(seq).and_then(|e| e.items()).unwrap_or(&[])
 }
 
-fn open(path: &Path, metadata_only: bool) -> Result<dicom_object::DefaultDicomObject> {
-    crate::dicom_scan::check_lengths(path)?;
+/// Opens a DICOM file; the note says how it was read where it was not as a plain Part 10 file.
+fn open(path: &Path, metadata_only: bool) -> Result<(dicom_object::DefaultDicomObject, Option<String>)> {
+    if let Some(how) = crate::dicom_scan::check_lengths(path)? {
+        return reparse(path, &how).map(|f| (f, Some(how.note)));
+    }
     let opts = OpenFileOptions::new();
     let opts = if metadata_only { opts.read_until(tags::PIXEL_DATA) } else { opts };
     crate::guard::third_party(path, "the DICOM parser", || {
         opts.open_file(path).map_err(|e| FormatError::invalid(path, format!("not a readable DICOM file: {}", first_line(&e.to_string()))))
+    })
+    .map(|f| (f, None))
+}
+
+/// A data set dicom-rs does not read as the file stands (see [`crate::dicom_scan::Reparse`]):
+/// ACR-NEMA files and bare data sets (no preamble, no "DICM", no file meta group), or an
+/// implicit VR data set behind a meta group naming explicit VR. dicom-rs reads only Part 10
+/// files as they declare themselves, so the data set is read alone in the syntax the walk
+/// found and given a file meta group naming the pixel data's syntax (pydicom's
+/// `dcmread(force=True)` reads the same files).
+fn reparse(path: &Path, how: &crate::dicom_scan::Reparse) -> Result<dicom_object::DefaultDicomObject> {
+    use dicom_encoding::transfer_syntax::TransferSyntaxIndex;
+    use dicom_transfer_syntax_registry::TransferSyntaxRegistry;
+    use std::io::{Seek, SeekFrom};
+    let ts = TransferSyntaxRegistry.get(how.parse_syntax).expect("the walk names only native transfer syntaxes");
+    crate::guard::third_party(path, "the DICOM parser", || {
+        let mut f = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
+        f.seek(SeekFrom::Start(how.start)).map_err(|e| FormatError::io(path, e))?;
+        let obj = InMemDicomObject::read_dataset_with_ts(std::io::BufReader::new(f), ts)
+            .map_err(|e| FormatError::invalid(path, format!("the data set does not parse: {}", first_line(&e.to_string()))))?;
+        let meta = dicom_object::meta::FileMetaTableBuilder::new()
+            .transfer_syntax(how.pixel_syntax.as_str())
+            .media_storage_sop_class_uid("1.2.840.10008.5.1.4.1.1.7")
+            .media_storage_sop_instance_uid("2.25.0");
+        obj.with_meta(meta).map_err(|e| FormatError::invalid(path, format!("no usable file meta: {}", first_line(&e.to_string()))))
     })
 }
 
@@ -138,8 +239,9 @@ fn units_for(obj: &Obj, modality: &str) -> Option<String> {
     }
 }
 
-fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<ImageInfo> {
+fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject, read_note: Option<String>) -> Result<ImageInfo> {
     let obj: &Obj = file;
+    BIG_ENDIAN_DATA_SET.with(|b| b.set(file.meta().transfer_syntax().trim_end_matches('\0') == EXPLICIT_BIG_ENDIAN));
     let need = |tag, name: &str| int(obj, tag).ok_or_else(|| FormatError::invalid(path, format!("missing or malformed {name}")));
     let rows = need(tags::ROWS, "Rows")?;
     let columns = need(tags::COLUMNS, "Columns")?;
@@ -250,6 +352,7 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject) -> Result<Im
         slice_spacing,
         frame_positions,
         frame_rescale,
+        read_note,
     })
 }
 
@@ -278,29 +381,54 @@ fn check_transfer_syntax(info: &ImageInfo) -> Result<()> {
 /// Decodes one file's pixel data into `frames × rows × cols` samples of the stored type,
 /// as little-endian bytes, with BitsStored masking / sign extension applied.
 fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
-    let file = open(&info.path, false)?;
-    let decoded = crate::guard::third_party(&info.path, "the pixel data decoder", || {
-        file.decode_pixel_data().map_err(|e| {
-            // jpeg-decoder (behind dicom-pixeldata) has no 12-bit DCT: say so instead of a
-            // generic decode failure.
-            if info.transfer_syntax == "1.2.840.10008.1.2.4.51" && info.bits_stored > 8 {
-                FormatError::unsupported(
-                    &info.path,
-                    format!(
-                        "unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)",
-                        info.bits_stored
-                    ),
-                )
-            } else {
-                FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string())))
-            }
-        })
-    })?;
+    let (file, _) = open(&info.path, false)?;
     let pixels = info.rows as usize * info.columns as usize * info.frames as usize;
     let bytes_per = info.bits_allocated as usize / 8;
-    let data = decoded.data();
-    let spp = decoded.samples_per_pixel() as usize;
-    let want = pixels * bytes_per * spp;
+    let pixel_fragments = file.get(tags::PIXEL_DATA).and_then(|e| e.value().fragments());
+    let rgb_jpeg = if info.photometric == "RGB" && info.samples_per_pixel == 3 && bytes_per == 1 {
+        pixel_fragments.and_then(|f| rgb_jpeg_frames(&info.path, f, info.frames as usize, &info.transfer_syntax).transpose())
+    } else {
+        None
+    };
+    let (data, spp, planar) = if let Some(rgb) = rgb_jpeg {
+        (rgb?, 3, false)
+    } else if info.transfer_syntax == RLE_LOSSLESS {
+        let pixel_data = file.get(tags::PIXEL_DATA).ok_or_else(|| FormatError::invalid(&info.path, "no PixelData element"))?;
+        let fragments =
+            pixel_data.value().fragments().ok_or_else(|| FormatError::invalid(&info.path, "RLE pixel data is not encapsulated"))?;
+        let spp = info.samples_per_pixel as usize;
+        let frame_px = info.rows as usize * info.columns as usize;
+        let data = crate::dicom_rle::decode(&info.path, fragments, info.frames as usize, frame_px, spp, bytes_per)?;
+        (data, spp, true)
+    } else {
+        let decoded = crate::guard::third_party(&info.path, "the pixel data decoder", || {
+            file.decode_pixel_data().map_err(|e| {
+                // jpeg-decoder (behind dicom-pixeldata) has no 12-bit DCT: say so instead of a
+                // generic decode failure.
+                if info.transfer_syntax == "1.2.840.10008.1.2.4.51" && info.bits_stored > 8 {
+                    FormatError::unsupported(
+                        &info.path,
+                        format!(
+                            "unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)",
+                            info.bits_stored
+                        ),
+                    )
+                } else {
+                    FormatError::invalid(&info.path, format!("cannot decode pixel data: {}", first_line(&e.to_string())))
+                }
+            })
+        })?;
+        let mut data = decoded.data().to_vec();
+        if info.transfer_syntax == EXPLICIT_BIG_ENDIAN {
+            let word = file.get(tags::PIXEL_DATA).and_then(|e| e.value().primitive()).map(word_size).unwrap_or(1);
+            big_endian_samples_to_le(&mut data, word, bytes_per);
+        }
+        let planar = decoded.planar_configuration() == dicom_pixeldata::PlanarConfiguration::PixelFirst;
+        (data, decoded.samples_per_pixel() as usize, planar)
+    };
+    // Native YBR_FULL_422 keeps one Cb and one Cr per two pixels: Y0 Y1 Cb Cr.
+    let ybr_422 = pixel_fragments.is_none() && info.photometric == "YBR_FULL_422" && spp == 3 && bytes_per == 1;
+    let want = if ybr_422 { pixels * 2 } else { pixels * bytes_per * spp };
     if data.len() < want {
         return Err(FormatError::invalid(
             &info.path,
@@ -308,10 +436,26 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
         ));
     }
     let mut out = if spp == 1 {
-        data[..want].to_vec()
+        let mut data = data;
+        data.truncate(want);
+        data
+    } else if spp == 3 && bytes_per == 1 && pixel_fragments.is_none() && info.photometric.starts_with("YBR_FULL") {
+        // Native YBR_FULL: Y is the BT.601 luminance already (PS3.3 C.7.6.3.1.2, full range),
+        // so it is kept as stored; treating Y, Cb, Cr as R, G, B (as before) mixed in chroma.
+        let frame_px = info.rows as usize * info.columns as usize;
+        (0..pixels)
+            .map(|p| {
+                if ybr_422 {
+                    data[4 * (p / 2) + p % 2]
+                } else if planar {
+                    data[(p / frame_px) * frame_px * 3 + p % frame_px]
+                } else {
+                    data[3 * p]
+                }
+            })
+            .collect()
     } else if spp == 3 && bytes_per == 1 {
         // Colour to luminance (ITU-R BT.601), so colour images still load as scalar volumes.
-        let planar = decoded.planar_configuration() == dicom_pixeldata::PlanarConfiguration::PixelFirst;
         let frame_px = info.rows as usize * info.columns as usize;
         (0..pixels)
             .map(|p| {
@@ -350,6 +494,96 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
     Ok(out)
 }
 
+const RLE_LOSSLESS: &str = "1.2.840.10008.1.2.5";
+
+/// JPEG frames whose components DICOM calls RGB but whose stream says nothing of its colour
+/// (no JFIF or Adobe marker, component ids other than 1,2,3 or 'R','G','B'): jpeg-decoder,
+/// behind dicom-pixeldata, then assumes YCbCr and converts colours that are not (pydicom's
+/// SC_jpeg_no_color_transform.dcm came out up to 77 grey levels off). Decoded here with the
+/// transform DICOM states; None for every other stream, which dicom-pixeldata decodes.
+fn rgb_jpeg_frames(path: &Path, fragments: &[Vec<u8>], frames: usize, syntax: &str) -> Result<Option<Vec<u8>>> {
+    if !matches!(syntax, "1.2.840.10008.1.2.4.50" | "1.2.840.10008.1.2.4.51") || fragments.is_empty() {
+        return Ok(None);
+    }
+    let streams: Vec<Vec<u8>> = if frames == 1 {
+        vec![fragments.concat()]
+    } else if fragments.len() == frames {
+        fragments.to_vec()
+    } else {
+        return Ok(None);
+    };
+    if !streams.iter().all(|s| jpeg_colour_is_unstated(s)) {
+        return Ok(None);
+    }
+    let mut out = Vec::new();
+    for (k, s) in streams.iter().enumerate() {
+        let mut d = jpeg_decoder::Decoder::new(s.as_slice());
+        d.set_color_transform(jpeg_decoder::ColorTransform::RGB);
+        let px = crate::guard::third_party(path, "the JPEG decoder", || {
+            d.decode().map_err(|e| FormatError::invalid(path, format!("cannot decode JPEG frame {k}: {e}")))
+        })?;
+        out.extend_from_slice(&px);
+    }
+    Ok(Some(out))
+}
+
+/// No JFIF (APP0) or whole Adobe (APP14) marker before the scan, and three components whose ids
+/// do not name their colour space.
+fn jpeg_colour_is_unstated(s: &[u8]) -> bool {
+    let mut i = 2;
+    while i + 4 <= s.len() && s[i] == 0xFF {
+        let marker = s[i + 1];
+        let len = u16::from_be_bytes([s[i + 2], s[i + 3]]) as usize;
+        match marker {
+            0xE0 if s.get(i + 4..i + 9) == Some(b"JFIF\0") => return false,
+            // An Adobe marker states the transform only when whole (14 bytes); a short one
+            // (pydicom's SC_rgb_jpeg.dcm) states nothing.
+            0xEE if s.get(i + 4..i + 9) == Some(b"Adobe") && len >= 14 => return false,
+            0xC0..=0xC3 => {
+                let Some(sof) = s.get(i + 4..i + 4 + len.saturating_sub(2)) else { return false };
+                if sof.len() < 15 || sof[5] != 3 {
+                    return false;
+                }
+                let ids = (sof[6], sof[9], sof[12]);
+                return !matches!(ids, (1, 2, 3) | (1, 34, 35) | (82, 71, 66) | (114, 103, 98));
+            }
+            0xDA => return false,
+            _ => {}
+        }
+        i += 2 + len;
+    }
+    false
+}
+const EXPLICIT_BIG_ENDIAN: &str = "1.2.840.10008.1.2.2";
+
+/// The size of the words dicom-rs converted a native value to host order by: its VR's
+/// (OB/UN bytes, OW 16-bit words, OL/OF 32-bit, OD 64-bit).
+fn word_size(p: &PrimitiveValue) -> usize {
+    match p {
+        PrimitiveValue::U16(_) | PrimitiveValue::I16(_) => 2,
+        PrimitiveValue::U32(_) | PrimitiveValue::I32(_) | PrimitiveValue::F32(_) => 4,
+        PrimitiveValue::U64(_) | PrimitiveValue::I64(_) | PrimitiveValue::F64(_) => 8,
+        _ => 1,
+    }
+}
+
+/// Explicit VR Big Endian pixel data, as dicom-rs hands it: each `word`-byte word of the
+/// file (the VR's: OW 16-bit) already in host (little-endian) order. That is right for
+/// samples as large as the words, and for smaller ones (8-bit samples in OW words are packed
+/// low byte first, as pydicom reads them). Samples larger than the words are big-endian
+/// in the file across words: 32-bit doses in OW came out with their two 16-bit halves
+/// swapped (an RT Dose read 23 … 4292 Gy where pydicom reads 0.795 … 1.254), so the words
+/// are put back as the file has them and each sample reversed.
+fn big_endian_samples_to_le(data: &mut [u8], word: usize, sample: usize) {
+    if sample <= word || cfg!(target_endian = "big") {
+        return;
+    }
+    if word > 1 {
+        data.chunks_exact_mut(word).for_each(|w| w.reverse());
+    }
+    data.chunks_exact_mut(sample).for_each(|w| w.reverse());
+}
+
 fn mask_bits(v: u32, bits: u32, signed: bool) -> u32 {
     let m = (1u32 << bits) - 1;
     let low = v & m;
@@ -371,14 +605,14 @@ fn scalar_type(info: &ImageInfo) -> ScalarType {
     }
 }
 
-/// Is `path` a DICOM file? (the "DICM" magic at 128, or a bare data set starting with a
-/// group 0008 element).
+/// Is `path` a DICOM file? (the "DICM" magic at 128, or a bare data set starting with an
+/// element of a low group, as ACR-NEMA files do).
 pub fn looks_like_dicom(path: &Path) -> bool {
     use std::io::Read;
     let mut buf = [0u8; 132];
     let Ok(mut f) = std::fs::File::open(path) else { return false };
     let n = f.read(&mut buf).unwrap_or(0);
-    (n >= 132 && &buf[128..132] == b"DICM") || (n >= 4 && buf[0] == 0x08 && buf[1] == 0x00)
+    (n >= 132 && &buf[128..132] == b"DICM") || crate::dicom_scan::bare_syntax_of(&buf[..n]).is_some()
 }
 
 /// Lists the DICOM files under `dir` (recursively), skipping others.
@@ -401,8 +635,8 @@ fn scan(dir: &Path) -> Result<BTreeMap<String, Vec<ImageInfo>>> {
     let infos: Vec<Result<ImageInfo>> = files
         .par_iter()
         .map(|p| {
-            let f = open(p, true)?;
-            image_info(p, &f)
+            let (f, note) = open(p, true)?;
+            image_info(p, &f, note)
         })
         .collect();
     let mut series: BTreeMap<String, Vec<ImageInfo>> = BTreeMap::new();
@@ -439,8 +673,8 @@ pub fn read_dicom(path: &Path, opts: &DicomOptions) -> Result<Volume> {
     if path.is_dir() {
         read_series_dir(path, opts)
     } else {
-        let f = open(path, true)?;
-        let info = image_info(path, &f)?;
+        let (f, note) = open(path, true)?;
+        let info = image_info(path, &f, note)?;
         assemble(path, vec![info], opts)
     }
 }
@@ -683,6 +917,9 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     }
     if first.samples_per_pixel == 3 {
         notes.push("colour image converted to luminance (BT.601)".to_string());
+    }
+    if let Some(n) = &first.read_note {
+        notes.push(n.clone());
     }
     if first.photometric == "MONOCHROME1" {
         notes.push("MONOCHROME1: low values display bright; values kept as stored".to_string());

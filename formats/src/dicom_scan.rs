@@ -56,8 +56,48 @@ struct Walk<'a, S: Source> {
     enc: Encoding,
 }
 
-/// Checks `path`'s element lengths (and that it has the DICM magic and a transfer syntax).
-pub fn check_lengths(path: &Path) -> Result<()> {
+/// The transfer syntax of a data set that starts at byte 0 without the Part 10 header
+/// (ACR-NEMA files, and DICOM data sets written without preamble and file meta group): None
+/// unless the first bytes are an element of a low, even group, as such files begin. Explicit
+/// VR where a valid VR follows the tag (byte order from the group number), else implicit VR
+/// little endian, as pydicom's `force=True` decides.
+pub fn bare_syntax_of(head: &[u8]) -> Option<&'static str> {
+    if head.len() < 8 || (head.len() >= 132 && &head[128..132] == b"DICM") || &head[..4] == b"DICM" {
+        return None;
+    }
+    let plausible = |g: u16| g & 1 == 0 && (0x0002..=0x0088).contains(&g);
+    let (le, be) = (u16::from_le_bytes([head[0], head[1]]), u16::from_be_bytes([head[0], head[1]]));
+    let explicit = head[4].is_ascii_uppercase() && head[5].is_ascii_uppercase() && VR::from_binary([head[4], head[5]]).is_some();
+    if explicit && plausible(le) {
+        Some("1.2.840.10008.1.2.1")
+    } else if explicit && plausible(be) {
+        Some("1.2.840.10008.1.2.2")
+    } else if plausible(le) {
+        Some("1.2.840.10008.1.2")
+    } else {
+        None
+    }
+}
+
+/// A file dicom-rs cannot read as it stands, and how to read its data set instead.
+#[derive(Debug, Clone)]
+pub struct Reparse {
+    /// Where the data set starts.
+    pub start: u64,
+    /// The transfer syntax its elements are encoded in.
+    pub parse_syntax: &'static str,
+    /// The transfer syntax its pixel data is in (the meta group's, where there is one).
+    pub pixel_syntax: String,
+    /// Said in the volume's notes.
+    pub note: String,
+}
+
+/// Checks `path`'s element lengths (and that it has the DICM magic and a transfer syntax, or
+/// is a bare data set). Returns how to read a data set that dicom-rs would not read as the
+/// file stands: a bare data set (see [`bare_syntax_of`]), or one encoded in implicit VR
+/// although the meta group names an explicit VR syntax (as pydicom does, with a warning);
+/// None for a Part 10 file read as it says.
+pub fn check_lengths(path: &Path) -> Result<Option<Reparse>> {
     let file = File::open(path).map_err(|e| FormatError::io(path, e))?;
     let len = file.metadata().map_err(|e| FormatError::io(path, e))?.len();
     let mut r = BufReader::new(file);
@@ -67,9 +107,27 @@ pub fn check_lengths(path: &Path) -> Result<()> {
         132
     } else if n >= 4 && &head[..4] == b"DICM" {
         4
+    } else if let Some(syntax) = bare_syntax_of(&head[..n]) {
+        r.seek(std::io::SeekFrom::Start(0)).map_err(|e| FormatError::io(path, e))?;
+        let enc = match syntax {
+            "1.2.840.10008.1.2" => Encoding::ImplicitLe,
+            "1.2.840.10008.1.2.2" => Encoding::ExplicitBe,
+            _ => Encoding::ExplicitLe,
+        };
+        Walk { path, src: r, pos: 0, enc }.dataset(len, false, 0)?;
+        let name = match enc {
+            Encoding::ImplicitLe => "implicit VR little endian",
+            Encoding::ExplicitLe => "explicit VR little endian",
+            Encoding::ExplicitBe => "explicit VR big endian",
+        };
+        return Ok(Some(Reparse {
+            start: 0,
+            parse_syntax: syntax,
+            pixel_syntax: syntax.to_string(),
+            note: format!("no DICOM file meta header (ACR-NEMA or a bare data set): read as {name}"),
+        }));
     } else {
-        // dicom-rs reads only files with the magic (Part 10 files); say so in our words.
-        return Err(FormatError::invalid(path, "not a DICOM file: no DICM magic at byte 128 (or 0)"));
+        return Err(FormatError::invalid(path, "not a DICOM file: no DICM magic at byte 128 (or 0), and no data set at byte 0"));
     };
     r.seek(std::io::SeekFrom::Start(start)).map_err(|e| FormatError::io(path, e))?;
     let mut meta = Walk { path, src: r, pos: start, enc: Encoding::ExplicitLe };
@@ -91,10 +149,29 @@ pub fn check_lengths(path: &Path) -> Result<()> {
         f.seek(std::io::SeekFrom::Start(dataset_start)).map_err(|e| FormatError::io(path, e))?;
         let src = flate2::read::DeflateDecoder::new(BufReader::new(f));
         let mut w = Walk { path, src, pos: 0, enc };
-        return w.dataset(inflated, false, 0);
+        return w.dataset(inflated, false, 0).map(|_| None);
     }
     meta.enc = enc;
-    meta.dataset(len, false, 0)
+    if enc == Encoding::ExplicitLe {
+        // The first element's VR field: letters in explicit VR, a length's bytes in implicit.
+        let start = meta.pos;
+        let mut first = [0u8; 6];
+        let n = read_up_to(&mut meta.src, &mut first).map_err(|e| FormatError::io(path, e))?;
+        meta.src.seek(std::io::SeekFrom::Start(start)).map_err(|e| FormatError::io(path, e))?;
+        let explicit =
+            n < 6 || (first[4].is_ascii_uppercase() && first[5].is_ascii_uppercase() && VR::from_binary([first[4], first[5]]).is_some());
+        if !explicit {
+            meta.enc = Encoding::ImplicitLe;
+            meta.dataset(len, false, 0)?;
+            return Ok(Some(Reparse {
+                start,
+                parse_syntax: "1.2.840.10008.1.2",
+                pixel_syntax: syntax,
+                note: "the data set is encoded in implicit VR although the file meta group names an explicit VR transfer syntax: read as implicit VR".into(),
+            }));
+        }
+    }
+    meta.dataset(len, false, 0).map(|_| None)
 }
 
 fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {

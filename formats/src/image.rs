@@ -22,6 +22,8 @@ pub struct PngSamples {
     pub channels: usize,
     pub bit_depth: u8,
     pub samples: Vec<u16>,
+    /// The file stores palette indices (expanded here to the palette's RGB(A) colours).
+    pub palette: bool,
 }
 
 pub fn decode_png(path: &Path) -> Result<PngSamples> {
@@ -30,6 +32,7 @@ pub fn decode_png(path: &Path) -> Result<PngSamples> {
     dec.set_transformations(png::Transformations::EXPAND);
     let mut reader = dec.read_info().map_err(|e| FormatError::invalid(path, format!("invalid PNG: {e}")))?;
     let (w, h) = (reader.info().width as u64, reader.info().height as u64);
+    let palette = reader.info().color_type == png::ColorType::Indexed;
     let (ct, depth) = reader.output_color_type();
     let channels = ct.samples();
     let bytes_per = if depth == png::BitDepth::Sixteen { 2 } else { 1 };
@@ -42,7 +45,7 @@ pub fn decode_png(path: &Path) -> Result<PngSamples> {
     } else {
         buf.iter().map(|&b| b as u16).collect()
     };
-    Ok(PngSamples { width: w as usize, height: h as usize, channels, bit_depth: if bytes_per == 2 { 16 } else { 8 }, samples })
+    Ok(PngSamples { width: w as usize, height: h as usize, channels, bit_depth: if bytes_per == 2 { 16 } else { 8 }, samples, palette })
 }
 
 /// Reads a colour texture (PNG) as 8-bit RGB; grey is replicated, alpha dropped,

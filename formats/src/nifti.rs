@@ -48,10 +48,20 @@ fn is_gz(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("gz"))
 }
 
+/// Does the file start with gzip's magic? Decided by the bytes, not the name: a gzip stream
+/// named `.nii` is read (it was refused as a bad header), and so is a plain file named `.gz`.
+fn starts_gzipped(path: &Path) -> Result<bool> {
+    let mut magic = [0u8; 2];
+    let mut f = File::open(path).map_err(|e| FormatError::io(path, e))?;
+    let n = f.read(&mut magic).map_err(|e| FormatError::io(path, e))?;
+    Ok(n == 2 && magic == [0x1f, 0x8b])
+}
+
 fn open_maybe_gz(path: &Path) -> Result<Box<dyn Read>> {
+    let gz = starts_gzipped(path)?;
     let f = File::open(path).map_err(|e| FormatError::io(path, e))?;
     let r = BufReader::with_capacity(1 << 20, f);
-    Ok(if is_gz(path) { Box::new(MultiGzDecoder::new(r)) } else { Box::new(r) })
+    Ok(if gz { Box::new(MultiGzDecoder::new(r)) } else { Box::new(r) })
 }
 
 /// `x.hdr[.gz]` → `x.img[.gz]` (same gz state, falling back to the other).
@@ -337,7 +347,24 @@ pub fn read_nifti_header(path: &Path) -> Result<NiftiHeader> {
     read_header(path, &mut *r)
 }
 
-pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
+/// A NIfTI file opened and checked, its stream positioned at the first voxel of volume 0.
+struct OpenedNifti {
+    h: NiftiHeader,
+    ty: ScalarType,
+    dims: [usize; 3],
+    /// dim[4..=dim[0]]: the extents beyond the three spatial ones (time, then others).
+    extra_dims: Vec<usize>,
+    volume_count: u64,
+    vol_bytes: usize,
+    data_path: PathBuf,
+    data: Box<dyn Read>,
+    affine: Affine,
+    spacing: [f64; 3],
+    rescale: Rescale,
+    notes: Vec<String>,
+}
+
+fn open_nifti(path: &Path) -> Result<OpenedNifti> {
     let mut r = open_maybe_gz(path)?;
     let h = read_header(path, &mut *r)?;
     let ty = scalar_type_of(path, h.datatype)?;
@@ -359,18 +386,14 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
         }
     }
     let mut volume_count: u64 = 1;
+    let mut extra_dims = Vec::new();
     for i in 4..=ndim as usize {
         let d = h.dim[i];
         if d < 1 {
             return Err(FormatError::invalid(path, format!("dim[{i}] = {d} is not positive")));
         }
         volume_count = volume_count.checked_mul(d as u64).ok_or_else(|| FormatError::invalid(path, "volume count overflows"))?;
-    }
-    if opts.volume_index as u64 >= volume_count {
-        return Err(FormatError::invalid(
-            path,
-            format!("volume index {} requested but the file holds {volume_count} volume(s)", opts.volume_index),
-        ));
+        extra_dims.push(d as usize);
     }
     let (unit_mm, unit_name) = spatial_unit_to_mm(h.xyzt_units);
     for i in 1..=3 {
@@ -383,7 +406,7 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
 
     // Skip to the data: in a single file it starts at vox_offset; in a pair, at 0 of .img.
     let data_path = if h.single_file { path.to_path_buf() } else { image_path_for_header(path)? };
-    let mut data_reader: Box<dyn Read> = if h.single_file {
+    let data: Box<dyn Read> = if h.single_file {
         let header_size = if h.version == 1 { 348 } else { 540 };
         let off = h.vox_offset;
         if !(off.is_finite() && off >= header_size as f64) {
@@ -398,32 +421,6 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
         std::io::copy(&mut (&mut ir).take(off), &mut std::io::sink()).map_err(|e| FormatError::io(&data_path, e))?;
         ir
     };
-    let skip_volumes = (opts.volume_index as u64) * vol_bytes as u64;
-    if skip_volumes > 0 {
-        let n = std::io::copy(&mut (&mut data_reader).take(skip_volumes), &mut std::io::sink()).map_err(|e| FormatError::io(path, e))?;
-        if n < skip_volumes {
-            return Err(FormatError::invalid(path, "file is truncated before the requested volume"));
-        }
-    }
-    // Read straight into the typed buffer: no second copy of a large volume.
-    let mut data = VoxelData::zeroed(ty, dims[0] * dims[1] * dims[2]);
-    let bytes = data.as_bytes_mut();
-    let mut got = 0;
-    while got < vol_bytes {
-        match data_reader.read(&mut bytes[got..]) {
-            Ok(0) => return Err(FormatError::invalid(path, format!("file is truncated: voxel data holds {got} of {vol_bytes} bytes"))),
-            Ok(n) => got += n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(FormatError::invalid(path, format!("cannot read voxel data: {e}"))),
-        }
-    }
-    // gzip checks its CRC only at the end of the stream: after the last volume read on to
-    // the end (little is left there), so a corrupt .nii.gz is refused rather than shown.
-    if is_gz(&data_path) && opts.volume_index as u64 + 1 == volume_count {
-        std::io::copy(&mut (&mut data_reader).take(64 << 20), &mut std::io::sink())
-            .map_err(|e| FormatError::invalid(&data_path, format!("gzip stream is corrupt: {e}")))?;
-    }
-    data.fix_byte_order(h.big_endian);
 
     let (mut affine, which) = best_affine(&h);
     if which != "sform" {
@@ -470,21 +467,116 @@ pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
     if let Some(u) = unit_name {
         notes.push(format!("spatial unit {u} converted to mm"));
     }
-    if volume_count > 1 {
-        notes.push(format!("4-D file: volume {} of {volume_count}", opts.volume_index));
+    Ok(OpenedNifti { h, ty, dims, extra_dims, volume_count, vol_bytes, data_path, data, affine, spacing, rescale, notes })
+}
+
+impl OpenedNifti {
+    /// Skips `n` whole volumes.
+    fn skip_volumes(&mut self, path: &Path, n: u64) -> Result<()> {
+        let skip = n * self.vol_bytes as u64;
+        if skip > 0 {
+            let got = std::io::copy(&mut (&mut self.data).take(skip), &mut std::io::sink()).map_err(|e| FormatError::io(path, e))?;
+            if got < skip {
+                return Err(FormatError::invalid(path, "file is truncated before the requested volume"));
+            }
+        }
+        Ok(())
     }
-    Ok(Volume {
-        dims,
-        spacing,
-        affine,
-        data,
-        rescale,
-        modality: None,
-        units: None,
-        volume_count: volume_count as usize,
-        volume_index: opts.volume_index,
-        notes,
-    })
+
+    /// Reads the next volume's voxels, in the host's byte order.
+    fn read_volume(&mut self, path: &Path) -> Result<VoxelData> {
+        // Read straight into the typed buffer: no second copy of a large volume.
+        let mut data = VoxelData::zeroed(self.ty, self.dims[0] * self.dims[1] * self.dims[2]);
+        let bytes = data.as_bytes_mut();
+        let mut got = 0;
+        while got < self.vol_bytes {
+            match self.data.read(&mut bytes[got..]) {
+                Ok(0) => {
+                    return Err(FormatError::invalid(
+                        path,
+                        format!("file is truncated: voxel data holds {got} of {} bytes", self.vol_bytes),
+                    ))
+                }
+                Ok(n) => got += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(FormatError::invalid(path, format!("cannot read voxel data: {e}"))),
+            }
+        }
+        data.fix_byte_order(self.h.big_endian);
+        Ok(data)
+    }
+
+    /// gzip checks its CRC only at the end of the stream: after the last volume, read on to
+    /// the end (little is left there), so a corrupt .nii.gz is refused rather than shown.
+    fn check_gzip_tail(&mut self) -> Result<()> {
+        if starts_gzipped(&self.data_path)? {
+            std::io::copy(&mut (&mut self.data).take(64 << 20), &mut std::io::sink())
+                .map_err(|e| FormatError::invalid(&self.data_path, format!("gzip stream is corrupt: {e}")))?;
+        }
+        Ok(())
+    }
+
+    fn volume(&self, data: VoxelData, index: usize) -> Volume {
+        let mut notes = self.notes.clone();
+        if self.volume_count > 1 {
+            notes.push(format!("4-D file: volume {index} of {}", self.volume_count));
+        }
+        Volume {
+            dims: self.dims,
+            spacing: self.spacing,
+            affine: self.affine,
+            data,
+            rescale: self.rescale,
+            modality: None,
+            units: None,
+            volume_count: self.volume_count as usize,
+            volume_index: index,
+            notes,
+        }
+    }
+}
+
+pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
+    let mut f = open_nifti(path)?;
+    if opts.volume_index as u64 >= f.volume_count {
+        return Err(FormatError::invalid(
+            path,
+            format!("volume index {} requested but the file holds {} volume(s)", opts.volume_index, f.volume_count),
+        ));
+    }
+    f.skip_volumes(path, opts.volume_index as u64)?;
+    let data = f.read_volume(path)?;
+    if opts.volume_index as u64 + 1 == f.volume_count {
+        f.check_gzip_tail()?;
+    }
+    Ok(f.volume(data, opts.volume_index))
+}
+
+/// Every volume of a 4-D (or higher) file, with what is needed to write them back as one.
+#[derive(Debug)]
+pub struct NiftiVolumes {
+    pub volumes: Vec<Volume>,
+    /// dim[4..]: the extents beyond the spatial ones (their product is `volumes.len()`).
+    pub extra_dims: Vec<usize>,
+    /// pixdim[4]: the time between volumes, in `time_unit`.
+    pub time_step: f64,
+    /// xyzt_units' time bits (8 s, 16 ms, 24 µs, …), kept as the file has them.
+    pub time_unit: u8,
+}
+
+/// Reads all volumes of a file in one pass (the whole 4-D data set is checked against the
+/// memory limit first).
+pub fn read_nifti_volumes(path: &Path) -> Result<NiftiVolumes> {
+    let mut f = open_nifti(path)?;
+    check_alloc(path, "4-D data set", &[f.vol_bytes as u64, f.volume_count])?;
+    let mut volumes = Vec::with_capacity(f.volume_count as usize);
+    for k in 0..f.volume_count as usize {
+        let data = f.read_volume(path)?;
+        volumes.push(f.volume(data, k));
+    }
+    f.check_gzip_tail()?;
+    let time_step = if f.h.pixdim[4].is_finite() { f.h.pixdim[4] } else { 0.0 };
+    Ok(NiftiVolumes { volumes, extra_dims: f.extra_dims, time_step, time_unit: f.h.xyzt_units & 0x38 })
 }
 
 /// Rotation (unit quaternion b, c, d), voxel sizes and qfac from an affine whose 3x3 part is
@@ -554,13 +646,28 @@ fn affine_to_quatern(m: &Affine) -> Option<([f64; 3], [f64; 3], f64)> {
 /// type and rescale kept, sform = the affine (code 1, "scanner"), and the same geometry as a
 /// qform when the affine has no shear. Written atomically.
 pub fn write_nifti(path: &Path, vol: &Volume) -> Result<()> {
+    write_nifti_volumes(path, std::slice::from_ref(vol), &[], 0.0, 8)
+}
+
+/// As [`write_nifti`], for several volumes of one grid: a 4-D file (or of the dimensions
+/// `extra_dims` gives, whose product must be the number of volumes) with pixdim[4] =
+/// `time_step` in the xyzt time unit `time_unit`.
+pub fn write_nifti_volumes(path: &Path, vols: &[Volume], extra_dims: &[usize], time_step: f64, time_unit: u8) -> Result<()> {
+    let vol = &vols[0];
+    if vols.iter().any(|v| v.dims != vol.dims || v.data.scalar_type() != vol.data.scalar_type() || v.rescale != vol.rescale) {
+        return Err(FormatError::unsupported(path, "volumes of different sizes, types or scalings cannot share one NIfTI file"));
+    }
+    let extra: Vec<usize> = if extra_dims.is_empty() && vols.len() > 1 { vec![vols.len()] } else { extra_dims.to_vec() };
+    if extra.iter().product::<usize>() != vols.len() || extra.len() > 4 {
+        return Err(FormatError::invalid(path, format!("dimensions {extra:?} do not hold {} volumes", vols.len())));
+    }
     let mut h = vec![0u8; 352];
     let put_i16 = |h: &mut Vec<u8>, o: usize, v: i16| h[o..o + 2].copy_from_slice(&v.to_le_bytes());
     let put_f32 = |h: &mut Vec<u8>, o: usize, v: f64| h[o..o + 4].copy_from_slice(&(v as f32).to_le_bytes());
     h[0..4].copy_from_slice(&348i32.to_le_bytes());
     h[38] = b'r';
     let ty = vol.data.scalar_type();
-    put_i16(&mut h, 40, 3);
+    put_i16(&mut h, 40, 3 + extra.len() as i16);
     for i in 0..3 {
         put_i16(
             &mut h,
@@ -570,7 +677,12 @@ pub fn write_nifti(path: &Path, vol: &Volume) -> Result<()> {
         );
     }
     for i in 3..7 {
-        put_i16(&mut h, 42 + 2 * i, 1);
+        let d = extra.get(i - 3).copied().unwrap_or(1);
+        put_i16(
+            &mut h,
+            42 + 2 * i,
+            i16::try_from(d).map_err(|_| FormatError::unsupported(path, format!("dimension {d} is too large for NIfTI-1")))?,
+        );
     }
     put_i16(&mut h, 70, datatype_code(ty));
     put_i16(&mut h, 72, (ty.size() * 8) as i16);
@@ -580,6 +692,9 @@ pub fn write_nifti(path: &Path, vol: &Volume) -> Result<()> {
     for i in 0..3 {
         put_f32(&mut h, 80 + 4 * i, vol.spacing[i]);
     }
+    if vols.len() > 1 {
+        put_f32(&mut h, 92, time_step);
+    }
     put_f32(&mut h, 108, 352.0);
     if vol.rescale.is_identity() {
         put_f32(&mut h, 112, 0.0);
@@ -587,7 +702,7 @@ pub fn write_nifti(path: &Path, vol: &Volume) -> Result<()> {
         put_f32(&mut h, 112, vol.rescale.slope);
         put_f32(&mut h, 116, vol.rescale.intercept);
     }
-    h[123] = 2 | 8; // mm, seconds
+    h[123] = 2 | (time_unit & 0x38); // mm, and the time unit
     let descrip = b"volterra";
     h[148..148 + descrip.len()].copy_from_slice(descrip);
     if let Some((quat, _, _)) = q {
@@ -605,17 +720,20 @@ pub fn write_nifti(path: &Path, vol: &Volume) -> Result<()> {
     }
     h[344..348].copy_from_slice(b"n+1\0");
     // bytes 348..352: the empty extension flag.
-    let body = vol.data.to_le_bytes();
     write_atomically(path, |w| {
         let mk = |e| FormatError::io(path, e);
         if is_gz(path) {
             let mut gz = flate2::write::GzEncoder::new(w, flate2::Compression::new(6));
             gz.write_all(&h).map_err(mk)?;
-            gz.write_all(&body).map_err(mk)?;
+            for v in vols {
+                gz.write_all(&v.data.to_le_bytes()).map_err(mk)?;
+            }
             gz.finish().map_err(mk)?;
         } else {
             w.write_all(&h).map_err(mk)?;
-            w.write_all(&body).map_err(mk)?;
+            for v in vols {
+                w.write_all(&v.data.to_le_bytes()).map_err(mk)?;
+            }
         }
         Ok(())
     })

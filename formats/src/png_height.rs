@@ -52,7 +52,17 @@ pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions) -> Result<Height
     let mut nodata = Vec::new();
     let elevations: Vec<f32> = match opts.encoding {
         HeightEncoding::Grey => {
-            if p.channels > 2 {
+            if p.palette {
+                // A palette of greys (as some exporters write 8-bit heightmaps) reads as its
+                // grey levels; a palette of colours is no height.
+                let coloured = p.samples.chunks_exact(p.channels).any(|px| px[0] != px[1] || px[1] != px[2]);
+                if coloured {
+                    return Err(FormatError::invalid(
+                        path,
+                        "a PNG with a colour palette is not a heightmap (its palette holds colours, not grey levels)",
+                    ));
+                }
+            } else if p.channels > 2 {
                 return Err(FormatError::invalid(path, "a colour PNG needs encoding = \"terrarium\" or \"mapbox\" to be read as heights"));
             }
             let grey = |i: usize| p.samples[i * p.channels];
@@ -140,5 +150,29 @@ mod tests {
         assert_eq!(h.elevations[4], (-10.0 + 0.5 * 65535.0) as f32);
         assert!(h.elevations[0].is_nan());
         assert!(read_png_heightmap(&p, &PngHeightOptions { cell_size: 0.0, ..Default::default() }).is_err());
+    }
+
+    fn write_palette_png(path: &std::path::Path, palette: &[u8], indices: &[u8]) {
+        let f = std::fs::File::create(path).unwrap();
+        let mut enc = png::Encoder::new(f, indices.len() as u32, 1);
+        enc.set_color(png::ColorType::Indexed);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_palette(palette.to_vec());
+        enc.write_header().unwrap().write_image_data(indices).unwrap();
+    }
+
+    /// A palette of greys reads as grey heights (it was refused as colour); a palette of
+    /// colours is refused with a message that says so.
+    #[test]
+    fn grey_palettes_read_as_heights_and_colour_palettes_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let grey = dir.path().join("grey.png");
+        write_palette_png(&grey, &[0, 0, 0, 100, 100, 100, 255, 255, 255], &[2, 0, 1, 1]);
+        let h = read_png_heightmap(&grey, &PngHeightOptions { vertical_scale: 2.0, ..Default::default() }).unwrap();
+        assert_eq!(h.elevations, vec![510.0, 0.0, 200.0, 200.0]);
+        let colour = dir.path().join("colour.png");
+        write_palette_png(&colour, &[0, 0, 0, 200, 10, 10], &[0, 1]);
+        let err = read_png_heightmap(&colour, &PngHeightOptions::default()).unwrap_err().to_string();
+        assert!(err.contains("colour palette") && err.contains("colour.png"), "{err}");
     }
 }

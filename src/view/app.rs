@@ -1115,6 +1115,13 @@ impl Viewer {
                 *st = ScreenshotState::Painted(0);
                 ctx.request_repaint();
             }
+            // No frame will come (the renderer refused the scene, the file did not open): end
+            // with the error instead of waiting for ever.
+            ScreenshotState::Waiting if self.render_error.is_some() => {
+                let e = self.render_error.clone().unwrap_or_default();
+                *st = ScreenshotState::Saved(Err(format!("no frame to save: {e}")));
+                ctx.request_repaint();
+            }
             // Let a couple of frames through so the texture is on screen.
             ScreenshotState::Painted(n) if *n < 2 => {
                 *st = ScreenshotState::Painted(n + 1);

@@ -260,6 +260,8 @@ def geotiff_fixtures():
         ("f32_deflate_pred3_tiles", "float32", "zlib", 3, (16, 32)),
         ("f64_packbits", "float64", "packbits", None, None),
         ("f32_lzw_pred3", "float32", "lzw", 3, None),
+        ("f32_zstd_pred3", "float32", "zstd", 3, None),
+        ("i16_zstd_tiles", "int16", "zstd", None, (16, 16)),
     ]
     for n, (name, dt, comp, pred, tile) in enumerate(cases):
         data = values_for(dt, (h, w), 300 + n)

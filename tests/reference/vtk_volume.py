@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Renders volume scenes (tests/reference/scenes/*.toml) with VTK's
 vtkFixedPointVolumeRayCastMapper — parallel projection, the scene's camera, transfer
-function and unit distance, linear interpolation, no shading, sample distance 1 — and
+function and unit distance (mm), linear interpolation, no shading, one sample per voxel — and
 writes each image as a float RGBA OpenEXR (colour over black, alpha = accumulated opacity).
 
 Usage: vtk_volume.py OUT_DIR SCENE.toml...
@@ -27,21 +27,31 @@ def render(scene_path, out_path, views=None, runs=0):
         scene = tomllib.load(f)
     node = scene["node"][0]
     img = nib.load(os.path.join(os.path.dirname(scene_path), node["file"]))
-    data = np.asanyarray(img.dataobj).astype(np.float32)
-    if img.dataobj.slope is not None and img.dataobj.slope not in (0, 1):
-        data = data * img.dataobj.slope + (img.dataobj.inter or 0)
-    nx, ny, nz = data.shape
+    # Real-world values: get_fdata applies scl_slope/scl_inter once (np.asanyarray of the
+    # proxy applies them too: scaling that again rendered a PET with slope 0.001 empty).
+    data = img.get_fdata(dtype=np.float32)
+    nx, ny, nz = data.shape[:3]
+    # The voxel size as the image's spacing and only the rotation and translation in the
+    # prop's matrix: VTK's sample distance and opacity unit distance are in the data's
+    # coordinates, which are then millimetres, as the scene's are (with one-voxel spacing
+    # and the whole affine as the matrix they were in voxels: a 0.52 mm MR angiography came
+    # out about 20 % too opaque).
+    affine = np.asarray(img.affine, dtype=np.float64)
+    spacing = np.linalg.norm(affine[:3, :3], axis=0)
     image = vtk.vtkImageData()
     image.SetDimensions(nx, ny, nz)
-    image.SetSpacing(1, 1, 1)
+    image.SetSpacing(*spacing)
     image.SetOrigin(0, 0, 0)
-    arr = numpy_to_vtk(data.transpose(2, 1, 0).ravel(), deep=True)  # x fastest
+    arr = numpy_to_vtk(np.ascontiguousarray(data[..., 0] if data.ndim > 3 else data).transpose(2, 1, 0).ravel(), deep=True)  # x fastest
     image.GetPointData().SetScalars(arr)
-    # Voxel index → world (RAS mm) as the prop's matrix, so the camera is the scene's.
+    # Data coordinates (mm along the voxel axes) → world (RAS mm) as the prop's matrix, so the
+    # camera is the scene's.
+    rigid = affine.copy()
+    rigid[:3, :3] = affine[:3, :3] / spacing
     m = vtk.vtkMatrix4x4()
     for r in range(4):
         for c in range(4):
-            m.SetElement(r, c, float(img.affine[r, c]))
+            m.SetElement(r, c, float(rigid[r, c]))
     tf = node["transfer_function"]
     opacity = vtk.vtkPiecewiseFunction()
     for v, a in tf["scalar_opacity"]:
@@ -58,7 +68,8 @@ def render(scene_path, out_path, views=None, runs=0):
     mapper = vtk.vtkFixedPointVolumeRayCastMapper()
     mapper.SetInputData(image)
     mapper.SetAutoAdjustSampleDistances(0)
-    mapper.SetSampleDistance(1.0)
+    # One sample per voxel along the finest axis (1 for the 1 mm comparison scenes).
+    mapper.SetSampleDistance(float(spacing.min()))
     mapper.SetImageSampleDistance(1.0)
     volume = vtk.vtkVolume()
     volume.SetMapper(mapper)

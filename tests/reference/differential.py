@@ -1,0 +1,371 @@
+#!/usr/bin/env python3
+"""Differential test of volterra's volume readers against pydicom and nibabel, over the test
+files those libraries ship (pydicom/data/test_files, nibabel/tests/data: read in place from
+the reference venv, nothing copied) and every DICOM and NIfTI file in ../shared/data.
+
+Each file is converted with `volterra convert FILE out.nii`; the NIfTI volterra wrote is read
+back with nibabel and compared with what the reference library reads from the original:
+values (after RescaleSlope/Intercept, DoseGridScaling or scl_slope/scl_inter), dimensions and
+the voxel-to-world affine (RAS+ millimetres). Each file ends in one row:
+
+  equal     volterra's values, dims and affine match the reference's
+  refused   volterra exits non-zero with a one-line reason (justified in the table)
+  wrong     volterra wrote something that differs from the reference, or crashed
+  no reference  the reference library cannot read it either way (listed, not compared)
+
+Usage: differential.py VOLTERRA_BINARY OUT_MARKDOWN [SHARED_DATA_DIR]
+Exits 1 when any file is wrong. The table is written to OUT_MARKDOWN (docs/differential.md).
+"""
+import os
+import subprocess
+import sys
+import tempfile
+import warnings
+
+import numpy as np
+
+warnings.filterwarnings("ignore")
+
+VOLTERRA, OUT = sys.argv[1], sys.argv[2]
+SHARED = sys.argv[3] if len(sys.argv) > 3 else None
+LOSSY = {
+    "1.2.840.10008.1.2.4.50": 2,  # JPEG baseline: decoders differ by a grey level or two
+    "1.2.840.10008.1.2.4.51": 2,
+    "1.2.840.10008.1.2.4.81": 2,  # JPEG-LS near-lossless: both decoders are exact, kept for safety
+    "1.2.840.10008.1.2.4.91": 2,  # JPEG 2000 (lossy allowed)
+}
+
+
+# --- reference readers ----------------------------------------------------------------------
+def dicom_reference(path):
+    """(values [i, j, k] after the modality rescale, RAS affine or None, transfer syntax)."""
+    import pydicom
+    from pydicom.uid import ImplicitVRLittleEndian, ExplicitVRLittleEndian, ExplicitVRBigEndian
+
+    ds = pydicom.dcmread(path, force=True)
+    if "PixelData" not in ds:
+        return None
+    ts = ds.file_meta.get("TransferSyntaxUID") if hasattr(ds, "file_meta") else None
+    if ts is None:
+        # No file meta (ACR-NEMA, bare data sets): the encoding pydicom detected on reading.
+        implicit, little = ds.original_encoding
+        ds.file_meta.TransferSyntaxUID = ImplicitVRLittleEndian if implicit else (ExplicitVRLittleEndian if little else ExplicitVRBigEndian)
+        ts = ds.file_meta.TransferSyntaxUID
+    frames = int(ds.get("NumberOfFrames", 1) or 1)
+    spp = int(ds.get("SamplesPerPixel", 1))
+    native_ybr = spp == 3 and ds.PhotometricInterpretation.startswith("YBR_FULL") and not ds.file_meta.TransferSyntaxUID.is_compressed
+    if native_ybr:
+        # Native YBR_FULL: Y is BT.601 luminance; volterra keeps it, so compare with pydicom's Y.
+        from pydicom.pixels import pixel_array
+
+        arr = pixel_array(ds, as_rgb=False).astype(np.float64)[..., 0]
+    else:
+        arr = ds.pixel_array.astype(np.float64)
+    if spp == 3 and not native_ybr:
+        # volterra loads colour as BT.601 luminance of RGB, rounded to the stored type
+        # (pydicom's pixel_array has converted YBR to RGB already).
+        arr = np.floor(0.299 * arr[..., 0] + 0.587 * arr[..., 1] + 0.114 * arr[..., 2] + 0.5)
+    if frames == 1:
+        arr = arr[np.newaxis]
+    # Per-frame, shared or top-level rescale (enhanced multi-frame files may vary it per frame).
+    slopes, inters = [], []
+    pf = ds.get("PerFrameFunctionalGroupsSequence")
+    shared = ds.get("SharedFunctionalGroupsSequence")
+
+    def transform(item):
+        t = item.get("PixelValueTransformationSequence") if item is not None else None
+        return t[0] if t else None
+
+    for f in range(frames):
+        t = transform(pf[f]) if pf and f < len(pf) else None
+        t = t or (transform(shared[0]) if shared else None) or ds
+        slopes.append(float(t.get("RescaleSlope", 1) or 1))
+        inters.append(float(t.get("RescaleIntercept", 0) or 0))
+    if ds.get("Modality") == "RTDOSE" and ds.get("DoseGridScaling") is not None:
+        slopes = [float(ds.DoseGridScaling)] * frames
+    arr = arr * np.array(slopes)[:, None, None] + np.array(inters)[:, None, None]
+
+    # Geometry: rows along IOP[0:3] at PixelSpacing[1], columns along IOP[3:6] at
+    # PixelSpacing[0], frames ordered by their position along the normal.
+    def first(seq, name, attr):
+        for holder in ([pf[0]] if pf else []) + ([shared[0]] if shared else []):
+            s = holder.get(seq)
+            if s and attr in s[0]:
+                return s[0][attr].value
+        return None
+
+    iop = ds.get("ImageOrientationPatient") or first("PlaneOrientationSequence", "", "ImageOrientationPatient")
+    ps = ds.get("PixelSpacing") or first("PixelMeasuresSequence", "", "PixelSpacing")
+    positions = None
+    if frames > 1 and pf:
+        p = [f.get("PlanePositionSequence") for f in pf]
+        if all(x and "ImagePositionPatient" in x[0] for x in p) and len(p) == frames:
+            positions = np.array([[float(v) for v in x[0].ImagePositionPatient] for x in p])
+    elif frames > 1 and ds.get("GridFrameOffsetVector") is not None and ds.get("ImagePositionPatient") and iop:
+        r, c = np.array(iop[:3], float), np.array(iop[3:], float)
+        n = np.cross(r, c)
+        positions = np.array([np.array(ds.ImagePositionPatient, float) + float(d) * n for d in ds.GridFrameOffsetVector])
+    elif frames == 1 and ds.get("ImagePositionPatient"):
+        positions = np.array([[float(v) for v in ds.ImagePositionPatient]])
+    affine = None
+    if iop is not None and ps is not None and positions is not None:
+        r, c = np.array(iop[:3], float), np.array(iop[3:], float)
+        n = np.cross(r, c)
+        n /= np.linalg.norm(n)
+        order = np.argsort(positions @ n, kind="stable")
+        arr = arr[order]
+        positions = positions[order]
+        if len(positions) > 1:
+            slice_vec = (positions[-1] - positions[0]) / (len(positions) - 1)
+        else:
+            s = ds.get("SpacingBetweenSlices") or ds.get("SliceThickness") or 1.0
+            slice_vec = n * float(s)
+        lps = np.eye(4)
+        lps[:3, 0] = r * float(ps[1])
+        lps[:3, 1] = c * float(ps[0])
+        lps[:3, 2] = slice_vec
+        lps[:3, 3] = positions[0]
+        affine = np.diag([-1.0, -1.0, 1.0, 1.0]) @ lps
+    return arr.transpose(2, 1, 0), affine, str(ts)
+
+
+def nifti_reference(path):
+    import nibabel as nib
+
+    try:
+        img = nib.load(path)
+    except nib.filebasedimages.ImageFileError:
+        if path.endswith((".nii", ".nii.gz", ".hdr")):
+            raise
+        return None  # not an image nibabel knows (streamlines, surfaces, text)
+    if isinstance(img, nib.Cifti2Image):
+        img = nib.Nifti2Image.from_filename(path)  # its NIfTI-2 container, as volterra reads it
+    if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image, nib.Nifti1Pair, nib.Nifti2Pair)):
+        return "other format", type(img).__name__
+    h = img.header
+    data = np.asarray(img.get_fdata(dtype=np.float64))
+    data = data.reshape(data.shape[:3] + (-1,)) if data.ndim > 3 else data
+    sform, qform = int(h["sform_code"]), int(h["qform_code"])
+    if sform == 0 and qform == 0:
+        # NIfTI's method 1 (no transform): pixdim scaling only. nibabel's img.affine is its
+        # Analyze-style centred default here, which the standard does not define.
+        affine = np.diag(list(h["pixdim"][1:4]) + [1.0])
+    else:
+        affine = img.affine.copy()
+    unit = h.get_xyzt_units()[0]
+    scale = {"meter": 1000.0, "micron": 0.001}.get(unit, 1.0)
+    affine[:3, :] *= scale
+    return data, affine, "nifti"
+
+
+# --- the comparison -------------------------------------------------------------------------
+def volterra_convert(path, work):
+    out = os.path.join(work, "out.nii")
+    if os.path.exists(out):
+        os.remove(out)
+    try:
+        r = subprocess.run([VOLTERRA, "convert", path, out], capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        return "crash", "timed out after 120 s"
+    err = r.stderr.strip().splitlines()
+    if r.returncode != 0:
+        if r.returncode == 101 or any("panicked" in line for line in err):
+            return "crash", "panicked: " + " ".join(err)[:300]
+        lines = [line for line in err if line.startswith("error:")]
+        reason = lines[-1][len("error: "):] if lines else (err[-1] if err else f"exit {r.returncode}")
+        # The table must not depend on where the files are: the path becomes the file's name.
+        return "refused", reason.replace(path, os.path.basename(path)).replace(os.path.dirname(path) + os.sep, "")
+    import nibabel as nib
+
+    img = nib.load(out)
+    data = np.asarray(img.get_fdata(dtype=np.float64))
+    data = data.reshape(data.shape[:3] + (-1,)) if data.ndim > 3 else data
+    return "ok", (data, img.affine)
+
+
+def compare(ref, got, syntax):
+    rv, ra = ref
+    gv, ga = got
+    if rv.ndim == 2:
+        rv = rv[:, :, np.newaxis]
+    if gv.ndim == 4 and gv.shape[3] == 1:
+        gv = gv[..., 0]
+    if rv.ndim == 4 and rv.shape[3] == 1:
+        rv = rv[..., 0]
+    if rv.shape != gv.shape:
+        return "wrong", f"dims {list(gv.shape)}, reference {list(rv.shape)}"
+    finite = np.isfinite(rv) & np.isfinite(gv)
+    if not np.array_equal(np.isnan(rv), np.isnan(gv)):
+        return "wrong", "NaN voxels differ"
+    diff = np.abs(rv - gv)[finite]
+    scale = max(np.abs(rv[finite]).max(initial=0.0), 1e-30)
+    maxdiff = float(diff.max(initial=0.0))
+    tol = float(LOSSY.get(syntax, 0))
+    exact_tol = 1e-6 * scale  # volterra writes f32 where the values are real
+    if maxdiff > max(tol, exact_tol):
+        where = np.unravel_index(np.argmax(np.where(finite, np.abs(rv - gv), -1)), rv.shape)
+        return "wrong", f"values differ by up to {maxdiff:.6g} (at {list(map(int, where))}: {gv[where]:.6g} vs {rv[where]:.6g})"
+    note = f"max |Δ| {maxdiff:.3g} (lossy {syntax})" if tol and maxdiff > exact_tol else ""
+    if ra is None:
+        return "equal", ("values and dims; the file has no geometry to compare" + (", " + note if note else ""))
+    if not np.allclose(ra, ga, atol=1e-3 * max(1.0, np.abs(ra).max()), rtol=0):
+        return "wrong", f"affine {np.round(ga, 4).tolist()}, reference {np.round(ra, 4).tolist()}"
+    return "equal", note
+
+
+JUSTIFY = [
+    ("unknown file type", "not a format volterra reads (NIfTI, DICOM, GeoTIFF, PNG, VTK only)"),
+    ("unsupported transfer syntax", "no decoder for this transfer syntax in dicom-rs"),
+    ("not a scalar image", "a colour image that is not 8-bit RGB/YBR: volumes are scalar"),
+    ("Analyze 7.5", "Analyze 7.5 (no NIfTI magic): its orientation is undefined, so no world geometry can be given"),
+    ("is not a scalar layout", "a bit depth volterra does not store as a scalar volume"),
+    ("truncated", "the file is truncated (pydicom reads what is there; volterra refuses partial data)"),
+    ("missing or malformed", "a required image element is missing"),
+    ("datatype", "a NIfTI data type volterra does not keep (complex, RGB, 128-bit)"),
+    ("several multi-frame", "a series of multi-frame files"),
+    ("does not parse", "the data set does not parse"),
+    ("image file", "the .img half of the pair is not shipped"),
+    ("not a DICOM file", "not a DICOM data set"),
+]
+
+
+def justify(reason):
+    for key, why in JUSTIFY:
+        if key.lower() in reason.lower():
+            return why
+    return "UNJUSTIFIED — review"
+
+
+def main():
+    import nibabel
+    import pydicom
+
+    cases = []
+    pyd = os.path.join(os.path.dirname(pydicom.__file__), "data", "test_files")
+    for root, _, files in os.walk(pyd):
+        for f in sorted(files):
+            cases.append(("pydicom", os.path.join(root, f), "dicom"))
+    nib_dir = os.path.join(os.path.dirname(nibabel.__file__), "tests", "data")
+    for f in sorted(os.listdir(nib_dir)):
+        p = os.path.join(nib_dir, f)
+        if os.path.isfile(p) and not f.endswith((".img", ".img.gz", ".py", ".pyc", ".txt", ".json", ".rst", ".m", ".npy", ".npz")):
+            cases.append(("nibabel", p, "dicom" if f.endswith(".dcm") else "nifti"))
+    if SHARED:
+        vol = os.path.join(SHARED, "volumes")
+        for root, dirs, files in os.walk(vol):
+            dirs.sort()
+            dcm = [f for f in files if f.endswith(".dcm")]
+            if len(dcm) > 2 and len(series_uids(root, dcm)) == 1:
+                cases.append(("shared", root, "dicom-series"))  # one series: read as the directory
+                continue
+            for f in sorted(files):
+                p = os.path.join(root, f)
+                if f.endswith((".nii", ".nii.gz")):
+                    cases.append(("shared", p, "nifti"))
+                elif f.endswith(".dcm"):
+                    cases.append(("shared", p, "dicom"))
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        for suite, path, kind in cases:
+            name = os.path.relpath(path, {"pydicom": pyd, "nibabel": nib_dir}.get(suite, SHARED or "/"))
+            try:
+                if kind == "dicom-series":
+                    ref = series_reference(path)
+                elif kind == "dicom":
+                    ref = dicom_reference(path)
+                else:
+                    ref = nifti_reference(path)
+            except Exception as e:  # the reference cannot read it
+                text = str(e).splitlines()[0] if str(e) else ""
+                ref = ("error", f"{type(e).__name__}: {text}".replace(path, os.path.basename(path)).replace(os.path.dirname(path) + os.sep, "")[:200])
+            if ref is None:
+                continue  # no pixel data: not an image (reports, plans, structure sets)
+            got = volterra_convert(path, work)
+            if isinstance(ref[0], str) and ref[0] == "other format":
+                # nibabel reads it as an image of a format volterra does not read.
+                if got[0] == "refused":
+                    rows.append((suite, name, "refused", got[1], justify(got[1])))
+                else:
+                    rows.append((suite, name, "wrong" if got[0] == "crash" else "no reference", got[1] if got[0] == "crash" else f"nibabel reads it as {ref[1]}", ""))
+                continue
+            if isinstance(ref[0], str):
+                if got[0] in ("refused", "crash"):
+                    verdict = ("wrong", got[1]) if got[0] == "crash" else ("refused", got[1])
+                    why = f"the reference cannot read it either ({ref[1]})"
+                    rows.append((suite, name, verdict[0], verdict[1], why if verdict[0] == "refused" else ""))
+                else:
+                    rows.append((suite, name, "no reference", f"the reference cannot read it ({ref[1]}); volterra reads it", ""))
+                continue
+            if got[0] == "crash":
+                rows.append((suite, name, "wrong", got[1], ""))
+            elif got[0] == "refused":
+                rows.append((suite, name, "refused", got[1], justify(got[1])))
+            else:
+                verdict, detail = compare((ref[0], ref[1]), got[1], ref[2])
+                rows.append((suite, name, verdict, detail, ""))
+    write_table(rows)
+    wrong = [r for r in rows if r[2] == "wrong"]
+    unjustified = [r for r in rows if r[2] == "refused" and r[4].startswith("UNJUSTIFIED")]
+    for r in wrong + unjustified:
+        print(f"{r[2]}: {r[0]} {r[1]}: {r[3]} {r[4]}")
+    counts = {}
+    for r in rows:
+        counts.setdefault(r[0], {}).setdefault(r[2], 0)
+        counts[r[0]][r[2]] += 1
+    print("differential:", "; ".join(f"{s}: " + ", ".join(f"{v} {k}" for k, v in sorted(c.items())) for s, c in counts.items()))
+    sys.exit(1 if wrong or unjustified else 0)
+
+
+def series_uids(root, files):
+    import pydicom
+
+    return {str(pydicom.dcmread(os.path.join(root, f), stop_before_pixels=True, force=True).get("SeriesInstanceUID")) for f in files}
+
+
+def series_reference(path):
+    """A directory of single-frame files: each read by pydicom, stacked along the normal."""
+    vals, positions, aff = [], [], None
+    files = sorted(os.listdir(path))
+    refs = [dicom_reference(os.path.join(path, f)) for f in files]
+    refs = [r for r in refs if r is not None]
+    for v, a, ts in refs:
+        vals.append(v[:, :, 0])
+        positions.append(a[:3, 3] if a is not None else None)
+        aff = a
+    if aff is None or any(p is None for p in positions):
+        raise ValueError("slices without positions")
+    n = np.cross(aff[:3, 0], aff[:3, 1])
+    n /= np.linalg.norm(n)
+    order = np.argsort(np.array(positions) @ n, kind="stable")
+    stack = np.stack([vals[i] for i in order], axis=2)
+    p = [positions[i] for i in order]
+    affine = aff.copy()
+    affine[:3, 3] = p[0]
+    affine[:3, 2] = (p[-1] - p[0]) / max(len(p) - 1, 1)
+    return stack, affine, refs[0][2]
+
+
+def write_table(rows):
+    counts = {}
+    for r in rows:
+        counts.setdefault(r[0], {"equal": 0, "refused": 0, "wrong": 0, "no reference": 0})[r[2]] += 1
+    with open(OUT + ".tmp", "w") as f:
+        f.write("# Differential test: volterra against pydicom and nibabel\n\n")
+        f.write("Regenerated by `tests/differential.rs` (tests/reference/differential.py): every image-bearing\n")
+        f.write("file of pydicom's and nibabel's own test data (from the reference venv) and every DICOM and\n")
+        f.write("NIfTI file in ../shared/data, converted with `volterra convert FILE out.nii` and compared with\n")
+        f.write("the reference library's reading of the original: values after rescale, dims, and the\n")
+        f.write("voxel-to-world affine (RAS+ mm). Files without pixel data (reports, plans, structure sets) are\n")
+        f.write("left out. Lossy transfer syntaxes allow 2 grey levels between decoders.\n\n")
+        f.write("| suite | equal | refused | wrong | no reference |\n|---|---|---|---|---|\n")
+        for s, c in counts.items():
+            f.write(f"| {s} | {c['equal']} | {c['refused']} | {c['wrong']} | {c['no reference']} |\n")
+        f.write("\n| suite | file | result | detail | why refused |\n|---|---|---|---|---|\n")
+        for suite, name, verdict, detail, why in rows:
+            cell = lambda t: t.replace("|", "\\|").replace("\n", " ")
+            f.write(f"| {suite} | `{name}` | {verdict} | {cell(detail)} | {cell(why)} |\n")
+    os.replace(OUT + ".tmp", OUT)
+
+
+if __name__ == "__main__":
+    main()
