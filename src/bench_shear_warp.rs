@@ -68,7 +68,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     let (w, h) = (scene.file.image.width, scene.file.image.height);
     let cams = views(&scene.file.camera);
     std::fs::create_dir_all(&b.work_dir)?;
-    let prepared = shear_warp::Prepared::new(&volume);
+    let prepared = shear_warp::Prepared::new(&volume)?;
 
     // Reference images, cached by scene and view.
     let key = format!("{:x}", fxhash(&(std::fs::read_to_string(&b.scene)?, w, h)));

@@ -10,8 +10,9 @@ use volterra_formats::{self as formats, dicom, Dataset, LoadOptions};
 #[derive(Parser)]
 #[command(name = "volterra", version, about = "Medical and scientific visualization: volumes, terrain, particles")]
 struct Cli {
-    /// Refuse inputs that would need more memory than this (e.g. 4G, 512M). Default: the
-    /// memory available.
+    /// The memory the whole command may hold (e.g. 4G, 512M): reading, preparation,
+    /// rendering and outputs; work that would need more is refused before it starts, naming
+    /// what it needs. Default: the memory available.
     #[arg(long, global = true, value_name = "SIZE")]
     max_memory: Option<String>,
     #[command(subcommand)]
@@ -233,12 +234,24 @@ fn quiet_vulkan_device_select() {
     }
 }
 
+/// Every heap allocation counted, so that `--max-memory` bounds what the whole command holds.
+#[global_allocator]
+static ALLOCATOR: formats::memory::CountingAllocator = formats::memory::CountingAllocator;
+
 fn main() -> ExitCode {
     quiet_vulkan_device_select();
     default_sigpipe();
     exit_cleanly_on_signals();
     let cli = Cli::parse();
-    match run(cli) {
+    let budget = cli.max_memory.is_some();
+    let outcome = run(cli);
+    if budget && outcome.is_ok() {
+        // What the command held at most, against the limit it was given.
+        let (peak, limit) = (formats::memory::peak(), formats::memory::limit());
+        let over = if peak > limit { " — over the limit: a bug, please report it" } else { "" };
+        eprintln!("memory: peak {} of the {} limit{over}", formats::memory::human_bytes(peak), formats::memory::human_bytes(limit));
+    }
+    match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             // One line: the chain of contexts, outermost first.

@@ -287,3 +287,95 @@ fn a_gpu_render_without_a_runtime_directory_prints_no_wayland_error() {
     assert!(r.status.success(), "{err}");
     assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
 }
+
+/// `--max-memory` covered only the input: a CT four times smaller than the limit was
+/// accepted and the render peaked far above it. The budget bounds the whole command: a
+/// limit below what reading + preparation + frames need is refused before the work, naming
+/// what it needs; a sufficient one is kept (the peak the binary counts stays under it).
+#[test]
+fn max_memory_bounds_the_whole_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let (nx, ny, nz) = (256usize, 256usize, 160usize);
+    // A CT-like int16 volume: air, a body ellipse, bone ring, a vessel, noise.
+    let mut data = vec![0i16; nx * ny * nz];
+    let mut seed = 12345u32;
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+                let (u, v) = ((x as f64 - 128.0) / 100.0, (y as f64 - 128.0) / 80.0);
+                let r = (u * u + v * v).sqrt();
+                let mut hu = if r < 1.0 { 40.0 } else { -1000.0 };
+                if (0.85..0.95).contains(&r) {
+                    hu = 900.0;
+                }
+                if ((x as f64 - 150.0).powi(2) + (y as f64 - 120.0).powi(2)).sqrt() < 6.0 {
+                    hu = 350.0;
+                }
+                data[(z * ny + y) * nx + x] = (hu + ((seed >> 16) % 40) as f64 - 20.0 + 1024.0) as i16;
+            }
+        }
+    }
+    let vol = volterra_formats::Volume {
+        dims: [nx, ny, nz],
+        spacing: [0.7, 0.7, 1.25],
+        affine: [[0.7, 0.0, 0.0, -90.0], [0.0, 0.7, 0.0, -90.0], [0.0, 0.0, 1.25, -100.0], [0.0, 0.0, 0.0, 1.0]],
+        data: volterra_formats::VoxelData::I16(data),
+        rescale: volterra_formats::Rescale { slope: 1.0, intercept: -1024.0 },
+        modality: Some("CT".into()),
+        units: Some("HU".into()),
+        volume_count: 1,
+        volume_index: 0,
+        notes: vec![],
+    };
+    volterra_formats::nifti::write_nifti(&dir.path().join("ct.nii"), &vol).unwrap();
+    let scene = dir.path().join("ct.toml");
+    std::fs::write(
+        &scene,
+        r#"[image]
+width = 256
+height = 256
+
+[camera]
+position = [300.0, 250.0, 120.0]
+focal_point = [0.0, 0.0, 0.0]
+view_up = [0.0, 0.0, 1.0]
+parallel_projection = true
+parallel_scale = 110.0
+
+[[node]]
+name = "ct"
+kind = "volume"
+file = "ct.nii"
+renderer = "shear-warp"
+
+[node.transfer_function]
+scalar_opacity = [[-1000.0, 0.0], [100.0, 0.0], [300.0, 0.2], [1000.0, 0.8]]
+color = [[-1000.0, 0.3, 0.1, 0.1], [300.0, 0.9, 0.3, 0.2], [1000.0, 1.0, 1.0, 0.9]]
+"#,
+    )
+    .unwrap();
+    let stored = (nx * ny * nz * 2) as f64;
+    let out = dir.path().join("ct.exr");
+    let render = |limit: &str| {
+        Command::new(env!("CARGO_BIN_EXE_volterra"))
+            .args(["--max-memory", limit, "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap()])
+            .output()
+            .unwrap()
+    };
+    // 1.5× the stored volume: enough for reading it, not for reading and preparing it.
+    let tight = format!("{}", (1.5 * stored) as u64);
+    let r = render(&tight);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("memory limit") && err.contains("needs"), "the refusal names what the work needs: {err}");
+    assert_eq!(err.lines().count(), 1, "one line: {err}");
+    assert!(!out.exists(), "no output from refused work");
+    // Enough: it renders, and the peak the binary counted stays within the limit.
+    let r = render("200M");
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(r.status.success(), "{err}");
+    let peak_line = err.lines().find(|l| l.starts_with("memory: peak")).unwrap_or_else(|| panic!("no peak reported: {err}"));
+    assert!(!peak_line.contains("over the limit"), "{peak_line}");
+    assert!(out.exists());
+}

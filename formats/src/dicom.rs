@@ -880,21 +880,23 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     check_alloc(src, "DICOM volume", &[cols as u64, rows as u64, n as u64, ty.size() as u64])?;
     let mut data = VoxelData::zeroed(ty, cols * rows * n);
 
-    // Decode files in parallel; each file's frames are copied straight to their sorted
-    // slots in the typed volume.
+    // Decode files in parallel; each file's frames are copied to their sorted slots as soon
+    // as it is decoded and its buffer freed, so the series needs the volume plus one decoded
+    // file per thread (it held a copy of every file until all were decoded: twice the volume).
     let mut slot_of: Vec<Vec<(usize, usize)>> = vec![Vec::new(); infos.len()];
     for (slot, f) in frames.iter().enumerate() {
         slot_of[f.file].push((f.frame, slot));
     }
-    let decoded: Vec<Result<Vec<u8>>> = infos.par_iter().map(decode_frames).collect();
-    let bytes = data.as_bytes_mut();
-    for (fi, file_bytes) in decoded.into_iter().enumerate() {
-        let file_bytes = file_bytes?;
+    let slots = std::sync::Mutex::new(data.as_bytes_mut());
+    infos.par_iter().enumerate().try_for_each(|(fi, info)| -> Result<()> {
+        let file_bytes = decode_frames(info)?;
+        let mut bytes = slots.lock().unwrap_or_else(|e| e.into_inner());
         for &(frame, slot) in &slot_of[fi] {
             bytes[slot * frame_bytes..(slot + 1) * frame_bytes]
                 .copy_from_slice(&file_bytes[frame * frame_bytes..(frame + 1) * frame_bytes]);
         }
-    }
+        Ok(())
+    })?;
     // decode_frames yields little-endian samples.
     data.fix_byte_order(false);
 
@@ -903,6 +905,7 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
         frames.iter().map(|f| infos[f.file].frame_rescale.get(f.frame).copied().unwrap_or(infos[f.file].rescale)).collect();
     let mut rescale = slice_rescale[0];
     if slice_rescale.iter().any(|r| r != &rescale) {
+        check_alloc(src, "real-valued volume (the rescale differs between slices)", &[(cols * rows * n) as u64, 4])?;
         let plane = rows * cols;
         data = VoxelData::F32((0..plane * n).map(|i| slice_rescale[i / plane].apply(data.stored(i)) as f32).collect());
         rescale = Rescale::IDENTITY;
@@ -910,6 +913,7 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     }
     let mut depth = n;
     if let Some((spacing, d)) = resample_to {
+        check_alloc(src, "resampled volume", &[(cols * rows) as u64, ((d[n - 1] - d[0]) / spacing) as u64 + 1, 4])?;
         let (vals, k) = resample_uniform(&data, rescale, rows * cols, &d, spacing);
         data = VoxelData::F32(vals);
         rescale = Rescale::IDENTITY;

@@ -1,14 +1,82 @@
 //! The memory guard: every reader computes what a header asks it to allocate and asks here
 //! first, so a lying header is refused before anything is allocated.
+//!
+//! The limit covers the whole command, not one allocation: where the program installs
+//! [`CountingAllocator`] (the `volterra` binary does), every heap allocation is counted, and a
+//! request is refused when what is already in use plus the request would pass the limit. The
+//! readers, the renderers' preparations and their frames ask here before their large
+//! allocations; what is allocated in small pieces is bounded by those. [`peak`] reports the
+//! most the command held, so tests can check that it stayed within the limit.
 
 use crate::error::{ErrorKind, FormatError, Result};
+use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+
+static IN_USE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+/// Allocations at least this large update the peak at once; smaller ones are folded in at the
+/// next large one or when [`peak`] is read (one relaxed add per small allocation).
+const PEAK_STEP: usize = 1 << 16;
+
+/// The system allocator, counting the bytes in use (install with `#[global_allocator]`).
+pub struct CountingAllocator;
+
+// SAFETY: every call is forwarded to the system allocator unchanged; only counters are added.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let p = System.alloc(layout);
+        if !p.is_null() {
+            counted(layout.size());
+        }
+        p
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        let p = System.alloc_zeroed(layout);
+        if !p.is_null() {
+            counted(layout.size());
+        }
+        p
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout);
+        IN_USE.fetch_sub(layout.size(), Ordering::Relaxed);
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let p = System.realloc(ptr, layout, new_size);
+        if !p.is_null() {
+            if new_size >= layout.size() {
+                counted(new_size - layout.size());
+            } else {
+                IN_USE.fetch_sub(layout.size() - new_size, Ordering::Relaxed);
+            }
+        }
+        p
+    }
+}
+
+fn counted(bytes: usize) {
+    let now = IN_USE.fetch_add(bytes, Ordering::Relaxed) + bytes;
+    if bytes >= PEAK_STEP {
+        PEAK.fetch_max(now, Ordering::Relaxed);
+    }
+}
+
+/// Heap bytes in use now (0 where [`CountingAllocator`] is not installed).
+pub fn in_use() -> u64 {
+    IN_USE.load(Ordering::Relaxed) as u64
+}
+
+/// The most heap bytes held at once so far (within the small allocations between two large
+/// ones; 0 where [`CountingAllocator`] is not installed).
+pub fn peak() -> u64 {
+    PEAK.fetch_max(IN_USE.load(Ordering::Relaxed), Ordering::Relaxed).max(IN_USE.load(Ordering::Relaxed)) as u64
+}
 
 /// 0 means "not set": use the memory available on this machine.
 static LIMIT_BYTES: AtomicU64 = AtomicU64::new(0);
 
-/// Sets the largest single allocation a reader may make for file data (`--max-memory`).
+/// Sets the memory the whole command may hold (`--max-memory`).
 pub fn set_limit(bytes: u64) {
     LIMIT_BYTES.store(bytes, Ordering::Relaxed);
 }
@@ -29,7 +97,8 @@ fn available_memory() -> Option<u64> {
 }
 
 /// Multiplies the factors (element counts and a byte size) with overflow checks and
-/// refuses the total if it exceeds the limit. Returns the byte count as usize.
+/// refuses the total if it, with what is already in use, would pass the limit. Returns the
+/// byte count as usize.
 pub fn check_alloc(path: &Path, what: &str, factors: &[u64]) -> Result<usize> {
     let mut total: u64 = 1;
     for &f in factors {
@@ -43,6 +112,21 @@ pub fn check_alloc(path: &Path, what: &str, factors: &[u64]) -> Result<usize> {
             path,
             ErrorKind::TooLarge,
             format!("{what} needs {} but the memory limit is {} (set --max-memory to raise it)", human_bytes(total), human_bytes(limit)),
+        ));
+    }
+    // The default limit is the memory still available, which already leaves out what this
+    // process holds; a set limit counts it.
+    let used = if LIMIT_BYTES.load(Ordering::Relaxed) != 0 { in_use() } else { 0 };
+    if used.saturating_add(total) > limit {
+        return Err(FormatError::new(
+            path,
+            ErrorKind::TooLarge,
+            format!(
+                "{what} needs {} more, and with {} already in use that passes the memory limit of {} (set --max-memory to raise it)",
+                human_bytes(total),
+                human_bytes(used),
+                human_bytes(limit)
+            ),
         ));
     }
     usize::try_from(total).map_err(|_| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: too large for this platform")))

@@ -31,11 +31,16 @@ pub struct RenderCache {
 type PreparedVolume = (Arc<Volume>, Arc<shear_warp::Prepared>);
 
 impl RenderCache {
-    fn shear_warp(&self, volume: &Arc<Volume>) -> Arc<shear_warp::Prepared> {
+    fn shear_warp(&self, volume: &Arc<Volume>) -> Result<Arc<shear_warp::Prepared>> {
         let key = Arc::as_ptr(volume) as usize;
         let mut map = self.prepared.lock().unwrap();
         // Entries keep their volume alive, so an address is never reused while cached.
-        map.entry(key).or_insert_with(|| (volume.clone(), Arc::new(shear_warp::Prepared::new(volume)))).1.clone()
+        if let Some((_, p)) = map.get(&key) {
+            return Ok(p.clone());
+        }
+        let p = Arc::new(shear_warp::Prepared::new(volume)?);
+        map.insert(key, (volume.clone(), p.clone()));
+        Ok(p)
     }
 }
 
@@ -102,7 +107,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         "shear-warp" => {
             let s: shear_warp::Settings = settings(&desc.settings, &desc.name, name)?;
             let tf = desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name))?;
-            let prepared = cache.shear_warp(&scene.volume(node)?);
+            let prepared = cache.shear_warp(&scene.volume(node)?)?;
             let input = shear_warp::Input { prepared: &prepared, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
             shear_warp::render(&input, &rays, &s)?
         }
@@ -147,6 +152,9 @@ pub fn render_scene(scene: &Scene, frame: Option<(usize, usize)>) -> Result<Fram
 
 /// Renders every visible node seen by `camera` at `size` and composites them by depth.
 pub fn render_view(scene: &Scene, camera: &Camera, size: (usize, usize), cache: &RenderCache) -> Result<Frame> {
+    // Each layer's colour and depth, and the composite, against the memory limit.
+    let layers_max = scene.nodes().len() as u64 + 1;
+    volterra_formats::memory::check_alloc(&scene.source, "the frames", &[size.0 as u64, size.1 as u64, 20, layers_max])?;
     let mut layers = Vec::new();
     for i in 0..scene.nodes().len() {
         if let Some(f) = render_node_with(scene, i, camera, size, cache).with_context(|| scene.source.display().to_string())? {

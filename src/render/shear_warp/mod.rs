@@ -22,6 +22,7 @@ use preint::{ClearQuanta, PreintTable};
 use rayon::prelude::*;
 use serde::Deserialize;
 use std::collections::HashMap;
+use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use volterra_formats::Volume;
@@ -118,7 +119,9 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    pub fn new(volume: &Volume) -> Prepared {
+    /// Quantises `volume`, within the memory limit (`--max-memory`).
+    pub fn new(volume: &Volume) -> Result<Prepared> {
+        volterra_formats::memory::check_alloc(Path::new("shear-warp"), "the quantised volume", &[volume.voxel_count() as u64, 2])?;
         let (lo, hi) = volume.value_range().unwrap_or((0.0, 1.0));
         let hi = if hi > lo { hi } else { lo + 1.0 };
         let scale = 65535.0 / (hi - lo);
@@ -126,18 +129,27 @@ impl Prepared {
             .into_par_iter()
             .map(|i| ((volume.value(i) - lo) * scale).round().clamp(0.0, 65535.0) as u16)
             .collect();
-        Prepared {
+        Ok(Prepared {
             dims: volume.dims,
             lo,
             hi,
             quanta,
             axes: [OnceLock::new(), OnceLock::new(), OnceLock::new()],
             affine: DMat4::from_cols_array_2d(&volume.affine).transpose(),
-        }
+        })
     }
 
-    fn axis(&self, perm: [usize; 3]) -> &Axis {
-        self.axes[perm[2]].get_or_init(|| {
+    /// The slices along `perm[2]`, permuted once and kept (checked against the memory limit
+    /// the first time).
+    fn axis(&self, perm: [usize; 3]) -> Result<&Axis> {
+        if self.axes[perm[2]].get().is_none() {
+            volterra_formats::memory::check_alloc(
+                Path::new("shear-warp"),
+                "the slices along the viewing axis",
+                &[self.quanta.len() as u64, 2],
+            )?;
+        }
+        Ok(self.axes[perm[2]].get_or_init(|| {
             let d = self.dims;
             let pd = [d[perm[0]], d[perm[1]], d[perm[2]]];
             let stride = [1, d[0], d[0] * d[1]];
@@ -151,7 +163,7 @@ impl Prepared {
                 }
             });
             Axis { dims: pd, data, overlapped: Mutex::default(), clear_masks: Mutex::default(), scanline: Mutex::default() }
-        })
+        }))
     }
 }
 
@@ -434,7 +446,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     }
     let ratio = (settings.supersampling > 0.0).then_some(settings.supersampling);
     let fac = Factorization::new(index_to_world, prep.dims, rays, ratio);
-    let axis = prep.axis(fac.perm);
+    let axis = prep.axis(fac.perm)?;
     let [nx, ny, nz] = axis.dims;
     let n_levels = if settings.table_levels >= 2 { settings.table_levels.min(4096) } else { preint::level_count(tf, prep.lo, prep.hi) };
     // A one-slice stack has no slab between slices: its slab is the slice itself, one

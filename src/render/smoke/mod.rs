@@ -196,6 +196,8 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         key.str(&format!("{:?} {emitters:?} {:?}", s.kernel, s.free_flight));
         key.f64(c_ext).f64(albedo).f64(g).f64(step).u64(s.photons as u64).u64(s.seed).u64(s.max_bounces as u64);
         let key = key.finish();
+        // At least one 72-byte record per traced photon (more where a photon collides often).
+        volterra_formats::memory::check_alloc(std::path::Path::new("smoke"), "the photon records", &[s.photons as u64, 72])?;
         let cached = if s.cache { cache::load(key) } else { None };
         if let Some(traced) = cached {
             cache_hit = true;
