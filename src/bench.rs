@@ -46,6 +46,7 @@ fn prepare(dir: &Path) -> Result<(PathBuf, PathBuf)> {
         volume_count: 1,
         volume_index: 0,
         notes: vec![],
+        attributes: Vec::new(),
     };
     eprintln!("writing 512 DICOM files into {}", series.display());
     volterra_formats::dicom_write::write_series(&series, &vol, "1.2.826.0.1.3680043.10.1234.512", Some(42))?;

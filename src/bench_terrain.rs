@@ -73,6 +73,7 @@ pub fn bench_dem(size: usize) -> Heightfield {
         nodata,
         nodata_value: None,
         notes: vec![],
+        attributes: Vec::new(),
     }
 }
 

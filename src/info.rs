@@ -3,10 +3,70 @@
 use serde_json::{json, Value};
 use volterra_formats::{dicom, Dataset, Heightfield, ParticleArrayNames, ParticleSet, Volume};
 
+/// A number as people read it: integers without decimals, others to 6 significant digits
+/// with trailing zeros dropped (no `563.2000122070312` from an f32).
+pub fn num(v: f64) -> String {
+    if !v.is_finite() {
+        return format!("{v}");
+    }
+    if v == v.trunc() && v.abs() < 1e15 {
+        return format!("{v:.0}");
+    }
+    let mag = v.abs().log10().floor() as i32;
+    if !(-4..9).contains(&mag) {
+        return format!("{v:.5e}");
+    }
+    let decimals = (5 - mag).max(0) as usize;
+    let t = format!("{v:.decimals$}");
+    let t = if t.contains('.') { t.trim_end_matches('0').trim_end_matches('.').to_string() } else { t };
+    if t == "-0" {
+        "0".into()
+    } else {
+        t
+    }
+}
+
+/// The orientation string (nibabel's axis codes): where each voxel axis points in RAS+.
+pub fn orientation(affine: &[[f64; 4]; 4]) -> String {
+    (0..3)
+        .map(|c| {
+            let col = [affine[0][c], affine[1][c], affine[2][c]];
+            let k = (0..3).max_by(|&a, &b| col[a].abs().total_cmp(&col[b].abs())).unwrap();
+            let (pos, neg) = [('R', 'L'), ('A', 'P'), ('S', 'I')][k];
+            if col[k] >= 0.0 {
+                pos
+            } else {
+                neg
+            }
+        })
+        .collect()
+}
+
+/// The raster's outer corners in CRS units (gdalinfo's Upper Left … Lower Right, and the
+/// centre): sample centres are `origin + (col, −row) · cell`, so the edges lie half a cell out.
+pub fn corners(h: &Heightfield) -> [(&'static str, [f64; 2]); 5] {
+    let [sx, sy] = h.cell_size_native;
+    let (west, north) = (h.origin[0] - 0.5 * sx, h.origin[1] + 0.5 * sy);
+    let (east, south) = (west + h.width as f64 * sx, north - h.height as f64 * sy);
+    [
+        ("upper left", [west, north]),
+        ("lower left", [west, south]),
+        ("upper right", [east, north]),
+        ("lower right", [east, south]),
+        ("centre", [0.5 * (west + east), 0.5 * (north + south)]),
+    ]
+}
+
+fn attributes_json(a: &[(String, String)]) -> Value {
+    Value::Object(a.iter().map(|(k, v)| (k.clone(), Value::String(v.clone()))).collect())
+}
+
 pub fn volume_json(v: &Volume) -> Value {
     let (min, max) = v.value_range().unwrap_or((f64::NAN, f64::NAN));
     json!({
         "kind": "volume",
+        "orientation": orientation(&v.affine),
+        "attributes": attributes_json(&v.attributes),
         "dims": v.dims,
         "spacing": v.spacing,
         "affine": v.affine,
@@ -24,8 +84,11 @@ pub fn volume_json(v: &Volume) -> Value {
 
 pub fn heightfield_json(h: &Heightfield) -> Value {
     let (min, max) = h.range().map(|(a, b)| (a as f64, b as f64)).unwrap_or((f64::NAN, f64::NAN));
+    let corner_map: serde_json::Map<String, Value> = corners(h).iter().map(|(n, c)| (n.replace(' ', "_"), json!(c))).collect();
     json!({
         "kind": "heightfield",
+        "attributes": attributes_json(&h.attributes),
+        "corners": corner_map,
         "dims": [h.width, h.height],
         "cell_size": h.cell_size,
         "cell_size_native": h.cell_size_native,
@@ -65,7 +128,13 @@ pub fn series_json(list: &[dicom::SeriesSummary]) -> Value {
 }
 
 fn fmt3(v: [f64; 3]) -> String {
-    format!("{:.6} × {:.6} × {:.6}", v[0], v[1], v[2])
+    format!("{} × {} × {}", num(v[0]), num(v[1]), num(v[2]))
+}
+
+fn attributes_text(s: &mut String, a: &[(String, String)]) {
+    for (k, v) in a {
+        *s += &format!("{k:<11} {v}\n");
+    }
 }
 
 /// A human-readable summary.
@@ -76,13 +145,15 @@ pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
             let (min, max) = v.value_range().unwrap_or((f64::NAN, f64::NAN));
             s += &format!("volume      {} × {} × {} voxels, {}\n", v.dims[0], v.dims[1], v.dims[2], v.data.scalar_type().name());
             s += &format!("spacing     {} mm\n", fmt3(v.spacing));
+            s += &format!("orientation {} (where the voxel axes i, j, k point in RAS+)\n", orientation(&v.affine));
             s += "affine      (voxel index → RAS+ mm)\n";
             for r in &v.affine {
                 s += &format!("            [{:>12.6} {:>12.6} {:>12.6} {:>12.6}]\n", r[0], r[1], r[2], r[3]);
             }
-            s += &format!("rescale     value = {} · stored + {}\n", v.rescale.slope, v.rescale.intercept);
+            s += &format!("rescale     value = {} · stored + {}\n", num(v.rescale.slope), num(v.rescale.intercept));
             s += &format!("modality    {}\n", v.modality.as_deref().unwrap_or("-"));
-            s += &format!("range       {min} .. {max} {}\n", v.units.as_deref().unwrap_or(""));
+            s += &format!("range       {} .. {} {}\n", num(min), num(max), v.units.as_deref().unwrap_or(""));
+            attributes_text(&mut s, &v.attributes);
             if v.volume_count > 1 {
                 s += &format!("volumes     {} (showing {})\n", v.volume_count, v.volume_index);
             }
@@ -93,15 +164,28 @@ pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
         Dataset::Heightfield(h) => {
             let (min, max) = h.range().unwrap_or((f32::NAN, f32::NAN));
             s += &format!("heightfield {} × {} samples\n", h.width, h.height);
-            s += &format!("cell size   {:.6} m × {:.6} m", h.cell_size[0], h.cell_size[1]);
+            s += &format!("cell size   {} m × {} m", num(h.cell_size[0]), num(h.cell_size[1]));
             if h.crs.geographic {
-                s += &format!(" (from {}° × {}°)", h.cell_size_native[0], h.cell_size_native[1]);
+                s += &format!(" (from {}° × {}°)", num(h.cell_size_native[0]), num(h.cell_size_native[1]));
             }
             s += "\n";
-            s += &format!("origin      {}, {} (centre of the north-west sample, CRS units)\n", h.origin[0], h.origin[1]);
+            s += &format!("origin      {}, {} (centre of the north-west sample, CRS units)\n", num(h.origin[0]), num(h.origin[1]));
             s += &format!("crs         {}\n", h.crs.description);
-            s += &format!("elevation   {min} .. {max} m\n");
-            s += &format!("nodata      {} samples (value {:?})\n", h.nodata_count(), h.nodata_value);
+            attributes_text(&mut s, &h.attributes);
+            let c = corners(h);
+            s += &format!(
+                "bounds      west {}, south {}, east {}, north {} (CRS units)\n",
+                num(c[0].1[0]),
+                num(c[3].1[1]),
+                num(c[3].1[0]),
+                num(c[0].1[1])
+            );
+            for (name, [x, y]) in c {
+                s += &format!("{:<11} {}, {}\n", name, num(x), num(y));
+            }
+            s += &format!("elevation   {} .. {} m\n", num(min as f64), num(max as f64));
+            let value = h.nodata_value.map(num).unwrap_or_else(|| "none declared".into());
+            s += &format!("nodata      {} samples (value {value})\n", h.nodata_count());
             for n in &h.notes {
                 s += &format!("note        {n}\n");
             }

@@ -157,6 +157,7 @@ pub fn angio_phantom(n: usize) -> Volume {
         volume_count: 1,
         volume_index: 0,
         notes: vec!["volterra angiography phantom".into()],
+        attributes: Vec::new(),
     }
 }
 
@@ -240,6 +241,7 @@ pub fn fractal_dem(levels: u32, cell: f64, seed: u64) -> Heightfield {
         nodata,
         nodata_value: Some(-32768.0),
         notes: vec!["volterra fractal DEM".into()],
+        attributes: Vec::new(),
     }
 }
 

@@ -128,6 +128,7 @@ fn constant_volume(n: usize, spacing: f64, value: u8) -> Volume {
         volume_count: 1,
         volume_index: 0,
         notes: vec![],
+        attributes: Vec::new(),
     }
 }
 

@@ -21,6 +21,7 @@ fn volume(dims: [usize; 3], spacing: [f64; 3], data: VoxelData, rescale: Rescale
         volume_count: 1,
         volume_index: 0,
         notes: vec![],
+        attributes: Vec::new(),
     }
 }
 

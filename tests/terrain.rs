@@ -33,6 +33,7 @@ fn field(w: usize, h: usize, cell: f64, f: impl Fn(usize, usize) -> f32) -> Heig
         nodata,
         nodata_value: None,
         notes: vec![],
+        attributes: Vec::new(),
     }
 }
 

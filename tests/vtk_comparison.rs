@@ -86,6 +86,7 @@ fn the_vtk_reference_reads_scaled_anisotropic_oblique_volumes_in_millimetres() {
         volume_count: 1,
         volume_index: 0,
         notes: vec![],
+        attributes: Vec::new(),
     };
     volterra_formats::nifti::write_nifti(&dir.path().join("blob.nii"), &vol).unwrap();
     let scene = dir.path().join("blob.toml");

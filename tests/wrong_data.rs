@@ -160,6 +160,7 @@ fn converting_a_4d_nifti_keeps_every_volume() {
             volume_count: 20,
             volume_index: t,
             notes: vec![],
+            attributes: Vec::new(),
         });
     }
     volterra_formats::nifti::write_nifti_volumes(&src, &vols, &[20], 2.5, 8).unwrap();
@@ -327,6 +328,7 @@ fn max_memory_bounds_the_whole_render() {
         volume_count: 1,
         volume_index: 0,
         notes: vec![],
+        attributes: Vec::new(),
     };
     volterra_formats::nifti::write_nifti(&dir.path().join("ct.nii"), &vol).unwrap();
     let scene = dir.path().join("ct.toml");
@@ -378,4 +380,39 @@ color = [[-1000.0, 0.3, 0.1, 0.1], [300.0, 0.9, 0.3, 0.2], [1000.0, 1.0, 1.0, 0.
     let peak_line = err.lines().find(|l| l.starts_with("memory: peak")).unwrap_or_else(|| panic!("no peak reported: {err}"));
     assert!(!peak_line.contains("over the limit"), "{peak_line}");
     assert!(out.exists());
+}
+
+/// `info` prints values as people read them and what gdalinfo and dcm2niix users look for.
+#[test]
+fn info_prints_what_gdalinfo_and_dcm2niix_users_look_for() {
+    let text = |p: &std::path::Path| {
+        let r = volterra(&["info", p.to_str().unwrap()]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        String::from_utf8(r.stdout).unwrap()
+    };
+    // GeoTIFF (written by tifffile: tiepoint 500000, 5200000, cells 30 × 20 m, 45 × 37).
+    let t = text(&repo_path("tests/fixtures/geotiff/i32_deflate_pred2.tif"));
+    for want in [
+        "data type   int32",
+        "compression Deflate, predictor 2",
+        "upper left  500000, 5200000",
+        "lower right 501350, 5199260",
+        "bounds      west 500000, south 5199260, east 501350, north 5200000",
+        "(value -9999)",
+    ] {
+        assert!(t.contains(want), "missing {want:?} in:\n{t}");
+    }
+    assert!(!t.contains("Some("), "{t}");
+    // NIfTI: codes and the orientation string (nibabel's aff2axcodes of this affine: LAS).
+    let t = text(&repo_path("tests/fixtures/nifti/scaled.nii"));
+    for want in ["orientation L", "sform_code", "qform_code"] {
+        assert!(t.contains(want), "missing {want:?} in:\n{t}");
+    }
+    // DICOM: series, modality and transfer syntax by name.
+    let t = text(&repo_path("tests/fixtures/dicom/oblique"));
+    for want in ["transfer syntax", "modality    CT"] {
+        assert!(t.contains(want), "missing {want:?} in:\n{t}");
+    }
+    // No float noise from f32 values.
+    assert!(!t.lines().any(|l| l.starts_with("range") && l.contains("00000")), "{t}");
 }

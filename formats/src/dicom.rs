@@ -66,6 +66,8 @@ struct ImageInfo {
     frame_rescale: Vec<Rescale>,
     /// How the file was read where not as a plain Part 10 file (no meta header, say).
     read_note: Option<String>,
+    /// Patient, study and series as dcm2niix users look for them (for `info`).
+    attributes: Vec<(String, String)>,
 }
 
 type Obj = InMemDicomObject;
@@ -353,7 +355,41 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject, read_note: O
         frame_positions,
         frame_rescale,
         read_note,
+        attributes: describe(obj, file.meta().transfer_syntax().trim_end_matches('\0')),
     })
+}
+
+/// Patient, study, series, date and encoding, each where the file has it.
+fn describe(obj: &Obj, syntax: &str) -> Vec<(String, String)> {
+    use dicom_encoding::transfer_syntax::TransferSyntaxIndex;
+    use dicom_transfer_syntax_registry::TransferSyntaxRegistry;
+    let mut a = Vec::new();
+    let mut put = |name: &str, v: Option<String>| {
+        if let Some(v) = v.filter(|v| !v.is_empty()) {
+            a.push((name.to_string(), v));
+        }
+    };
+    let date = |d: Option<String>| {
+        d.map(|d| if d.len() == 8 && d.bytes().all(|b| b.is_ascii_digit()) { format!("{}-{}-{}", &d[..4], &d[4..6], &d[6..]) } else { d })
+    };
+    put("patient", text(obj, tags::PATIENT_NAME).map(|n| n.replace('^', " ").trim().to_string()));
+    put("patient ID", text(obj, tags::PATIENT_ID));
+    put("study", text(obj, tags::STUDY_DESCRIPTION));
+    put("study date", date(text(obj, tags::STUDY_DATE)));
+    put("series number", text(obj, tags::SERIES_NUMBER));
+    put("series", text(obj, tags::SERIES_DESCRIPTION));
+    put("series date", date(text(obj, tags::SERIES_DATE).or_else(|| text(obj, tags::ACQUISITION_DATE))));
+    put("manufacturer", text(obj, tags::MANUFACTURER));
+    put("photometric", text(obj, tags::PHOTOMETRIC_INTERPRETATION));
+    let ts_name = TransferSyntaxRegistry.get(syntax).map(|t| t.name().to_string());
+    put(
+        "transfer syntax",
+        Some(match ts_name {
+            Some(n) => format!("{n} ({syntax})"),
+            None => syntax.to_string(),
+        }),
+    );
+    a
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -944,6 +980,7 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
         volume_count: 1,
         volume_index: 0,
         notes,
+        attributes: first.attributes.clone(),
     })
 }
 

@@ -203,7 +203,47 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
         Crs { epsg, geographic, description: desc }
     };
 
+    // What gdalinfo users look for: the storage, before the image is read.
+    let compression = match d.get_tag_u32(tiff::tags::Tag::Compression).unwrap_or(1) {
+        1 => "none".to_string(),
+        5 => "LZW".into(),
+        8 | 32946 => "Deflate".into(),
+        32773 => "PackBits".into(),
+        34887 => "LERC".into(),
+        50000 => "ZSTD".into(),
+        7 => "JPEG".into(),
+        other => format!("code {other}"),
+    };
+    if compression == "LERC" {
+        // No Rust crate decodes LERC (GDAL's limited-error raster compression).
+        return Err(FormatError::unsupported(
+            path,
+            "compression LERC is not supported (no Rust decoder): convert with gdal_translate -co COMPRESS=ZSTD",
+        ));
+    }
+    let predictor = d.get_tag_u32(tiff::tags::Tag::Predictor).unwrap_or(1);
+    let layout = match (d.get_tag_u32(tiff::tags::Tag::TileWidth), d.get_tag_u32(tiff::tags::Tag::TileLength)) {
+        (Ok(tw), Ok(th)) => format!("tiles of {tw}×{th}"),
+        _ => "strips".into(),
+    };
     let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
+    let data_type = match &raw {
+        DecodingResult::U8(_) => "uint8",
+        DecodingResult::I8(_) => "int8",
+        DecodingResult::U16(_) => "uint16",
+        DecodingResult::I16(_) => "int16",
+        DecodingResult::U32(_) => "uint32",
+        DecodingResult::I32(_) => "int32",
+        DecodingResult::F32(_) => "float32",
+        DecodingResult::F64(_) => "float64",
+        _ => "other",
+    };
+    let attributes = vec![
+        ("data type".to_string(), data_type.to_string()),
+        ("compression".to_string(), if predictor > 1 { format!("{compression}, predictor {predictor}") } else { compression }),
+        ("layout".to_string(), layout),
+        ("raster type".to_string(), if point { "PixelIsPoint".into() } else { "PixelIsArea".into() }),
+    ];
     let n = w as usize * h as usize;
     let vertical = match short_key(&keys, KEY_VERTICAL_UNITS) {
         Some(9002) => {
@@ -287,6 +327,7 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
         nodata,
         nodata_value,
         notes,
+        attributes,
     })
 }
 

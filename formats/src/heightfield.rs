@@ -43,6 +43,9 @@ pub struct Heightfield {
     /// The file's NoData value, where it declares one.
     pub nodata_value: Option<f64>,
     pub notes: Vec<String>,
+    /// What the file says about itself, for `info`, in the order shown: data type,
+    /// compression, codes, patient, study and series (name, value as people read it).
+    pub attributes: Vec<(String, String)>,
 }
 
 impl Heightfield {

@@ -517,6 +517,27 @@ impl OpenedNifti {
     }
 
     fn volume(&self, data: VoxelData, index: usize) -> Volume {
+        let h = &self.h;
+        let mut attributes = vec![
+            ("format".to_string(), format!("NIfTI-{} {}", h.version, if h.single_file { "single file" } else { "header/image pair" })),
+            ("data type".to_string(), format!("{} ({}-endian)", self.ty.name(), if h.big_endian { "big" } else { "little" })),
+            ("sform_code".to_string(), xform_code_name(h.sform_code)),
+            ("qform_code".to_string(), xform_code_name(h.qform_code)),
+        ];
+        if h.scl_slope != 0.0 && h.scl_slope.is_finite() {
+            // As stored: f32 (shortest f32 text, not the f64 widening's digits).
+            attributes.push(("scl_slope".into(), format!("{}", h.scl_slope as f32)));
+            attributes.push(("scl_inter".into(), format!("{}", h.scl_inter as f32)));
+        }
+        if !self.extra_dims.is_empty() {
+            attributes.push(("dim[4..]".into(), format!("{:?}, pixdim[4] {}", self.extra_dims, h.pixdim[4])));
+        }
+        if h.intent_code != 0 {
+            attributes.push(("intent_code".into(), h.intent_code.to_string()));
+        }
+        if !h.descrip.is_empty() {
+            attributes.push(("descrip".into(), h.descrip.clone()));
+        }
         let mut notes = self.notes.clone();
         if self.volume_count > 1 {
             notes.push(format!("4-D file: volume {index} of {}", self.volume_count));
@@ -532,8 +553,23 @@ impl OpenedNifti {
             volume_count: self.volume_count as usize,
             volume_index: index,
             notes,
+            attributes,
         }
     }
+}
+
+/// sform_code / qform_code as NIfTI names them.
+fn xform_code_name(code: i32) -> String {
+    let name = match code {
+        0 => "unknown",
+        1 => "scanner",
+        2 => "aligned",
+        3 => "talairach",
+        4 => "mni_152",
+        5 => "template",
+        _ => "non-standard",
+    };
+    format!("{code} ({name})")
 }
 
 pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {

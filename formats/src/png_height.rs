@@ -112,6 +112,10 @@ pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions) -> Result<Height
             "PNG {}-bit, {} channel(s), encoding {:?}, vertical scale {} m, offset {} m, cell {} m",
             p.bit_depth, p.channels, opts.encoding, opts.vertical_scale, opts.vertical_offset, opts.cell_size
         )],
+        attributes: vec![
+            ("data type".into(), format!("{}-bit PNG, {} channel(s){}", p.bit_depth, p.channels, if p.palette { ", palette" } else { "" })),
+            ("encoding".into(), format!("{:?}", opts.encoding)),
+        ],
     })
 }
 

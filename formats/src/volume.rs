@@ -224,6 +224,9 @@ pub struct Volume {
     pub volume_index: usize,
     /// Human-readable notes about what the reader did (conversions, fallbacks).
     pub notes: Vec<String>,
+    /// What the file says about itself, for `info`, in the order shown: data type,
+    /// compression, codes, patient, study and series (name, value as people read it).
+    pub attributes: Vec<(String, String)>,
 }
 
 impl Volume {

@@ -181,6 +181,7 @@ mod tests {
             volume_count: 1,
             volume_index: 0,
             notes: vec![],
+            attributes: Vec::new(),
         }
     }
 

@@ -1240,10 +1240,18 @@ fn metadata_grid(ui: &mut egui::Ui, data: &NodeData, names: volterra_formats::Pa
         NodeData::Heightfield(h) => crate::info::heightfield_json(h),
         NodeData::Particles(p) => crate::info::particles_json(p, &names),
     };
+    // What the file says about itself (codes, patient, series, compression, corners): whole,
+    // under a header that starts closed so the panel keeps its layout.
+    let details: Vec<(String, serde_json::Value)> = match &json {
+        serde_json::Value::Object(map) => {
+            ["attributes", "corners"].iter().filter_map(|k| map.get(*k).map(|v| (k.to_string(), v.clone()))).collect()
+        }
+        _ => Vec::new(),
+    };
     egui::Grid::new("metadata").num_columns(2).striped(true).show(ui, |ui| {
         if let serde_json::Value::Object(map) = json {
             for (k, v) in map {
-                if k == "notes" || k == "affine" {
+                if k == "notes" || k == "affine" || k == "attributes" || k == "corners" || k == "orientation" {
                     continue;
                 }
                 ui.label(k);
@@ -1275,4 +1283,16 @@ fn metadata_grid(ui: &mut egui::Ui, data: &NodeData, names: volterra_formats::Pa
             }
         }
     });
+    for (k, v) in details {
+        let serde_json::Value::Object(o) = v else { continue };
+        egui::CollapsingHeader::new(format!("file {k}")).default_open(false).show(ui, |ui| {
+            egui::Grid::new(format!("metadata-{k}")).num_columns(2).striped(true).show(ui, |ui| {
+                for (name, value) in o {
+                    ui.label(name);
+                    ui.label(value.as_str().map(str::to_string).unwrap_or_else(|| value.to_string()));
+                    ui.end_row();
+                }
+            });
+        });
+    }
 }
