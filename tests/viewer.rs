@@ -248,17 +248,24 @@ fn gpu_available() -> bool {
     }
 }
 
+/// xvfb-run, which tests/setup-system.sh installs: None (skip, with a reason) where it is
+/// missing locally; a failure under CI.
+fn xvfb_run() -> Option<&'static Path> {
+    let xvfb = Path::new("/usr/bin/xvfb-run");
+    if xvfb.exists() {
+        return Some(xvfb);
+    }
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!("xvfb-run missing under CI (tests/setup-system.sh installs xvfb)");
+    }
+    eprintln!("skipped: xvfb-run not installed");
+    None
+}
+
 /// A real window: `volterra view --screenshot` under Xvfb, on lavapipe.
 #[test]
 fn a_real_window_under_xvfb_shows_the_render() {
-    let xvfb = Path::new("/usr/bin/xvfb-run");
-    if !xvfb.exists() {
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("xvfb-run missing under CI (tests/setup-system.sh installs xvfb)");
-        }
-        eprintln!("skipped: xvfb-run not installed");
-        return;
-    }
+    let Some(xvfb) = xvfb_run() else { return };
     let dir = samples();
     let shot: PathBuf = dir.path().join("window.png");
     let runtime = tempfile::tempdir().unwrap();
@@ -353,14 +360,7 @@ fn files_open_from_the_dialog_and_by_drag_and_drop_without_blocking() {
 /// perspective camera on a shear-warp node): it prints the error and exits 1, no PNG.
 #[test]
 fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
-    let xvfb = Path::new("/usr/bin/xvfb-run");
-    if !xvfb.exists() {
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("xvfb-run missing under CI (tests/setup-system.sh installs xvfb)");
-        }
-        eprintln!("skipped: xvfb-run not installed");
-        return;
-    }
+    let Some(xvfb) = xvfb_run() else { return };
     let dir = samples();
     let text = std::fs::read_to_string(dir.path().join("angio_shear_warp.toml")).unwrap();
     let scene = dir.path().join("perspective.toml");
