@@ -81,6 +81,10 @@ pub struct TerrainInput<'a> {
 impl TerrainInput<'_> {
     fn prepare(&self, settings: &Settings) -> Result<(grid::TerrainGrid, shading::Shading)> {
         settings.check()?;
+        // The grid's heights and their upload copy, against the memory limit (on lavapipe the
+        // GPU textures live in host memory too, allocated by Mesa outside this count).
+        let samples = (self.heightfield.width * self.heightfield.height) as u64;
+        volterra_formats::memory::check_alloc(std::path::Path::new("terrain"), "the height grid and its upload", &[samples, 8])?;
         let grid = grid::TerrainGrid::new(self.heightfield, self.node_to_world)?;
         let shading = shading::Shading { lights: shading::sun_lights(self.lights)?, ambient: settings.ambient, shadows: settings.shadows };
         Ok((grid, shading))
