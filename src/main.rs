@@ -447,11 +447,7 @@ fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
 }
 
 fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String]) -> Result<()> {
-    output_format(output)?;
-    check_output_dir(output)?;
-    if let Some(p) = png {
-        check_output_dir(p)?;
-    }
+    check_render_outputs(output, png)?;
     let scene = Scene::load(scene_path, sets)?;
     write_frame(&scene, None, output, png)
 }
@@ -491,6 +487,14 @@ fn output_format(path: &Path) -> Result<OutputFormat> {
     }
 }
 
+/// A render's outputs, checked before any work: a format the extension names, directories
+/// that exist.
+fn check_render_outputs(output: &Path, png: Option<&Path>) -> Result<()> {
+    output_format(output)?;
+    check_output_dir(output)?;
+    png.map_or(Ok(()), check_output_dir)
+}
+
 /// Refuses an output whose directory does not exist before any work is done (the atomic
 /// writer would otherwise fail at the end with a bare "No such file or directory").
 fn check_output_dir(path: &Path) -> Result<()> {
@@ -516,11 +520,7 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
     if n == 0 {
         bail!("--frames must be at least 1");
     }
-    output_format(output)?;
-    check_output_dir(output)?;
-    if let Some(p) = png {
-        check_output_dir(p)?;
-    }
+    check_render_outputs(output, png)?;
     let scene = Scene::load(scene_path, sets)?;
     if scene.file.keyframes.is_empty() {
         bail!("{}: --frames needs [[keyframe]]s in the scene (a camera path)", scene_path.display());

@@ -75,19 +75,8 @@ fn the_vtk_reference_reads_scaled_anisotropic_oblique_volumes_in_millimetres() {
         [0.0, 0.0, spacing[2], -16.0],
         [0.0, 0.0, 0.0, 1.0],
     ];
-    let vol = volterra_formats::Volume {
-        dims: [nx, ny, nz],
-        spacing,
-        affine,
-        data: volterra_formats::VoxelData::I16(data),
-        rescale: volterra_formats::Rescale { slope: 0.01, intercept: 0.0 },
-        modality: None,
-        units: None,
-        volume_count: 1,
-        volume_index: 0,
-        notes: vec![],
-        attributes: Vec::new(),
-    };
+    let rescale = volterra_formats::Rescale { slope: 0.01, intercept: 0.0 };
+    let vol = common::volume([nx, ny, nz], affine, volterra_formats::VoxelData::I16(data), rescale);
     volterra_formats::nifti::write_nifti(&dir.path().join("blob.nii"), &vol).unwrap();
     let scene = dir.path().join("blob.toml");
     std::fs::write(

@@ -149,18 +149,12 @@ fn converting_a_4d_nifti_keeps_every_volume() {
     let mut vols = Vec::new();
     for t in 0..20usize {
         let data: Vec<i16> = (0..17 * 21 * 3).map(|i| (i as i16).wrapping_mul(7).wrapping_add(t as i16 * 100)).collect();
+        let affine = [[-3.0, 0.0, 0.0, 24.0], [0.0, 3.0, 0.0, -30.0], [0.0, 0.0, 4.0, -6.0], [0.0, 0.0, 0.0, 1.0]];
+        let rescale = volterra_formats::Rescale { slope: 0.5, intercept: 10.0 };
         vols.push(volterra_formats::Volume {
-            dims: [17, 21, 3],
-            spacing: [3.0, 3.0, 4.0],
-            affine: [[-3.0, 0.0, 0.0, 24.0], [0.0, 3.0, 0.0, -30.0], [0.0, 0.0, 4.0, -6.0], [0.0, 0.0, 0.0, 1.0]],
-            data: volterra_formats::VoxelData::I16(data),
-            rescale: volterra_formats::Rescale { slope: 0.5, intercept: 10.0 },
-            modality: None,
-            units: None,
             volume_count: 20,
             volume_index: t,
-            notes: vec![],
-            attributes: Vec::new(),
+            ..common::volume([17, 21, 3], affine, volterra_formats::VoxelData::I16(data), rescale)
         });
     }
     volterra_formats::nifti::write_nifti_volumes(&src, &vols, &[20], 2.5, 8).unwrap();
@@ -317,19 +311,9 @@ fn max_memory_bounds_the_whole_render() {
             }
         }
     }
-    let vol = volterra_formats::Volume {
-        dims: [nx, ny, nz],
-        spacing: [0.7, 0.7, 1.25],
-        affine: [[0.7, 0.0, 0.0, -90.0], [0.0, 0.7, 0.0, -90.0], [0.0, 0.0, 1.25, -100.0], [0.0, 0.0, 0.0, 1.0]],
-        data: volterra_formats::VoxelData::I16(data),
-        rescale: volterra_formats::Rescale { slope: 1.0, intercept: -1024.0 },
-        modality: Some("CT".into()),
-        units: Some("HU".into()),
-        volume_count: 1,
-        volume_index: 0,
-        notes: vec![],
-        attributes: Vec::new(),
-    };
+    let affine = [[0.7, 0.0, 0.0, -90.0], [0.0, 0.7, 0.0, -90.0], [0.0, 0.0, 1.25, -100.0], [0.0, 0.0, 0.0, 1.0]];
+    let rescale = volterra_formats::Rescale { slope: 1.0, intercept: -1024.0 };
+    let vol = common::volume([nx, ny, nz], affine, volterra_formats::VoxelData::I16(data), rescale);
     volterra_formats::nifti::write_nifti(&dir.path().join("ct.nii"), &vol).unwrap();
     let scene = dir.path().join("ct.toml");
     std::fs::write(

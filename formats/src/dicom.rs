@@ -9,7 +9,7 @@ use crate::memory::check_alloc;
 use crate::volume::{spacing_of, Affine, Rescale, ScalarType, Volume, VoxelData};
 use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry, VirtualVr};
 use dicom_core::{PrimitiveValue, VR};
-use dicom_dictionary_std::{tags, StandardDataDictionary};
+use dicom_dictionary_std::{tags, uids, StandardDataDictionary};
 use dicom_object::{InMemDicomObject, OpenFileOptions};
 use dicom_pixeldata::PixelDecoder;
 use rayon::prelude::*;
@@ -243,7 +243,7 @@ fn units_for(obj: &Obj, modality: &str) -> Option<String> {
 
 fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject, read_note: Option<String>) -> Result<ImageInfo> {
     let obj: &Obj = file;
-    BIG_ENDIAN_DATA_SET.with(|b| b.set(file.meta().transfer_syntax().trim_end_matches('\0') == EXPLICIT_BIG_ENDIAN));
+    BIG_ENDIAN_DATA_SET.with(|b| b.set(file.meta().transfer_syntax().trim_end_matches('\0') == crate::dicom_scan::EXPLICIT_VR_BIG_ENDIAN));
     let need = |tag, name: &str| int(obj, tag).ok_or_else(|| FormatError::invalid(path, format!("missing or malformed {name}")));
     let rows = need(tags::ROWS, "Rows")?;
     let columns = need(tags::COLUMNS, "Columns")?;
@@ -428,10 +428,8 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
     };
     let (data, spp, planar) = if let Some(rgb) = rgb_jpeg {
         (rgb?, 3, false)
-    } else if info.transfer_syntax == RLE_LOSSLESS {
-        let pixel_data = file.get(tags::PIXEL_DATA).ok_or_else(|| FormatError::invalid(&info.path, "no PixelData element"))?;
-        let fragments =
-            pixel_data.value().fragments().ok_or_else(|| FormatError::invalid(&info.path, "RLE pixel data is not encapsulated"))?;
+    } else if info.transfer_syntax == uids::RLE_LOSSLESS {
+        let fragments = pixel_fragments.ok_or_else(|| FormatError::invalid(&info.path, "RLE pixel data is not encapsulated"))?;
         let spp = info.samples_per_pixel as usize;
         let frame_px = info.rows as usize * info.columns as usize;
         let data = crate::dicom_rle::decode(&info.path, fragments, info.frames as usize, frame_px, spp, bytes_per)?;
@@ -441,7 +439,7 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
             file.decode_pixel_data().map_err(|e| {
                 // jpeg-decoder (behind dicom-pixeldata) has no 12-bit DCT: say so instead of a
                 // generic decode failure.
-                if info.transfer_syntax == "1.2.840.10008.1.2.4.51" && info.bits_stored > 8 {
+                if info.transfer_syntax == uids::JPEG_EXTENDED12_BIT && info.bits_stored > 8 {
                     FormatError::unsupported(
                         &info.path,
                         format!(
@@ -455,7 +453,7 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
             })
         })?;
         let mut data = decoded.data().to_vec();
-        if info.transfer_syntax == EXPLICIT_BIG_ENDIAN {
+        if info.transfer_syntax == crate::dicom_scan::EXPLICIT_VR_BIG_ENDIAN {
             let word = file.get(tags::PIXEL_DATA).and_then(|e| e.value().primitive()).map(word_size).unwrap_or(1);
             big_endian_samples_to_le(&mut data, word, bytes_per);
         }
@@ -530,15 +528,13 @@ fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-const RLE_LOSSLESS: &str = "1.2.840.10008.1.2.5";
-
 /// JPEG frames whose components DICOM calls RGB but whose stream says nothing of its colour
 /// (no JFIF or Adobe marker, component ids other than 1,2,3 or 'R','G','B'): jpeg-decoder,
 /// behind dicom-pixeldata, then assumes YCbCr and converts colours that are not (pydicom's
 /// SC_jpeg_no_color_transform.dcm came out up to 77 grey levels off). Decoded here with the
 /// transform DICOM states; None for every other stream, which dicom-pixeldata decodes.
 fn rgb_jpeg_frames(path: &Path, fragments: &[Vec<u8>], frames: usize, syntax: &str) -> Result<Option<Vec<u8>>> {
-    if !matches!(syntax, "1.2.840.10008.1.2.4.50" | "1.2.840.10008.1.2.4.51") || fragments.is_empty() {
+    if !matches!(syntax, uids::JPEG_BASELINE8_BIT | uids::JPEG_EXTENDED12_BIT) || fragments.is_empty() {
         return Ok(None);
     }
     let streams: Vec<Vec<u8>> = if frames == 1 {
@@ -590,8 +586,6 @@ fn jpeg_colour_is_unstated(s: &[u8]) -> bool {
     }
     false
 }
-const EXPLICIT_BIG_ENDIAN: &str = "1.2.840.10008.1.2.2";
-
 /// The size of the words dicom-rs converted a native value to host order by: its VR's
 /// (OB/UN bytes, OW 16-bit words, OL/OF 32-bit, OD 64-bit).
 fn word_size(p: &PrimitiveValue) -> usize {

@@ -11,12 +11,15 @@ use crate::error::{FormatError, Result};
 use crate::memory;
 use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry, VirtualVr};
 use dicom_core::{Tag, VR};
-use dicom_dictionary_std::StandardDataDictionary;
+use dicom_dictionary_std::{uids, StandardDataDictionary};
 use std::fs::File;
 use std::io::{BufReader, Read, Seek};
 use std::path::Path;
 
 const UNDEFINED: u32 = 0xFFFF_FFFF;
+/// Explicit VR Big Endian: retired from the standard (dicom-rs marks its constant deprecated)
+/// but still found in files.
+pub(crate) const EXPLICIT_VR_BIG_ENDIAN: &str = "1.2.840.10008.1.2.2";
 /// Deeper nesting than this is refused rather than walked (and rather than recursed into by
 /// dicom-rs, whose stack it would exhaust).
 const MAX_DEPTH: usize = 32;
@@ -67,15 +70,29 @@ pub fn bare_syntax_of(head: &[u8]) -> Option<&'static str> {
     }
     let plausible = |g: u16| g & 1 == 0 && (0x0002..=0x0088).contains(&g);
     let (le, be) = (u16::from_le_bytes([head[0], head[1]]), u16::from_be_bytes([head[0], head[1]]));
-    let explicit = head[4].is_ascii_uppercase() && head[5].is_ascii_uppercase() && VR::from_binary([head[4], head[5]]).is_some();
+    let explicit = names_a_vr([head[4], head[5]]);
     if explicit && plausible(le) {
-        Some("1.2.840.10008.1.2.1")
+        Some(uids::EXPLICIT_VR_LITTLE_ENDIAN)
     } else if explicit && plausible(be) {
-        Some("1.2.840.10008.1.2.2")
+        Some(EXPLICIT_VR_BIG_ENDIAN)
     } else if plausible(le) {
-        Some("1.2.840.10008.1.2")
+        Some(uids::IMPLICIT_VR_LITTLE_ENDIAN)
     } else {
         None
+    }
+}
+
+/// Are the two bytes after an element's tag a VR (explicit VR), not the start of a length?
+fn names_a_vr(b: [u8; 2]) -> bool {
+    b[0].is_ascii_uppercase() && b[1].is_ascii_uppercase() && VR::from_binary(b).is_some()
+}
+
+/// How a native transfer syntax encodes its elements (encapsulated ones: explicit LE).
+fn encoding_of(syntax: &str) -> Encoding {
+    match syntax {
+        uids::IMPLICIT_VR_LITTLE_ENDIAN => Encoding::ImplicitLe,
+        EXPLICIT_VR_BIG_ENDIAN => Encoding::ExplicitBe,
+        _ => Encoding::ExplicitLe,
     }
 }
 
@@ -109,11 +126,7 @@ pub fn check_lengths(path: &Path) -> Result<Option<Reparse>> {
         4
     } else if let Some(syntax) = bare_syntax_of(&head[..n]) {
         r.seek(std::io::SeekFrom::Start(0)).map_err(|e| FormatError::io(path, e))?;
-        let enc = match syntax {
-            "1.2.840.10008.1.2" => Encoding::ImplicitLe,
-            "1.2.840.10008.1.2.2" => Encoding::ExplicitBe,
-            _ => Encoding::ExplicitLe,
-        };
+        let enc = encoding_of(syntax);
         Walk { path, src: r, pos: 0, enc }.dataset(len, false, 0)?;
         let name = match enc {
             Encoding::ImplicitLe => "implicit VR little endian",
@@ -135,12 +148,8 @@ pub fn check_lengths(path: &Path) -> Result<Option<Reparse>> {
     if syntax.is_empty() {
         return Err(FormatError::invalid(path, "the file meta group has no TransferSyntaxUID (0002,0010)"));
     }
-    let enc = match syntax.as_str() {
-        "1.2.840.10008.1.2" => Encoding::ImplicitLe,
-        "1.2.840.10008.1.2.2" => Encoding::ExplicitBe,
-        _ => Encoding::ExplicitLe,
-    };
-    if syntax == "1.2.840.10008.1.2.1.99" {
+    let enc = encoding_of(&syntax);
+    if syntax == uids::DEFLATED_EXPLICIT_VR_LITTLE_ENDIAN {
         // Deflated: count the inflated bytes first (bounded by the memory limit, which is
         // what dicom-rs would hold them in), then walk the inflated stream.
         let dataset_start = meta.pos;
@@ -158,14 +167,12 @@ pub fn check_lengths(path: &Path) -> Result<Option<Reparse>> {
         let mut first = [0u8; 6];
         let n = read_up_to(&mut meta.src, &mut first).map_err(|e| FormatError::io(path, e))?;
         meta.src.seek(std::io::SeekFrom::Start(start)).map_err(|e| FormatError::io(path, e))?;
-        let explicit =
-            n < 6 || (first[4].is_ascii_uppercase() && first[5].is_ascii_uppercase() && VR::from_binary([first[4], first[5]]).is_some());
-        if !explicit {
+        if n == 6 && !names_a_vr([first[4], first[5]]) {
             meta.enc = Encoding::ImplicitLe;
             meta.dataset(len, false, 0)?;
             return Ok(Some(Reparse {
                 start,
-                parse_syntax: "1.2.840.10008.1.2",
+                parse_syntax: uids::IMPLICIT_VR_LITTLE_ENDIAN,
                 pixel_syntax: syntax,
                 note: "the data set is encoded in implicit VR although the file meta group names an explicit VR transfer syntax: read as implicit VR".into(),
             }));

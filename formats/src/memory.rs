@@ -70,7 +70,8 @@ pub fn in_use() -> u64 {
 /// The most heap bytes held at once so far (within the small allocations between two large
 /// ones; 0 where [`CountingAllocator`] is not installed).
 pub fn peak() -> u64 {
-    PEAK.fetch_max(IN_USE.load(Ordering::Relaxed), Ordering::Relaxed).max(IN_USE.load(Ordering::Relaxed)) as u64
+    let now = IN_USE.load(Ordering::Relaxed);
+    PEAK.fetch_max(now, Ordering::Relaxed).max(now) as u64
 }
 
 /// 0 means "not set": use the memory available on this machine.

@@ -48,20 +48,15 @@ fn is_gz(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("gz"))
 }
 
-/// Does the file start with gzip's magic? Decided by the bytes, not the name: a gzip stream
-/// named `.nii` is read (it was refused as a bad header), and so is a plain file named `.gz`.
-fn starts_gzipped(path: &Path) -> Result<bool> {
-    let mut magic = [0u8; 2];
-    let mut f = File::open(path).map_err(|e| FormatError::io(path, e))?;
-    let n = f.read(&mut magic).map_err(|e| FormatError::io(path, e))?;
-    Ok(n == 2 && magic == [0x1f, 0x8b])
-}
-
-fn open_maybe_gz(path: &Path) -> Result<Box<dyn Read>> {
-    let gz = starts_gzipped(path)?;
+/// Opens `path`, inflating it when it starts with gzip's magic, and says whether it did.
+/// Decided by the bytes, not the name: a gzip stream named `.nii` is read (it was refused as
+/// a bad header), and so is a plain file named `.gz`.
+fn open_maybe_gz(path: &Path) -> Result<(Box<dyn Read>, bool)> {
+    use std::io::BufRead;
     let f = File::open(path).map_err(|e| FormatError::io(path, e))?;
-    let r = BufReader::with_capacity(1 << 20, f);
-    Ok(if gz { Box::new(MultiGzDecoder::new(r)) } else { Box::new(r) })
+    let mut r = BufReader::with_capacity(1 << 20, f);
+    let gz = r.fill_buf().map_err(|e| FormatError::io(path, e))?.starts_with(&[0x1f, 0x8b]);
+    Ok(if gz { (Box::new(MultiGzDecoder::new(r)), true) } else { (Box::new(r), false) })
 }
 
 /// `x.hdr[.gz]` → `x.img[.gz]` (same gz state, falling back to the other).
@@ -343,7 +338,7 @@ pub fn best_affine(h: &NiftiHeader) -> (Affine, &'static str) {
 
 /// Reads the header only: cheap, for `info` on big files.
 pub fn read_nifti_header(path: &Path) -> Result<NiftiHeader> {
-    let mut r = open_maybe_gz(path)?;
+    let (mut r, _) = open_maybe_gz(path)?;
     read_header(path, &mut *r)
 }
 
@@ -358,6 +353,8 @@ struct OpenedNifti {
     vol_bytes: usize,
     data_path: PathBuf,
     data: Box<dyn Read>,
+    /// The voxel data's stream is inflated (its CRC is checked at the end).
+    data_gzipped: bool,
     affine: Affine,
     spacing: [f64; 3],
     rescale: Rescale,
@@ -365,7 +362,7 @@ struct OpenedNifti {
 }
 
 fn open_nifti(path: &Path) -> Result<OpenedNifti> {
-    let mut r = open_maybe_gz(path)?;
+    let (mut r, header_gzipped) = open_maybe_gz(path)?;
     let h = read_header(path, &mut *r)?;
     let ty = scalar_type_of(path, h.datatype)?;
     if h.bitpix as usize != ty.size() * 8 {
@@ -406,7 +403,7 @@ fn open_nifti(path: &Path) -> Result<OpenedNifti> {
 
     // Skip to the data: in a single file it starts at vox_offset; in a pair, at 0 of .img.
     let data_path = if h.single_file { path.to_path_buf() } else { image_path_for_header(path)? };
-    let data: Box<dyn Read> = if h.single_file {
+    let (data, data_gzipped): (Box<dyn Read>, bool) = if h.single_file {
         let header_size = if h.version == 1 { 348 } else { 540 };
         let off = h.vox_offset;
         if !(off.is_finite() && off >= header_size as f64) {
@@ -414,12 +411,12 @@ fn open_nifti(path: &Path) -> Result<OpenedNifti> {
         }
         let skip = off as u64 - header_size as u64;
         std::io::copy(&mut (&mut r).take(skip), &mut std::io::sink()).map_err(|e| FormatError::io(path, e))?;
-        r
+        (r, header_gzipped)
     } else {
-        let mut ir = open_maybe_gz(&data_path)?;
+        let (mut ir, gz) = open_maybe_gz(&data_path)?;
         let off = if h.vox_offset.is_finite() && h.vox_offset > 0.0 { h.vox_offset as u64 } else { 0 };
         std::io::copy(&mut (&mut ir).take(off), &mut std::io::sink()).map_err(|e| FormatError::io(&data_path, e))?;
-        ir
+        (ir, gz)
     };
 
     let (mut affine, which) = best_affine(&h);
@@ -467,7 +464,7 @@ fn open_nifti(path: &Path) -> Result<OpenedNifti> {
     if let Some(u) = unit_name {
         notes.push(format!("spatial unit {u} converted to mm"));
     }
-    Ok(OpenedNifti { h, ty, dims, extra_dims, volume_count, vol_bytes, data_path, data, affine, spacing, rescale, notes })
+    Ok(OpenedNifti { h, ty, dims, extra_dims, volume_count, vol_bytes, data_path, data, data_gzipped, affine, spacing, rescale, notes })
 }
 
 impl OpenedNifti {
@@ -509,7 +506,7 @@ impl OpenedNifti {
     /// gzip checks its CRC only at the end of the stream: after the last volume, read on to
     /// the end (little is left there), so a corrupt .nii.gz is refused rather than shown.
     fn check_gzip_tail(&mut self) -> Result<()> {
-        if starts_gzipped(&self.data_path)? {
+        if self.data_gzipped {
             std::io::copy(&mut (&mut self.data).take(64 << 20), &mut std::io::sink())
                 .map_err(|e| FormatError::invalid(&self.data_path, format!("gzip stream is corrupt: {e}")))?;
         }

@@ -19,6 +19,28 @@ pub fn shared_data() -> Option<PathBuf> {
     None
 }
 
+/// A volume on the grid `affine` gives (spacing from its columns), for tests that write one.
+pub fn volume(
+    dims: [usize; 3],
+    affine: volterra_formats::Affine,
+    data: volterra_formats::VoxelData,
+    rescale: volterra_formats::Rescale,
+) -> volterra_formats::Volume {
+    volterra_formats::Volume {
+        dims,
+        spacing: volterra_formats::volume::spacing_of(&affine),
+        affine,
+        data,
+        rescale,
+        modality: None,
+        units: None,
+        volume_count: 1,
+        volume_index: 0,
+        notes: vec![],
+        attributes: Vec::new(),
+    }
+}
+
 pub fn repo_path(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
 }

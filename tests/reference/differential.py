@@ -31,7 +31,6 @@ SHARED = sys.argv[3] if len(sys.argv) > 3 else None
 LOSSY = {
     "1.2.840.10008.1.2.4.50": 2,  # JPEG baseline: decoders differ by a grey level or two
     "1.2.840.10008.1.2.4.51": 2,
-    "1.2.840.10008.1.2.4.81": 2,  # JPEG-LS near-lossless: both decoders are exact, kept for safety
     "1.2.840.10008.1.2.4.91": 2,  # JPEG 2000 (lossy allowed)
 }
 

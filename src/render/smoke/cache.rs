@@ -10,7 +10,7 @@
 //! Size: at most `$VOLTERRA_CACHE_MAX` (a size such as 500M or 4G; default
 //! [`DEFAULT_MAX_BYTES`], 0 turns the cache off). After each store the least recently used
 //! files (by modification time, which a load refreshes) are removed until the cache fits; a
-//! run larger than the whole limit is not stored. `volterra cache clear` empties it.
+//! run larger than the whole limit is not stored. `volterra cache --clear` empties it.
 
 use super::photons::{Photon, Traced};
 use glam::DVec3;
