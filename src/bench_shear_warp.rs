@@ -131,7 +131,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     // The paper's renderer (one sample per slab) with each leaping mode at its ratios.
     for leaping in [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped] {
         for ratio in [1.0, 1.13, 2.26] {
-            let name = format!("shear-warp {} ×{ratio} 1/slab", leaping_name(leaping));
+            let name = format!("shear-warp {} ×{ratio} 1/slab", leaping.name());
             rows.extend(time_config(
                 name,
                 BlendMode::Composite,
@@ -144,7 +144,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     for (per_slab, ratios) in [(1, &[1.5, 1.75, 2.0, 3.0][..]), (2, &[1.0, 1.5, 2.0, 2.26, 3.0][..])] {
         for &ratio in ratios {
             rows.extend(time_config(
-                format!("shear-warp overlapped ×{ratio} {per_slab}/slab"),
+                format!("shear-warp {} ×{ratio} {per_slab}/slab", shear_warp::Leaping::Overlapped.name()),
                 BlendMode::Composite,
                 shear_warp::Settings { supersampling: ratio, slab_samples: per_slab, ..Default::default() },
             )?);
@@ -188,14 +188,6 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
     }
     Ok(())
-}
-
-fn leaping_name(l: shear_warp::Leaping) -> &'static str {
-    match l {
-        shear_warp::Leaping::None => "none",
-        shear_warp::Leaping::MultiScanline => "multi-scanline",
-        shear_warp::Leaping::Overlapped => "overlapped",
-    }
 }
 
 /// Intermediate image pixels of a frame, from its statistics.

@@ -103,14 +103,6 @@ pub fn bench_cameras(grid: &TerrainGrid, hf: &Heightfield) -> Vec<(&'static str,
     vec![("fly", fly), ("walk", walk)]
 }
 
-fn traversal_name(t: Traversal) -> &'static str {
-    match t {
-        Traversal::Quadtree => "quadtree",
-        Traversal::NoRaise => "quadtree, no raise",
-        Traversal::Linear => "linear march",
-    }
-}
-
 pub fn run(b: &TerrainBench) -> Result<()> {
     if b.runs == 0 || b.sizes.is_empty() {
         bail!("--runs must be at least 1 and --sizes must name a size");
@@ -144,8 +136,8 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         let build_ms = 1e3 * median(&mut builds);
         for (camera_name, cam) in cameras {
             let small = cam.rays(rw, rh);
-            let truth = reference::render(&grid, None, &small, &shading);
-            for traversal in [Traversal::Quadtree, Traversal::NoRaise, Traversal::Linear] {
+            let truth = reference::render(&grid, None, &small, &shading)?;
+            for &traversal in Traversal::ALL {
                 let cap = Settings::default().step_cap(&grid);
                 let rays = cam.rays(b.width, b.height);
                 let view = View { grid: &grid, rays: &rays, shading: &shading, traversal, max_steps: cap };
@@ -160,7 +152,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
                     histograms.push(serde_json::json!({ "camera": camera_name, "size": size, "steps": steps }));
                 }
                 rows.push(Row {
-                    config: traversal_name(traversal).into(),
+                    config: traversal.name().into(),
                     camera: camera_name.into(),
                     size,
                     build_ms,

@@ -1,26 +1,16 @@
-//! Progress display for long work: bars on a terminal, nothing when output is redirected
-//! (indicatif hides itself when stderr is not a terminal). The newest bar is also kept
-//! where the viewer's status bar can read it.
+//! Progress display for long work on a terminal: bars, nothing when output is redirected
+//! (indicatif hides itself when stderr is not a terminal). [`TerminalProgress`] shows the
+//! renderers' progress (see `render::driver`) as bars.
 
 use indicatif::{ProgressBar, ProgressStyle};
 use std::sync::Mutex;
-
-static CURRENT: Mutex<Option<(String, ProgressBar)>> = Mutex::new(None);
 
 /// A bar counting `len` units of work.
 pub fn bar(len: u64, what: &str) -> ProgressBar {
     let pb = ProgressBar::new(len);
     pb.set_style(ProgressStyle::with_template("{msg:>24} [{bar:40}] {pos}/{len} ({eta})").unwrap().progress_chars("=> "));
     pb.set_message(what.to_string());
-    *CURRENT.lock().unwrap() = Some((what.to_string(), pb.clone()));
     pb
-}
-
-/// The newest bar that has not finished: (what, position, length).
-pub fn current() -> Option<(String, u64, u64)> {
-    let g = CURRENT.lock().unwrap();
-    let (what, pb) = g.as_ref()?;
-    (!pb.is_finished()).then(|| (what.clone(), pb.position(), pb.length().unwrap_or(0)))
 }
 
 /// A spinner for work of unknown length (reading a file).
@@ -29,4 +19,26 @@ pub fn spinner(what: &str) -> ProgressBar {
     pb.set_message(what.to_string());
     pb.enable_steady_tick(std::time::Duration::from_millis(120));
     pb
+}
+
+/// The renderers' progress as a terminal bar, one per piece of work.
+#[derive(Default)]
+pub struct TerminalProgress {
+    bar: Mutex<Option<ProgressBar>>,
+}
+
+impl crate::render::driver::Progress for TerminalProgress {
+    fn begin(&self, what: &str, total: u64) {
+        *self.bar.lock().unwrap() = Some(bar(total, what));
+    }
+    fn update(&self, done: u64) {
+        if let Some(b) = self.bar.lock().unwrap().as_ref() {
+            b.set_position(done.max(b.position()));
+        }
+    }
+    fn end(&self) {
+        if let Some(b) = self.bar.lock().unwrap().take() {
+            b.finish_and_clear();
+        }
+    }
 }

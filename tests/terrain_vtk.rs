@@ -36,8 +36,8 @@ fn puget_sound_depth_matches_vtk_triangle_mesh() {
 
         let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
         let shading = Shading { lights: sun_lights(&[]).unwrap(), ambient: 0.25, shadows: false };
-        let triangles = render_surface(&grid, None, &rays, &shading, Surface::Triangles);
-        let mut bilinear = render_surface(&grid, None, &rays, &shading, Surface::Bilinear);
+        let triangles = render_surface(&grid, None, &rays, &shading, Surface::Triangles).unwrap();
+        let mut bilinear = render_surface(&grid, None, &rays, &shading, Surface::Bilinear).unwrap();
         // Our terrain is a solid with walls at its edges; VTK's mesh is a sheet. Pixels
         // that see a wall are left out of every comparison.
         let mut triangles = triangles;

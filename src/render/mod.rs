@@ -2,17 +2,21 @@
 //! none reaches into another. `render_scene` draws every visible node with the renderer it
 //! names and composites the results by depth.
 
+pub mod driver;
 pub mod frame;
 pub mod geometry;
 pub mod reference_volume;
+pub mod registry;
+pub mod settings;
 pub mod shear_warp;
 pub mod smoke;
 pub mod terrain;
 
 pub use frame::{Frame, FrameStats};
 
-use crate::scene::{Camera, NodeKind, Scene};
-use anyhow::{anyhow, bail, Context, Result};
+use crate::scene::{Camera, Scene};
+use registry::NodeSettings;
+use anyhow::{anyhow, Context, Result};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use volterra_formats::Volume;
@@ -44,29 +48,6 @@ impl RenderCache {
     }
 }
 
-/// Renderers by name, with the node kinds they draw and whether they exist yet.
-pub const RENDERERS: &[(&str, NodeKind, bool)] = &[
-    ("reference", NodeKind::Volume, true),
-    ("shear-warp", NodeKind::Volume, true),
-    ("terrain", NodeKind::Heightfield, true),
-    ("terrain-reference", NodeKind::Heightfield, true),
-    ("smoke", NodeKind::Particles, true),
-];
-
-/// The renderer a node uses when it names none: the best one available for its kind.
-pub fn default_renderer(kind: NodeKind) -> Option<&'static str> {
-    RENDERERS.iter().find(|(_, k, ready)| *k == kind && *ready).map(|(n, _, _)| *n)
-}
-
-fn settings<T: serde::de::DeserializeOwned + Default>(table: &toml::Table, node: &str, renderer: &str) -> Result<T> {
-    if table.is_empty() {
-        return Ok(T::default());
-    }
-    toml::Value::Table(table.clone())
-        .try_into()
-        .map_err(|e: toml::de::Error| anyhow!("node '{node}': settings for renderer '{renderer}': {}", e.message().trim()))
-}
-
 /// Renders one node seen by `camera` at the scene's image size. Returns None for nodes
 /// nothing is drawn for (groups, hidden nodes).
 pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option<Frame>> {
@@ -77,42 +58,28 @@ pub fn render_node(scene: &Scene, node: usize, camera: &Camera) -> Result<Option
 /// As [`render_node`], at `size` (width, height) pixels, reusing what `cache` holds.
 pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usize, usize), cache: &RenderCache) -> Result<Option<Frame>> {
     let desc = &scene.nodes()[node];
-    if !desc.visible || desc.kind == NodeKind::Group {
+    // Groups have no settings; the scene checked every other node's at load.
+    let Some(settings) = scene.node_settings(node) else { return Ok(None) };
+    if !desc.visible {
         return Ok(None);
     }
-    let name = match &desc.renderer {
-        Some(r) => r.as_str(),
-        None => default_renderer(desc.kind)
-            .ok_or_else(|| anyhow!("node '{}': no renderer for {:?} nodes is available yet", desc.name, desc.kind))?,
-    };
-    let Some(&(_, kind, ready)) = RENDERERS.iter().find(|(n, _, _)| *n == name) else {
-        let names: Vec<&str> = RENDERERS.iter().map(|r| r.0).collect();
-        bail!("node '{}': unknown renderer '{name}' (known: {})", desc.name, names.join(", "));
-    };
-    if kind != desc.kind {
-        bail!("node '{}': renderer '{name}' draws {:?} nodes, not {:?}", desc.name, kind, desc.kind);
-    }
-    if !ready {
-        bail!("node '{}': renderer '{name}' is not implemented yet", desc.name);
-    }
     let rays = camera.rays(size.0, size.1);
-    let frame = match name {
-        "reference" => {
-            let s: reference_volume::Settings = settings(&desc.settings, &desc.name, name)?;
-            let tf = desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name))?;
+    let transfer_function =
+        || desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name));
+    let frame = match settings {
+        NodeSettings::Reference(s) => {
+            let tf = transfer_function()?;
             let vol = scene.volume(node)?;
             let input = reference_volume::VolumeInput { volume: &vol, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
-            reference_volume::render(&input, &rays, &s)?
+            reference_volume::render(&input, &rays, s)?
         }
-        "shear-warp" => {
-            let s: shear_warp::Settings = settings(&desc.settings, &desc.name, name)?;
-            let tf = desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name))?;
+        NodeSettings::ShearWarp(s) => {
+            let tf = transfer_function()?;
             let prepared = cache.shear_warp(&scene.volume(node)?)?;
             let input = shear_warp::Input { prepared: &prepared, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
-            shear_warp::render(&input, &rays, &s)?
+            shear_warp::render(&input, &rays, s)?
         }
-        "terrain" | "terrain-reference" => {
-            let s: terrain::Settings = settings(&desc.settings, &desc.name, name)?;
+        NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_) => {
             let hf = scene.heightfield(node)?;
             let texture = scene.texture(node)?;
             let input = terrain::TerrainInput {
@@ -121,14 +88,13 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 node_to_world: scene.world_transform(node),
                 lights: &scene.file.lights,
             };
-            if name == "terrain" {
-                terrain::render(&input, &rays, &s)?
-            } else {
-                terrain::render_reference(&input, &rays, &s)?
+            match settings {
+                NodeSettings::Terrain(s) => terrain::render(&input, &rays, s)?,
+                NodeSettings::TerrainReference(s) => terrain::render_reference(&input, &rays, &s.into())?,
+                _ => unreachable!(),
             }
         }
-        "smoke" => {
-            let s: smoke::Settings = settings(&desc.settings, &desc.name, name)?;
+        NodeSettings::Smoke(s) => {
             let medium = desc
                 .medium
                 .as_ref()
@@ -136,9 +102,8 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             let particles = scene.particles(node)?;
             let input =
                 smoke::SmokeInput { particles: &particles, node_to_world: scene.world_transform(node), medium, lights: &scene.file.lights };
-            smoke::render(&input, &rays, &s).with_context(|| format!("node '{}'", desc.name))?
+            smoke::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
         }
-        _ => unreachable!(),
     };
     Ok(Some(frame))
 }

@@ -6,26 +6,35 @@
 
 use super::frame::{Frame, FrameStats};
 use crate::scene::{BlendMode, RayGenerator, TransferFunction};
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, Result};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
-use serde::Deserialize;
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Preview, Widget};
+use crate::scene::NodeKind;
 use volterra_formats::Volume;
 
-#[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Settings {
-    /// Sample step as a fraction of the smallest voxel spacing.
-    pub step: f64,
-    /// Stop a ray once its accumulated opacity exceeds this (1 = never stop early).
-    pub termination: f64,
-}
-
-impl Default for Settings {
-    fn default() -> Self {
-        Settings { step: 0.05, termination: 1.0 - 1e-9 }
+crate::declare_settings! {
+    pub struct Settings {
+        /// Sample step as a fraction of the smallest voxel spacing.
+        pub step: f64 = 0.05, unit = "voxel", range = Bounds::open_closed(0.0, 1.0), quality = true,
+            viewer = Control { label: "Step (voxels)", widget: Widget::Drag { lo: 0.01, hi: 1.0, speed: 0.005 } },
+            preview = Preview::AtLeast(0.25);
+        /// Stop a ray once its accumulated opacity exceeds this (1 = never stop early).
+        pub termination: f64 = 1.0 - 1e-9, range = Bounds::open_closed(0.0, 1.0), quality = true;
     }
 }
+
+pub const RENDERER: RendererDecl = RendererDecl {
+    name: "reference",
+    kind: NodeKind::Volume,
+    doc: "The brute-force ray caster, on the CPU in f64: trilinear samples at a fine step, \
+          no pre-integration, no empty-space skipping. Slow; the truth `shear-warp` and VTK \
+          are measured against. Draws parallel and perspective cameras.",
+    reference: true,
+    settings: Settings::DECLS,
+    parse: |t| Settings::from_table(t).map(NodeSettings::Reference),
+};
 
 /// The scalar field as real-world f32 values for fast trilinear lookups.
 pub struct Field {
@@ -71,9 +80,7 @@ pub struct VolumeInput<'a> {
 pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
     let VolumeInput { volume, node_to_world, tf, blend } = *input;
     let (width, height) = rays.size();
-    if !(settings.step > 0.0 && settings.step <= 1.0) {
-        bail!("reference renderer: step {} must be in (0, 1] voxel", settings.step);
-    }
+    settings.validate().map_err(|e| anyhow!("{}: {e}", RENDERER.name))?;
     let start = std::time::Instant::now();
     let index_to_world = node_to_world * DMat4::from_cols_array_2d(&volume.affine).transpose();
     if index_to_world.determinant().abs() < 1e-300 {
@@ -93,13 +100,8 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
     let (lo, hi) = (-pad, hi + pad);
 
     let mut frame = Frame::empty(width, height);
-    let progress = crate::progress::bar(height as u64, "reference ray casting");
-    let samples: u64 = frame
-        .rgba
-        .par_chunks_mut(width)
-        .zip(frame.depth.par_chunks_mut(width))
-        .enumerate()
-        .map(|(y, (row, depth))| {
+    let samples: u64 = super::driver::render_bands("reference ray casting", width, 1, &mut frame.rgba, &mut frame.depth, &mut [], |band| {
+            let (y, row, depth) = (band.y0, band.rgba, band.depth);
             let mut n = 0u64;
             for x in 0..width {
                 let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
@@ -157,13 +159,12 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
                 row[x] = [c[0] as f32, c[1] as f32, c[2] as f32, a as f32];
                 depth[x] = z;
             }
-            progress.inc(1);
             n
-        })
+        })?
+        .into_iter()
         .sum();
-    progress.finish_and_clear();
     frame.stats = FrameStats {
-        renderer: "reference".into(),
+        renderer: RENDERER.name.into(),
         seconds: start.elapsed().as_secs_f64(),
         counters: vec![("samples".into(), samples as f64), ("step_mm".into(), dt)],
         notes: vec![],

@@ -36,17 +36,17 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         arrays: None,
         medium: None,
     };
+    // The fast renderer for the kind (shear-warp, the GPU terrain ray-caster, smoke).
+    node.renderer = crate::render::registry::fast_for(kind).map(|r| r.name.to_string());
     let mut image = ImageSettings::default();
     let mut lights = Vec::new();
     match &data {
         NodeData::Volume(v) => {
-            node.renderer = Some("shear-warp".into());
             let stats = ValueStats::of(v);
             let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
             node.transfer_function = Some(Preset::for_volume(v, &stats).transfer_function(&stats, unit));
         }
         NodeData::Heightfield(_) => {
-            node.renderer = Some("terrain".into());
             if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
                 node.png = Some(opts.png.clone());
             }
@@ -61,7 +61,6 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
             });
         }
         NodeData::Particles(_) => {
-            node.renderer = Some("smoke".into());
             node.arrays = Some(opts.particles.clone());
             // An optically moderate medium for particles in metres with SPH densities
             // near 1 kg/m³ (the SPH defaults): about one mean free path across 0.1 m.

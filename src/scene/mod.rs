@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
+use crate::render::registry::{self, NodeSettings, RendererDecl};
 use volterra_formats::png_height::PngHeightOptions;
 use volterra_formats::{Dataset, Heightfield, LoadOptions, ParticleArrayNames, ParticleSet, RgbImage, Volume};
 
@@ -254,6 +255,8 @@ pub struct Scene {
     /// Scene file path, for messages.
     pub source: PathBuf,
     world: Vec<DMat4>,
+    /// Each node's renderer and its checked settings (None for groups).
+    renderers: Vec<Option<(&'static RendererDecl, NodeSettings)>>,
     data: Vec<OnceLock<Result<NodeData, String>>>,
     textures: Vec<OnceLock<Result<Arc<RgbImage>, String>>>,
 }
@@ -307,12 +310,62 @@ pub fn apply_overrides(doc: &mut toml::Table, sets: &[String]) -> Result<()> {
     Ok(())
 }
 
+/// Where a scene file's text sets each node's renderer and settings, for errors that
+/// name the line. Empty for scenes built in code.
+#[derive(Default)]
+struct SettingLines {
+    /// Per node name: the line of the node's `renderer` (or of its name) and of each setting.
+    nodes: HashMap<String, (usize, HashMap<String, usize>)>,
+}
+
+impl SettingLines {
+    fn of(text: &str) -> SettingLines {
+        #[derive(Deserialize)]
+        struct Node {
+            name: toml::Spanned<String>,
+            renderer: Option<toml::Spanned<toml::Value>>,
+            #[serde(default)]
+            settings: HashMap<String, toml::Spanned<toml::Value>>,
+        }
+        #[derive(Deserialize)]
+        struct Doc {
+            #[serde(default)]
+            node: Vec<Node>,
+        }
+        let Ok(doc) = toml::from_str::<Doc>(text) else { return SettingLines::default() };
+        let nodes = doc
+            .node
+            .into_iter()
+            .map(|n| {
+                let at = n.renderer.as_ref().map(|r| r.span().start).unwrap_or(n.name.span().start);
+                let keys = n.settings.iter().map(|(k, v)| (k.clone(), line_of(text, v.span().start))).collect();
+                (n.name.into_inner(), (line_of(text, at), keys))
+            })
+            .collect();
+        SettingLines { nodes }
+    }
+
+    /// " line N" for the node's setting `key` (or its renderer), or " (from --set)" for a
+    /// setting the file does not hold; empty when the scene has no text.
+    fn at(&self, node: &str, key: Option<&str>) -> String {
+        if self.nodes.is_empty() {
+            return String::new();
+        }
+        match (self.nodes.get(node), key) {
+            (Some((_, keys)), Some(k)) => keys.get(k).map(|l| format!(" line {l}")).unwrap_or_else(|| " (from --set)".into()),
+            (Some((line, _)), None) => format!(" line {line}"),
+            (None, _) => " (from --set)".into(),
+        }
+    }
+}
+
 impl Scene {
     /// Reads, checks and resolves a scene file; no data file is read yet.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
         let text = std::fs::read_to_string(path).map_err(|e| anyhow!("{}: cannot read scene file: {e}", path.display()))?;
         // Parse the text as written first, so errors point at its lines.
         let _: SceneFile = parse_toml(&text, path)?;
+        let lines = SettingLines::of(&text);
         let file: SceneFile = if overrides.is_empty() {
             parse_toml(&text, path)?
         } else {
@@ -321,10 +374,15 @@ impl Scene {
             doc.try_into().map_err(|e: toml::de::Error| anyhow!("{}: after --set: {}", path.display(), one_line(e.message())))?
         };
         let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Scene::from_file(file, base_dir, path.to_path_buf())
+        Scene::from_file_with_lines(file, base_dir, path.to_path_buf(), &lines)
     }
 
+    /// A scene from parsed objects (errors name no lines).
     pub fn from_file(file: SceneFile, base_dir: PathBuf, source: PathBuf) -> Result<Scene> {
+        Scene::from_file_with_lines(file, base_dir, source, &SettingLines::default())
+    }
+
+    fn from_file_with_lines(file: SceneFile, base_dir: PathBuf, source: PathBuf, lines: &SettingLines) -> Result<Scene> {
         let src = source.display().to_string();
         file.camera.validate().map_err(|m| anyhow!("{src}: {m}"))?;
         if file.image.width == 0 || file.image.height == 0 || file.image.width > 16384 || file.image.height > 16384 {
@@ -347,6 +405,20 @@ impl Scene {
             if let Some(tf) = &n.transfer_function {
                 tf.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
             }
+        }
+        // Each node's renderer and settings, checked before any data file is read.
+        let mut renderers = Vec::with_capacity(file.nodes.len());
+        for n in &file.nodes {
+            let decl = registry::resolve(n).map_err(|m| anyhow!("{src}:{}: node '{}': {m}", lines.at(&n.name, None), n.name))?;
+            renderers.push(match decl {
+                None => None,
+                Some(d) => Some((
+                    d,
+                    (d.parse)(&n.settings).map_err(|e| {
+                        anyhow!("{src}:{}: node '{}': {} {e}", lines.at(&n.name, Some(&e.key)), n.name, d.name)
+                    })?,
+                )),
+            });
         }
         if let Some(w) = &file.walk {
             let node = index.get(w.node.as_str()).ok_or_else(|| anyhow!("{src}: walk: no node named '{}'", w.node))?;
@@ -388,6 +460,7 @@ impl Scene {
             base_dir,
             source,
             world: world.into_iter().map(Option::unwrap).collect(),
+            renderers,
             data: (0..n).map(|_| OnceLock::new()).collect(),
             textures: (0..n).map(|_| OnceLock::new()).collect(),
         })
@@ -395,6 +468,16 @@ impl Scene {
 
     pub fn nodes(&self) -> &[NodeDesc] {
         &self.file.nodes
+    }
+
+    /// The renderer that draws the node (None for groups).
+    pub fn renderer(&self, node: usize) -> Option<&'static RendererDecl> {
+        self.renderers[node].as_ref().map(|r| r.0)
+    }
+
+    /// The node's settings, checked and typed at load (None for groups).
+    pub fn node_settings(&self, node: usize) -> Option<&NodeSettings> {
+        self.renderers[node].as_ref().map(|r| &r.1)
     }
 
     /// The camera to render: `[camera]`, or frame `k` of `n` along the keyframes; with

@@ -11,7 +11,8 @@ use super::navigate::{self, AxisView};
 use super::slices::{Plane, SliceImage, SliceSource};
 use super::transfer_editor::TfEditor;
 use super::worker::{Done, Job, Quality, RenderWorker};
-use crate::render::{Frame, RENDERERS};
+use crate::render::registry;
+use crate::render::Frame;
 use crate::scene::auto::{data_bounds, fit_camera, relative_path, scene_for_file};
 use crate::scene::presets::ValueStats;
 use crate::scene::{BlendMode, Camera, NodeData, NodeKind, Scene};
@@ -586,7 +587,7 @@ impl Viewer {
         ui.horizontal_wrapped(|ui| {
             if self.worker.busy() || self.opening.is_some() {
                 ui.spinner();
-                if let Some((what, pos, len)) = crate::progress::current() {
+                if let Some((what, pos, len)) = self.worker.progress() {
                     ui.add(egui::ProgressBar::new(pos as f32 / len.max(1) as f32).desired_width(160.0).text(format!("{what} {pos}/{len}")));
                 }
             }
@@ -675,31 +676,40 @@ impl Viewer {
             self.edit(false, |f| f.nodes[i].visible = visible);
         }
         // Renderer choice among those that draw this kind.
-        let current = n.renderer.clone().or_else(|| crate::render::default_renderer(n.kind).map(str::to_string)).unwrap_or_default();
+        let Some(current) = scene.renderer(i) else { return };
         let mut chosen = None;
-        egui::ComboBox::from_label("Renderer").selected_text(&current).show_ui(ui, |ui| {
-            for (name, kind, ready) in RENDERERS {
-                if *kind == n.kind && *ready && ui.selectable_label(current == *name, *name).clicked() {
-                    chosen = Some(name.to_string());
+        egui::ComboBox::from_label("Renderer").selected_text(current.name).show_ui(ui, |ui| {
+            for r in registry::for_kind(n.kind) {
+                if ui.selectable_label(current.name == r.name, r.name).on_hover_text(crate::render::settings::summary(r.doc)).clicked() {
+                    chosen = Some(r.name);
                 }
             }
         });
-        if let Some(r) = chosen.filter(|r| *r != current) {
+        if let Some(r) = chosen.filter(|r| *r != current.name) {
             self.edit(false, |f| {
-                f.nodes[i].renderer = Some(r);
-                // Each renderer checks its own keys: settings of the previous one go.
+                f.nodes[i].renderer = Some(r.to_string());
+                // Each renderer has its own settings: those of the previous one go.
                 f.nodes[i].settings = toml::Table::new();
             });
         }
         match n.kind {
-            NodeKind::Volume => self.volume_controls(ui, i, &current),
-            NodeKind::Heightfield => self.terrain_controls(ui, i),
-            NodeKind::Particles => self.smoke_controls(ui, i),
+            NodeKind::Volume => self.volume_controls(ui, i, current),
+            NodeKind::Heightfield => self.terrain_controls(ui, i, current),
+            NodeKind::Particles => self.smoke_controls(ui, i, current),
             NodeKind::Group => {}
         }
     }
 
-    fn volume_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &str) {
+    /// The controls the node's renderer declares for its settings.
+    fn setting_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl, settings: &toml::Table) {
+        if let Some(c) = super::settings_controls::show(ui, renderer, settings) {
+            self.edit(c.moving, |f| {
+                f.nodes[i].settings.insert(c.key.to_string(), c.value);
+            });
+        }
+    }
+
+    fn volume_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
         let Some(doc) = &self.doc else { return };
         let n = doc.scene.nodes()[i].clone();
         let stats = doc.stats.get(i).cloned().flatten();
@@ -708,60 +718,7 @@ impl Viewer {
         if ui.checkbox(&mut mip, "Maximum intensity projection").changed() {
             self.edit(false, |f| f.nodes[i].blend = if mip { BlendMode::Mip } else { BlendMode::Composite });
         }
-        if renderer == "reference" {
-            let mut step = n.settings.get("step").and_then(|v| v.as_float()).unwrap_or(0.05);
-            ui.horizontal(|ui| {
-                let lbl = ui.label("Step (voxels)");
-                if ui.add(egui::DragValue::new(&mut step).speed(0.005).range(0.01..=1.0)).labelled_by(lbl.id).changed() {
-                    self.edit(false, |f| {
-                        f.nodes[i].settings.insert("step".into(), toml::Value::Float(step));
-                    });
-                }
-            });
-        }
-        if renderer == "shear-warp" {
-            let mut ratio = n.settings.get("supersampling").and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).unwrap_or(0.0);
-            ui.horizontal(|ui| {
-                let lbl = ui.label("Supersampling");
-                let r = ui
-                    .add(egui::Slider::new(&mut ratio, 0.0..=4.0).step_by(0.01).custom_formatter(|v, _| {
-                        if v == 0.0 {
-                            "auto".into()
-                        } else {
-                            format!("{v:.2}")
-                        }
-                    }))
-                    .labelled_by(lbl.id);
-                if r.changed() {
-                    self.edit(r.dragged(), |f| {
-                        f.nodes[i].settings.insert("supersampling".into(), toml::Value::Float(ratio));
-                    });
-                }
-            });
-            let mut per_slab = n.settings.get("slab_samples").and_then(|v| v.as_integer()).unwrap_or(2);
-            ui.horizontal(|ui| {
-                let lbl = ui.label("Samples per slab");
-                if ui.add(egui::Slider::new(&mut per_slab, 1..=4)).labelled_by(lbl.id).changed() {
-                    self.edit(false, |f| {
-                        f.nodes[i].settings.insert("slab_samples".into(), toml::Value::Integer(per_slab));
-                    });
-                }
-            });
-            let leaping = n.settings.get("leaping").and_then(|v| v.as_str()).unwrap_or("overlapped").to_string();
-            let mut pick = None;
-            egui::ComboBox::from_label("Empty-space leaping").selected_text(&leaping).show_ui(ui, |ui| {
-                for l in ["overlapped", "multi-scanline", "none"] {
-                    if ui.selectable_label(leaping == l, l).clicked() {
-                        pick = Some(l);
-                    }
-                }
-            });
-            if let Some(l) = pick.filter(|l| *l != leaping) {
-                self.edit(false, |f| {
-                    f.nodes[i].settings.insert("leaping".into(), toml::Value::String(l.into()));
-                });
-            }
-        }
+        self.setting_controls(ui, i, renderer, &n.settings);
         ui.checkbox(&mut self.show_slices, "Slice views");
         ui.separator();
         ui.label(egui::RichText::new("Transfer function").strong());
@@ -782,16 +739,11 @@ impl Viewer {
         }
     }
 
-    fn terrain_controls(&mut self, ui: &mut egui::Ui, i: usize) {
+    fn terrain_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
         let Some(doc) = &self.doc else { return };
         let n = doc.scene.nodes()[i].clone();
         let lights = doc.scene.file.lights.clone();
-        let mut shadows = n.settings.get("shadows").and_then(|v| v.as_bool()).unwrap_or(false);
-        if ui.checkbox(&mut shadows, "Shadows").changed() {
-            self.edit(false, |f| {
-                f.nodes[i].settings.insert("shadows".into(), toml::Value::Boolean(shadows));
-            });
-        }
+        self.setting_controls(ui, i, renderer, &n.settings);
         let mut exaggeration = n.transform.scale.map(|s| s[2]).unwrap_or(1.0);
         ui.horizontal(|ui| {
             let lbl = ui.label("Vertical exaggeration");
@@ -846,7 +798,7 @@ impl Viewer {
         }
     }
 
-    fn smoke_controls(&mut self, ui: &mut egui::Ui, i: usize) {
+    fn smoke_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
         let Some(doc) = &self.doc else { return };
         let n = doc.scene.nodes()[i].clone();
         let lights = doc.scene.file.lights.clone();
@@ -877,15 +829,7 @@ impl Viewer {
                 self.edit(moving, |f| f.nodes[i].medium = Some(m));
             }
         }
-        let mut photons = n.settings.get("photons").and_then(|v| v.as_integer()).unwrap_or(200_000);
-        ui.horizontal(|ui| {
-            let lbl = ui.label("Photons");
-            if ui.add(egui::DragValue::new(&mut photons).speed(1000).range(1000..=100_000_000)).labelled_by(lbl.id).changed() {
-                self.edit(false, |f| {
-                    f.nodes[i].settings.insert("photons".into(), toml::Value::Integer(photons));
-                });
-            }
-        });
+        self.setting_controls(ui, i, renderer, &n.settings);
         self.sun_controls(ui, &lights);
         ui.label(egui::RichText::new("Traced photons are cached on disk: moving the camera reuses them.").weak());
     }

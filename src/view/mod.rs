@@ -4,12 +4,14 @@
 //! - `worker`: the render thread (renderers never run on the UI thread);
 //! - `navigate`: orbit / pan / zoom / fly / walk on the scene's camera;
 //! - `transfer_editor`: opacity and colour over the histogram, presets;
+//! - `settings_controls`: widgets for the renderer settings the renderers declare;
 //! - `slices`: axial, coronal and sagittal views with a cross-hair;
 //! - `files`: the open dialog.
 
 pub mod app;
 pub mod files;
 pub mod navigate;
+pub mod settings_controls;
 pub mod slices;
 pub mod transfer_editor;
 pub mod worker;

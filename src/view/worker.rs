@@ -48,6 +48,34 @@ struct Mailbox {
 pub struct RenderWorker {
     mailbox: Arc<(Mutex<Mailbox>, Condvar)>,
     done: Receiver<Done>,
+    progress: Arc<WorkerProgress>,
+}
+
+/// The render thread's progress, for the status bar. A preview or full frame still
+/// rendering when a newer job is queued is cancelled: its picture is already stale.
+struct WorkerProgress {
+    mailbox: Arc<(Mutex<Mailbox>, Condvar)>,
+    /// (what, done, total) of the work running now.
+    now: Mutex<Option<(String, u64, u64)>>,
+    /// Whether the running job may be cancelled by a newer one.
+    cancellable: std::sync::atomic::AtomicBool,
+}
+
+impl render::driver::Progress for WorkerProgress {
+    fn begin(&self, what: &str, total: u64) {
+        *self.now.lock().unwrap() = Some((what.to_string(), 0, total));
+    }
+    fn update(&self, done: u64) {
+        if let Some(n) = self.now.lock().unwrap().as_mut() {
+            n.1 = n.1.max(done);
+        }
+    }
+    fn end(&self) {
+        *self.now.lock().unwrap() = None;
+    }
+    fn cancelled(&self) -> bool {
+        self.cancellable.load(std::sync::atomic::Ordering::Relaxed) && self.mailbox.0.lock().unwrap().job.is_some()
+    }
 }
 
 impl RenderWorker {
@@ -56,11 +84,21 @@ impl RenderWorker {
         let mailbox: Arc<(Mutex<Mailbox>, Condvar)> = Arc::default();
         let (tx, done) = channel();
         let mb = mailbox.clone();
-        // Detached: renderers cannot be interrupted, so a render in progress when the
-        // viewer closes is left to finish on its own (its result goes nowhere) rather than
-        // holding up the window's closing.
-        std::thread::Builder::new().name("volterra-render".into()).spawn(move || work(mb, tx, wake)).expect("spawn render thread");
-        RenderWorker { mailbox, done }
+        let progress =
+            Arc::new(WorkerProgress { mailbox: mailbox.clone(), now: Mutex::new(None), cancellable: Default::default() });
+        let p = progress.clone();
+        // Detached: a render in progress when the viewer closes is left to finish on its
+        // own (its result goes nowhere) rather than holding up the window's closing.
+        std::thread::Builder::new()
+            .name("volterra-render".into())
+            .spawn(move || render::driver::observed(p.clone(), || work(mb, tx, wake, &p)))
+            .expect("spawn render thread");
+        RenderWorker { mailbox, done, progress }
+    }
+
+    /// What the render thread is doing now: (what, done, total).
+    pub fn progress(&self) -> Option<(String, u64, u64)> {
+        self.progress.now.lock().unwrap().clone()
     }
 
     /// Queues `job`, replacing any job not yet started.
@@ -105,7 +143,7 @@ impl Drop for RenderWorker {
     }
 }
 
-fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn()) {
+fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn(), progress: &WorkerProgress) {
     let (lock, cv) = &*mailbox;
     let mut cache = RenderCache::default();
     let mut cached_for: Option<PathBuf> = None;
@@ -129,15 +167,19 @@ fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn
             cached_for = Some(job.scene.source.clone());
         }
         let start = Instant::now();
-        let result = match job.quality {
-            Quality::Reference => render_reference(&job.scene, &job.camera, job.size),
-            Quality::Preview => {
-                preview_of(&job.scene).and_then(|s| render::render_view(&s, &job.camera, job.size, &cache)).map_err(|e| format!("{e:#}"))
-            }
-            Quality::Full => render::render_view(&job.scene, &job.camera, job.size, &cache).map_err(|e| format!("{e:#}")),
+        progress.cancellable.store(job.quality != Quality::Reference, std::sync::atomic::Ordering::Relaxed);
+        let result: anyhow::Result<Frame> = match job.quality {
+            Quality::Reference => render_reference(&job.scene, &job.camera, job.size).map_err(anyhow::Error::msg),
+            Quality::Preview => preview_of(&job.scene).and_then(|s| render::render_view(&s, &job.camera, job.size, &cache)),
+            Quality::Full => render::render_view(&job.scene, &job.camera, job.size, &cache),
         };
+        // A cancelled frame is stale: the job that cancelled it is already queued.
+        let cancelled = result.as_ref().is_err_and(|e| e.root_cause().is::<render::driver::Cancelled>());
+        let result = result.map_err(|e| format!("{e:#}"));
         let done = Done { version: job.version, quality: job.quality, size: job.size, result, seconds: start.elapsed().as_secs_f64() };
-        let _ = tx.send(done);
+        if !cancelled {
+            let _ = tx.send(done);
+        }
         {
             let mut m = lock.lock().unwrap();
             m.busy = false;
@@ -147,52 +189,36 @@ fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn
     }
 }
 
-/// The scene with cheaper settings for previews: one camera ray per pixel for smoke, no
-/// supersampling and one sample per slab for shear-warp, a 0.25-voxel step for the
-/// reference ray caster. Only
-/// keys the user did not make cheaper already are touched.
+/// The scene with cheaper settings for previews: each renderer's declared preview values
+/// (one camera ray per pixel for smoke, no supersampling and one sample per slab for
+/// shear-warp, a 0.25-voxel step for the reference ray caster). Only settings the user
+/// did not make cheaper already are touched.
 fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
-    let number = |s: &toml::Table, key: &str, default: f64| {
-        s.get(key).and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).unwrap_or(default)
-    };
     let mut file = scene.file.clone();
-    for n in &mut file.nodes {
-        let s = &mut n.settings;
-        match n.renderer.as_deref() {
-            Some("smoke") if number(s, "samples", 4.0) > 1.0 => {
-                s.insert("samples".into(), toml::Value::Integer(1));
-            }
-            // 0 is "auto", which can pick up to 4 intermediate pixels per voxel.
-            Some("shear-warp") => {
-                if !(number(s, "supersampling", 0.0) > 0.0 && number(s, "supersampling", 0.0) <= 1.0) {
-                    s.insert("supersampling".into(), toml::Value::Float(1.0));
-                }
-                s.insert("slab_samples".into(), toml::Value::Integer(1));
-            }
-            Some("reference") if number(s, "step", 0.05) < 0.25 => {
-                s.insert("step".into(), toml::Value::Float(0.25));
-            }
-            _ => {}
+    for (i, n) in file.nodes.iter_mut().enumerate() {
+        if let Some(r) = scene.renderer(i) {
+            crate::render::settings::apply_preview(r.settings, &mut n.settings);
         }
     }
     scene.edited(file)
 }
 
 /// The same view through each node's brute-force reference (volumes: the f64 ray caster;
-/// terrain: the f64 CPU reference). Smoke has no reference renderer in-process (Mitsuba is
-/// the reference), so a scene with particles has no error figure.
+/// terrain: the f64 CPU reference), keeping the settings that are part of the picture.
+/// Smoke has no reference renderer in-process (Mitsuba is the reference), so a scene with
+/// particles has no error figure.
 fn render_reference(scene: &Scene, camera: &Camera, size: (usize, usize)) -> Result<Frame, String> {
-    use crate::scene::NodeKind;
+    use crate::render::registry;
     let mut file = scene.file.clone();
-    for n in &mut file.nodes {
-        match n.kind {
-            NodeKind::Volume => {
-                n.renderer = Some("reference".into());
-                n.settings = toml::Table::new();
+    for (i, n) in file.nodes.iter_mut().enumerate() {
+        let Some(from) = scene.renderer(i) else { continue };
+        match registry::reference_for(n.kind) {
+            Some(to) => {
+                n.settings = registry::carry_over(from, to, &n.settings);
+                n.renderer = Some(to.name.into());
             }
-            NodeKind::Heightfield => n.renderer = Some("terrain-reference".into()),
-            NodeKind::Particles if n.visible => return Err("no in-process reference for smoke (Mitsuba is its reference)".into()),
-            _ => {}
+            None if n.visible => return Err(format!("no in-process reference for {} (Mitsuba is its reference)", from.name)),
+            None => {}
         }
     }
     let reference = scene.edited(file).map_err(|e| format!("{e:#}"))?;

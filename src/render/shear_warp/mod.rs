@@ -20,55 +20,73 @@ use glam::DMat4;
 use minmax::{next_unclear, ClearMask, OverlappedMap, ScanlineMap};
 use preint::{ClearQuanta, PreintTable};
 use rayon::prelude::*;
-use serde::Deserialize;
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Preview, Widget};
+use crate::scene::NodeKind;
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use volterra_formats::Volume;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Leaping {
-    /// Sample every slab.
-    None,
-    /// Test every non-overlapping n×1×1 scanline block a run touches (paper Fig. 6a).
-    MultiScanline,
-    /// One lookup in the overlapped min-max map per run (paper Fig. 6b).
-    Overlapped,
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Settings {
-    /// Intermediate pixels per voxel; 0 picks the ratio that matches the final image's
-    /// pixel size (clamped to 1..4).
-    pub supersampling: f64,
-    pub leaping: Leaping,
-    /// Run length n of the min-max blocks, in voxels.
-    pub block: usize,
-    /// Stop compositing a pixel once its opacity reaches this.
-    pub termination: f64,
-    /// Pre-integration table levels; 0 chooses from the transfer function (256..1024).
-    pub table_levels: usize,
-    /// Samples per slab along the ray (1..=4, default 2): 1 is the paper's shear-warp
-    /// (one sample per slice, the scalar taken as linear in between); k > 1 adds
-    /// trilinear samples at k − 1 evenly spaced points between the slices and
-    /// pre-integrates k shorter segments. Between slices the trilinear field along an
-    /// oblique ray has kinks at every voxel boundary it crosses, and the straight line
-    /// through the slice samples cuts below thin bright structures: on the aneurism at
-    /// 512² (view 0) the image is 1–3 % too faint with k = 1, and the relative RMSE
-    /// from the reference stops at 3.9 % however high the ratio; k = 2 gives 2.4 % at
-    /// ratio 2 and 1.3 % at ratio 4, k = 4 0.7 % at ratio 4. MIP takes its maximum over
-    /// these samples too (aneurism, ratio 2.26: 6.2 % → 4.3 %, at twice the time).
-    pub slab_samples: usize,
-}
-
-impl Default for Settings {
-    fn default() -> Self {
-        Settings { supersampling: 0.0, leaping: Leaping::Overlapped, block: 8, termination: 0.995, table_levels: 0, slab_samples: 2 }
+crate::setting_choice! {
+    /// Empty-space leaping.
+    pub enum Leaping {
+        /// One lookup in the overlapped min-max map per run (paper Fig. 6b).
+        Overlapped = "overlapped",
+        /// Test every non-overlapping n×1×1 scanline block a run touches (paper Fig. 6a).
+        MultiScanline = "multi-scanline",
+        /// Sample every slab.
+        None = "none",
     }
 }
+
+crate::declare_settings! {
+    pub struct Settings {
+        /// Intermediate pixels per voxel: any real ratio, such as 1.13 or 2.26.
+        pub supersampling: f64 = 0.0, unit = "pixels per voxel", range = Bounds::open_closed(0.0, 16.0),
+            zero = "auto: one intermediate pixel per output pixel, clamped to 2..4", quality = true,
+            viewer = Control { label: "Supersampling", widget: Widget::Slider { lo: 0.0, hi: 4.0, step: 0.01 } },
+            preview = Preview::AtMost(1.0);
+        /// Empty-space leaping over runs of voxels the transfer function makes transparent.
+        pub leaping: Leaping = Leaping::Overlapped, quality = true,
+            viewer = Control { label: "Empty-space leaping", widget: Widget::ByType };
+        /// Run length n of the min-max blocks.
+        pub block: usize = 8, unit = "voxels", range = Bounds::closed(1.0, 256.0), quality = true;
+        /// Stop compositing a pixel once its opacity reaches this.
+        pub termination: f64 = 0.995, range = Bounds::open_closed(0.0, 1.0), quality = true;
+        /// Pre-integration table levels.
+        pub table_levels: usize = 0, range = Bounds::closed(2.0, 4096.0),
+            zero = "auto: chosen from the transfer function, 256..1024", quality = true;
+        /// Samples per slab along the ray: 1 is the paper's shear-warp (one sample per
+        /// slice, the scalar taken as linear in between); k > 1 adds trilinear samples at
+        /// k − 1 evenly spaced points between the slices and pre-integrates k shorter
+        /// segments, which thin oblique structures need, in composite and MIP alike.
+        /// Between slices the trilinear field along an oblique ray has kinks at every
+        /// voxel boundary it crosses, and the straight line through the slice samples cuts
+        /// below thin bright structures: on the aneurism at 512² (view 0) the image is
+        /// 1–3 % too faint with k = 1, and the relative RMSE from the reference stops at
+        /// 3.9 % however high the ratio; k = 2 gives 2.4 % at ratio 2 and 1.3 % at ratio 4,
+        /// k = 4 0.7 % at ratio 4. MIP takes its maximum over these samples too
+        /// (aneurism, ratio 2.26: 6.2 % → 4.3 %, at twice the time).
+        pub slab_samples: usize = 2, range = Bounds::closed(1.0, MAX_SLAB_SAMPLES as f64), quality = true,
+            viewer = Control { label: "Samples per slab", widget: Widget::Slider { lo: 1.0, hi: 4.0, step: 1.0 } },
+            preview = Preview::AtMost(1.0);
+    }
+}
+
+pub const RENDERER: RendererDecl = RendererDecl {
+    name: "shear-warp",
+    kind: NodeKind::Volume,
+    doc: "Shear-warp on the CPU (Kye & Kim, after Lacroute & Levoy): intermediate-image \
+          supersampling at any real ratio, pre-integrated classification, early ray \
+          termination, empty-space leaping with the overlapped min-max map, MIP, a bilinear \
+          warp. **Parallel projection only**: a perspective camera is refused with an error \
+          (use `reference`).",
+    reference: false,
+    settings: Settings::DECLS,
+    parse: |t| Settings::from_table(t).map(NodeSettings::ShearWarp),
+};
 
 /// The volume resampled for one principal axis: permuted so that axis is z, x fastest,
 /// values as u16 quanta of the volume's value range; with its min-max maps, built on
@@ -428,15 +446,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     if !rays.is_parallel() {
         bail!("shear-warp renders parallel projections only (perspective shear-warp is not implemented); set camera.parallel_projection = true or use renderer = \"reference\"");
     }
-    if settings.supersampling < 0.0 || settings.supersampling > 16.0 || !settings.supersampling.is_finite() {
-        bail!("shear-warp: supersampling {} must be 0 (auto) or in (0, 16]", settings.supersampling);
-    }
-    if !(1..=MAX_SLAB_SAMPLES).contains(&settings.slab_samples) {
-        bail!("shear-warp: slab_samples {} must be in 1..={MAX_SLAB_SAMPLES}", settings.slab_samples);
-    }
-    if settings.block == 0 || settings.block > 256 {
-        bail!("shear-warp: block {} must be in 1..=256", settings.block);
-    }
+    settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", RENDERER.name))?;
     let start = std::time::Instant::now();
     let prep = input.prepared;
     let tf = input.tf;
@@ -474,7 +484,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let v_clip_hi = (corners.iter().map(|c| c.1).fold(f64::NEG_INFINITY, f64::max).ceil() + 1.0).min(fac.height as f64 - 1.0);
     if u_clip_hi < 0.0 || v_clip_hi < 0.0 || u_clip_lo as f64 > u_clip_hi || v_clip_lo as f64 > v_clip_hi {
         let mut f = Frame::empty(w, h);
-        f.stats = FrameStats { renderer: "shear-warp".into(), seconds: start.elapsed().as_secs_f64(), ..Default::default() };
+        f.stats = FrameStats { renderer: RENDERER.name.into(), seconds: start.elapsed().as_secs_f64(), ..Default::default() };
         return Ok(f);
     }
     let (u_clip_hi, v_clip_hi) = (u_clip_hi as usize, v_clip_hi as usize);
@@ -491,7 +501,6 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let (x_lo, x_hi) = if nx == 1 { (-0.5, 0.5) } else { (0.0, (nx - 1) as f64) };
     let (y_lo, y_hi) = if ny == 1 { (-0.5, 0.5) } else { (0.0, (ny - 1) as f64) };
     let slice_at = |zi: usize| if fac.z_forward { zi } else { nz - 1 - zi };
-    let progress = crate::progress::bar((v_clip_hi + 1 - v_clip_lo) as u64, "shear-warp");
     let nbx = nx / n + 2;
     let slice_runs: Vec<SliceRuns> =
         (0..nz).into_par_iter().map(|z| SliceRuns::new(&fac, z, (x_lo, x_hi), (u_clip_lo, u_clip_hi), n, nbx)).collect();
@@ -500,10 +509,8 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     // (object order), so the slice rows that neighbouring intermediate rows read are
     // still in cache.
     const BAND: usize = 8;
-    inter.rgba.par_chunks_mut(iw * BAND).zip(inter.depth.par_chunks_mut(iw * BAND)).enumerate().for_each(
-        |(band, (band_rgba, band_depth))| {
-            let band_rows = band_rgba.len() / iw;
-            let v_first = band * BAND;
+    super::driver::render_bands("shear-warp", iw, BAND, &mut inter.rgba, &mut inter.depth, &mut [], |band| {
+            let (band_rgba, band_depth, band_rows, v_first) = (band.rgba, band.depth, band.rows, band.y0);
             let mut states: Vec<RowState> = (0..band_rows).map(|_| RowState::new(iw)).collect();
             let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r));
             let mut n_samples = 0u64;
@@ -718,14 +725,11 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             }
             samples.fetch_add(n_samples, Ordering::Relaxed);
             slabs_leapt.fetch_add(n_leapt, Ordering::Relaxed);
-            progress.inc(band_rows as u64);
-        },
-    );
-    progress.finish_and_clear();
+        })?;
 
-    let mut frame = warp(&inter, &fac, w, h);
+    let mut frame = warp(&inter, &fac, w, h)?;
     frame.stats = FrameStats {
-        renderer: "shear-warp".into(),
+        renderer: RENDERER.name.into(),
         seconds: start.elapsed().as_secs_f64(),
         counters: vec![
             ("samples".into(), samples.load(Ordering::Relaxed) as f64),
@@ -754,7 +758,7 @@ fn floor_i64(v: f64) -> i64 {
 
 /// The 2-D warp: each final pixel samples the intermediate image bilinearly (premultiplied
 /// colour and opacity; depth from the finite neighbours).
-fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Frame {
+fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Result<Frame, super::driver::Cancelled> {
     let mut f = Frame::empty(w, h);
     let ih = inter.rgba.len() / inter.width;
     let iw = inter.width;
@@ -774,7 +778,8 @@ fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Frame 
         let (g, v) = (u as usize / 8, v as usize);
         occupied[v * words + g / 64] >> (g % 64) & 1 == 0
     };
-    f.rgba.par_chunks_mut(w).zip(f.depth.par_chunks_mut(w)).enumerate().for_each(|(y, (row, depth))| {
+    super::driver::render_bands("warp", w, 1, &mut f.rgba, &mut f.depth, &mut [], |band| {
+        let (y, row, depth) = (band.y0, band.rgba, band.depth);
         for x in 0..w {
             let (u, v) = fac.to_intermediate(x as f64 + 0.5, y as f64 + 0.5);
             if !(u >= -1.0 && v >= -1.0 && u <= iw as f64 && v <= ih as f64) {
@@ -812,6 +817,6 @@ fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Frame 
                 depth[x] = zsum / zw;
             }
         }
-    });
-    f
+    })?;
+    Ok(f)
 }

@@ -13,7 +13,6 @@ use super::tracking::{marched_transmittance, StepBatch};
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
 use glam::DVec3;
-use rayon::prelude::*;
 
 /// How light reaching a point from a light is attenuated.
 pub enum LightTransmittance<'a> {
@@ -159,7 +158,7 @@ struct Along {
 /// Renders the smoke: premultiplied RGBA (colour = in-scattered radiance, alpha = 1 − T),
 /// `Z` where transmittance passes 0.5 is left at +∞ (smoke has no surface; the
 /// compositing depth is the entry into the medium's box).
-pub fn render(view: &MarchView, rays: &RayGenerator) -> Frame {
+pub fn render(view: &MarchView, rays: &RayGenerator) -> Result<Frame, crate::render::driver::Cancelled> {
     let (w, h) = rays.size();
     let mut frame = Frame::empty(w, h);
     let spp = view.samples.max(1);
@@ -169,7 +168,8 @@ pub fn render(view: &MarchView, rays: &RayGenerator) -> Frame {
     // against Mitsuba's 8192 spp falls from 5.7 % (centre + 3 uniform) to 4.3 %.
     let across = (1..=spp).filter(|a| spp.is_multiple_of(*a) && a * a <= spp).max().unwrap_or(1);
     let down = spp / across;
-    frame.rgba.par_chunks_mut(w).zip(frame.depth.par_chunks_mut(w)).enumerate().for_each(|(y, (row, depth))| {
+    crate::render::driver::render_bands("ray marching", w, 1, &mut frame.rgba, &mut frame.depth, &mut [], |band| {
+        let (y, row, depth) = (band.y0, band.rgba, band.depth);
         for x in 0..w {
             let mut rng = Rng::stream(view.seed ^ 0x005E_EDCA_3E7A, (y * w + x) as u64);
             let mut acc = [0.0; 4];
@@ -195,7 +195,7 @@ pub fn render(view: &MarchView, rays: &RayGenerator) -> Frame {
                 }
             }
         }
-    });
-    frame.stats = FrameStats { renderer: "smoke".into(), ..Default::default() };
-    frame
+    })?;
+    frame.stats = FrameStats { renderer: super::RENDERER.name.into(), ..Default::default() };
+    Ok(frame)
 }

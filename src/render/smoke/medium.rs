@@ -11,15 +11,14 @@ use crate::render::geometry::clip_box;
 use glam::DVec3;
 use volterra_formats::sph::{cubic_spline, PointGrid};
 
-/// The SPH smoothing kernel. Both have support 2h and integrate to 1 over space.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Kernel {
-    /// The normalised cubic spline (M4, "spline Gaussian").
-    #[default]
-    CubicSpline,
-    /// Müller et al.'s poly6, 315/(64π H⁹)·(H² − r²)³ with H = 2h.
-    Poly6,
+crate::setting_choice! {
+    /// The SPH smoothing kernel. Both have support 2h and integrate to 1 over space.
+    pub enum Kernel {
+        /// The normalised cubic spline (M4, "spline Gaussian").
+        CubicSpline = "cubic-spline",
+        /// Müller et al.'s poly6, 315/(64π H⁹)·(H² − r²)³ with H = 2h.
+        Poly6 = "poly6",
+    }
 }
 
 /// What a density query reads of a particle once its support holds the point: the

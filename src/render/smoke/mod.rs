@@ -27,96 +27,91 @@ use crate::scene::{Light, Medium as MediumParams};
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3};
 use medium::{Kernel, SphMedium};
-use serde::Deserialize;
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Preview, Widget};
+use crate::scene::NodeKind;
 use std::time::Instant;
 use volterra_formats::ParticleSet;
 
-/// Where multiply-scattered light comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum Store {
-    /// The paper's particle map.
-    #[default]
-    ParticleMap,
-    /// The classic volume photon map (kd-tree, k nearest photons).
-    PhotonMap,
-    /// None: single scattering only.
-    None,
-}
-
-/// How photons find their next collision.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum FreeFlight {
-    /// Delta tracking against majorants: unbiased in a heterogeneous medium.
-    #[default]
-    Delta,
-    /// The paper's −ln ξ / σ_t(x) with σ_t where the photon is: biased; for comparison.
-    Local,
-}
-
-/// How the light reaching a sample from a light source is attenuated.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum ShadowMode {
-    /// A shadow ray marched per sample.
-    Marched,
-    /// A transmittance grid per light (the irradiance map's resolution), filled lazily.
-    #[default]
-    Grid,
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct Settings {
-    /// Photons traced (over all lights).
-    pub photons: usize,
-    pub store: Store,
-    /// Photon map: photons gathered per estimate.
-    pub gather: usize,
-    /// Photon map: largest gather radius in metres (0: 4 × the median h).
-    pub gather_radius: f64,
-    /// Precompute the multiply-scattered source on a grid and interpolate it.
-    pub irradiance_map: bool,
-    /// Irradiance-map spacing in metres (0: the median h); the transmittance grid's is twice it.
-    pub irradiance_cell: f64,
-    /// March step as a fraction of the median h. One h by default: against Mitsuba on the
-    /// 110k plume (1M photons, 32 rays per pixel) steps of h/2, 3h/4 and h all came within
-    /// 3.448 ± 0.001 % — the kernel spans 2h and the jittered starts average the rest —
-    /// while h/2 marched 30 % longer.
-    pub step: f64,
-    /// Camera rays per pixel.
-    pub samples: usize,
-    pub seed: u64,
-    pub free_flight: FreeFlight,
-    pub shadows: ShadowMode,
-    pub kernel: Kernel,
-    /// Photon paths stop after this many scatterings (counted in the statistics).
-    pub max_bounces: usize,
-    /// Keep traced photons on disk and reuse them for other views (see `smoke::cache`).
-    pub cache: bool,
-}
-
-impl Default for Settings {
-    fn default() -> Self {
-        Settings {
-            photons: 200_000,
-            store: Store::ParticleMap,
-            gather: 100,
-            gather_radius: 0.0,
-            irradiance_map: true,
-            irradiance_cell: 0.0,
-            step: 1.0,
-            samples: 4,
-            seed: 1,
-            free_flight: FreeFlight::Delta,
-            shadows: ShadowMode::Grid,
-            kernel: Kernel::CubicSpline,
-            max_bounces: 1000,
-            cache: true,
-        }
+crate::setting_choice! {
+    /// Where multiply-scattered light comes from.
+    pub enum Store {
+        /// The paper's particle map: photon power split over the particles by kernel weight.
+        ParticleMap = "particle-map",
+        /// The classic volume photon map (kd-tree, k nearest photons).
+        PhotonMap = "photon-map",
+        /// None: single scattering only.
+        None = "none",
     }
 }
+
+crate::setting_choice! {
+    /// How photons find their next collision.
+    pub enum FreeFlight {
+        /// Delta tracking against majorants: unbiased in a heterogeneous medium.
+        Delta = "delta",
+        /// The paper's −ln ξ / σ_t(x) with σ_t where the photon is: biased; for comparison.
+        Local = "local",
+    }
+}
+
+crate::setting_choice! {
+    /// How the light reaching a sample from a light source is attenuated.
+    pub enum ShadowMode {
+        /// A transmittance grid per light (the irradiance map's resolution), filled lazily.
+        Grid = "grid",
+        /// A shadow ray marched per sample.
+        Marched = "marched",
+    }
+}
+
+crate::declare_settings! {
+    pub struct Settings {
+        /// Photons traced (over all lights).
+        pub photons: usize = 200_000, quality = true,
+            viewer = Control { label: "Photons", widget: Widget::Drag { lo: 1000.0, hi: 100_000_000.0, speed: 1000.0 } };
+        /// Where multiply-scattered light comes from.
+        pub store: Store = Store::ParticleMap;
+        /// Photon map: photons gathered per estimate (k).
+        pub gather: usize = 100, range = Bounds::at_least(1.0), quality = true;
+        /// Photon map: largest gather radius.
+        pub gather_radius: f64 = 0.0, unit = "m", range = Bounds::above(0.0), zero = "auto: 4 × the median h", quality = true;
+        /// Precompute the multiply-scattered source on a grid and interpolate it.
+        pub irradiance_map: bool = true, quality = true;
+        /// Irradiance-map spacing; the transmittance grid's is twice it.
+        pub irradiance_cell: f64 = 0.0, unit = "m", range = Bounds::above(0.0), zero = "auto: the median h", quality = true;
+        /// March step as a fraction of the median h. One h by default: against Mitsuba on
+        /// the 110k plume (1M photons, 32 rays per pixel) steps of h/2, 3h/4 and h all came
+        /// within 3.448 ± 0.001 % — the kernel spans 2h and the jittered starts average the
+        /// rest — while h/2 marched 30 % longer.
+        pub step: f64 = 1.0, unit = "h", range = Bounds::above(0.0), quality = true;
+        /// Camera rays per pixel, stratified over the pixel.
+        pub samples: usize = 4, range = Bounds::at_least(1.0), quality = true, preview = Preview::AtMost(1.0);
+        /// Seed of the photon and camera random numbers.
+        pub seed: u64 = 1, quality = true;
+        /// How photons find their next collision.
+        pub free_flight: FreeFlight = FreeFlight::Delta;
+        /// How light from a source is attenuated on its way to a sample.
+        pub shadows: ShadowMode = ShadowMode::Grid, quality = true;
+        /// The SPH smoothing kernel.
+        pub kernel: Kernel = Kernel::CubicSpline;
+        /// Photon paths stop after this many scatterings (counted in the statistics).
+        pub max_bounces: usize = 1000, quality = true;
+        /// Keep traced photons on disk and reuse them for other views (see `smoke::cache`).
+        pub cache: bool = true, quality = true;
+    }
+}
+
+pub const RENDERER: RendererDecl = RendererDecl {
+    name: "smoke",
+    kind: NodeKind::Particles,
+    doc: "Particle-map smoke (Song & Ihm): the particles' SPH density as the medium, photons \
+          traced once and deposited on the particles (or a classic photon map), an irradiance \
+          map, ray marching with exact single scattering. Needs `medium` and at least one light.",
+    reference: false,
+    settings: Settings::DECLS,
+    parse: |t| Settings::from_table(t).map(NodeSettings::Smoke),
+};
 
 /// What the smoke renderer draws: one particle node.
 pub struct SmokeInput<'a> {
@@ -165,9 +160,7 @@ fn median_h(medium: &SphMedium) -> f64 {
 
 pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<Frame> {
     check_medium(input.medium)?;
-    if !(s.step > 0.0 && s.step.is_finite()) {
-        bail!("smoke setting step = {} must be a positive fraction of h", s.step);
-    }
+    s.validate().map_err(|e| anyhow::anyhow!("{}: {e}", RENDERER.name))?;
     let start = Instant::now();
     let medium = build_medium(input, s.kernel)?;
     let (lo, hi) = medium::Medium::bounds(&medium);
@@ -297,7 +290,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         seed: s.seed,
     };
     let t = Instant::now();
-    let mut frame = march::render(&view, rays);
+    let mut frame = march::render(&view, rays)?;
     let march_s = t.elapsed().as_secs_f64();
 
     let mut counters = vec![

@@ -60,7 +60,7 @@ pub fn trace(medium: &dyn Medium, emitters: &[Emitter], s: &TraceSettings) -> Tr
     const CHUNK: usize = 4096;
     // Per chunk: stored photons, power emitted, power escaped, paths capped.
     type Chunk = (Vec<Photon>, [f64; 3], [f64; 3], usize);
-    let progress = crate::progress::bar(s.count as u64, "photons");
+    let progress = crate::render::driver::Task::begin("photons", s.count as u64);
     let chunks: Vec<Chunk> = (0..s.count.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
@@ -112,11 +112,11 @@ pub fn trace(medium: &dyn Medium, emitters: &[Emitter], s: &TraceSettings) -> Tr
                     dir = sample_hg(dir, s.g, rng.uniform(), rng.uniform());
                 }
             }
-            progress.inc((((c + 1) * CHUNK).min(s.count) - c * CHUNK) as u64);
+            progress.advance((((c + 1) * CHUNK).min(s.count) - c * CHUNK) as u64);
             (stored, emitted, escaped, capped)
         })
         .collect();
-    progress.finish_and_clear();
+    drop(progress);
     for (stored, emitted, escaped, capped) in chunks {
         out.photons.extend(stored);
         for ch in 0..3 {

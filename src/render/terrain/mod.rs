@@ -15,44 +15,77 @@ pub mod shading;
 use crate::render::Frame;
 use crate::scene::camera::RayGenerator;
 use crate::scene::Light;
-use anyhow::{bail, Result};
+use anyhow::Result;
 use glam::DMat4;
-use serde::Deserialize;
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Widget};
+use crate::scene::NodeKind;
 use volterra_formats::{Heightfield, RgbImage};
 
-/// How the GPU walks the pyramid. The last two are the baselines the benchmark measures
-/// the paper's choice against.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-#[repr(u32)]
-pub enum Traversal {
-    /// Descend on a possible hit; after a miss, move to the node's exit and go up one level.
-    #[default]
-    Quadtree = 0,
-    /// As above but stay on the same level after a miss (plain pyramidal displacement mapping).
-    NoRaise = 1,
-    /// Every cell the ray crosses, in order (the lid map only).
-    Linear = 2,
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct Settings {
-    pub traversal: Traversal,
-    /// Hard shadows from a second ray toward each light.
-    pub shadows: bool,
-    /// Light reaching every point regardless of orientation, as a fraction of the base colour.
-    pub ambient: f64,
-    /// Per-ray cap on traversal steps; 0 picks 4 × (cells east + cells north) + 64, more
-    /// than any ray needs. Rays stopped by the cap are counted in the frame's statistics.
-    pub max_steps: u32,
-}
-
-impl Default for Settings {
-    fn default() -> Self {
-        Settings { traversal: Traversal::Quadtree, shadows: false, ambient: 0.25, max_steps: 0 }
+crate::setting_choice! {
+    /// How the GPU walks the pyramid. The last two are the baselines the benchmark
+    /// measures the paper's choice against. The discriminants are the shader's codes.
+    #[repr(u32)]
+    pub enum Traversal {
+        /// Descend on a possible hit; after a miss, leave the node and go up one level.
+        Quadtree = "quadtree",
+        /// As above but stay on the same level after a miss (plain pyramidal displacement mapping).
+        NoRaise = "no-raise",
+        /// Every cell the ray crosses, in order (the lid map only).
+        Linear = "linear",
     }
 }
+
+crate::declare_settings! {
+    pub struct Settings {
+        /// How the GPU walks the max-quadtree.
+        pub traversal: Traversal = Traversal::Quadtree, quality = true;
+        /// Hard shadows from a second ray toward each light.
+        pub shadows: bool = false, viewer = Control { label: "Shadows", widget: Widget::ByType };
+        /// Light reaching every point regardless of orientation, as a fraction of the base colour.
+        pub ambient: f64 = 0.25, range = Bounds::at_least(0.0);
+        /// Per-ray cap on traversal steps. Rays stopped by the cap are counted in the
+        /// frame's statistics.
+        pub max_steps: u32 = 0, zero = "auto: 4 × (cells east + cells north) + 64, more than any ray needs", quality = true;
+    }
+}
+
+crate::declare_settings! {
+    /// The settings of `terrain-reference`: what the picture shows (it walks every cell,
+    /// so traversal and step caps do not apply).
+    pub struct ReferenceSettings {
+        /// Hard shadows from a second ray toward each light.
+        pub shadows: bool = false;
+        /// Light reaching every point regardless of orientation, as a fraction of the base colour.
+        pub ambient: f64 = 0.25, range = Bounds::at_least(0.0);
+    }
+}
+
+impl From<&ReferenceSettings> for Settings {
+    fn from(r: &ReferenceSettings) -> Settings {
+        Settings { shadows: r.shadows, ambient: r.ambient, ..Default::default() }
+    }
+}
+
+pub const RENDERER: RendererDecl = RendererDecl {
+    name: "terrain",
+    kind: NodeKind::Heightfield,
+    doc: "The GPU ray-caster (Park, Oh & Cho; wgpu, any Vulkan/Metal/DX12 adapter, lavapipe \
+          without a GPU): a max-quadtree with a lid map, exact bilinear patches.",
+    reference: false,
+    settings: Settings::DECLS,
+    parse: |t| Settings::from_table(t).map(NodeSettings::Terrain),
+};
+
+pub const REFERENCE_RENDERER: RendererDecl = RendererDecl {
+    name: "terrain-reference",
+    kind: NodeKind::Heightfield,
+    doc: "The CPU reference in f64: every cell a ray crosses, the exact patch intersection. \
+          Slow; the truth `terrain` is measured against.",
+    reference: true,
+    settings: ReferenceSettings::DECLS,
+    parse: |t| ReferenceSettings::from_table(t).map(NodeSettings::TerrainReference),
+};
 
 impl Settings {
     pub fn step_cap(&self, grid: &grid::TerrainGrid) -> u32 {
@@ -63,10 +96,7 @@ impl Settings {
         (4 * (cx + cy) + 64).min(u32::MAX as usize) as u32
     }
     fn check(&self) -> Result<()> {
-        if !(self.ambient >= 0.0 && self.ambient.is_finite()) {
-            bail!("terrain setting ambient = {} must be a non-negative number", self.ambient);
-        }
-        Ok(())
+        self.validate().map_err(|e| anyhow::anyhow!("terrain: {e}"))
     }
 }
 
@@ -104,7 +134,7 @@ pub fn render(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) ->
 pub fn render_reference(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
     let (grid, shading) = input.prepare(settings)?;
     let texture = input.texture.map(shading::LinearTexture::new);
-    Ok(reference::render(&grid, texture.as_ref(), rays, &shading))
+    Ok(reference::render(&grid, texture.as_ref(), rays, &shading)?)
 }
 
 /// How closely two terrain renders agree on what they hit and how far away it is.

@@ -7,7 +7,7 @@ use super::shading::{elevation_colour, shade, LinearTexture, Shading};
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
 use glam::DVec3;
-use rayon::prelude::*;
+use crate::render::driver::{render_bands, Cancelled};
 use std::time::Instant;
 
 /// The surface each cell holds: the bilinear patch (what `terrain` draws), or two
@@ -146,7 +146,7 @@ pub fn wall_tolerance(grid: &TerrainGrid) -> f64 {
 
 /// Renders the terrain with the reference: colour, depth (`Z`, world distance along the
 /// ray) and `steps` (cells tested per ray).
-pub fn render(grid: &TerrainGrid, texture: Option<&LinearTexture>, rays: &RayGenerator, shading: &Shading) -> Frame {
+pub fn render(grid: &TerrainGrid, texture: Option<&LinearTexture>, rays: &RayGenerator, shading: &Shading) -> Result<Frame, Cancelled> {
     render_surface(grid, texture, rays, shading, Surface::Bilinear)
 }
 
@@ -158,20 +158,15 @@ pub fn render_surface(
     rays: &RayGenerator,
     shading: &Shading,
     surface: Surface,
-) -> Frame {
+) -> Result<Frame, Cancelled> {
     let start = Instant::now();
     let (w, h) = rays.size();
     let mut frame = Frame::empty(w, h);
     let mut steps = vec![0f32; w * h];
     let mut walls = vec![0f32; w * h];
-    frame
-        .rgba
-        .par_chunks_mut(w)
-        .zip(frame.depth.par_chunks_mut(w))
-        .zip(steps.par_chunks_mut(w))
-        .zip(walls.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (((rgba, depth), steps), walls))| {
+    render_bands("terrain reference", w, 1, &mut frame.rgba, &mut frame.depth, &mut [&mut steps, &mut walls], |band| {
+            let (y, rgba, depth) = (band.y0, band.rgba, band.depth);
+            let [steps, walls] = <[&mut [f32]; 2]>::try_from(band.extra).ok().expect("two extra planes");
             for x in 0..w {
                 let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
                 let (hit, n) = trace_world(grid, &ray, surface);
@@ -188,10 +183,10 @@ pub fn render_surface(
                     depth[x] = hit.t as f32;
                 }
             }
-        });
+        })?;
     let hits = frame.depth.iter().filter(|d| d.is_finite()).count();
     frame.stats = FrameStats {
-        renderer: "terrain-reference".into(),
+        renderer: super::REFERENCE_RENDERER.name.into(),
         seconds: start.elapsed().as_secs_f64(),
         counters: vec![
             ("rays".into(), (w * h) as f64),
@@ -203,5 +198,5 @@ pub fn render_surface(
     frame.extra.push(("steps".into(), steps));
     // 1 where the ray met a side of the terrain's box (a wall), not its surface.
     frame.extra.push(("wall".into(), walls));
-    frame
+    Ok(frame)
 }
