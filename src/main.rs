@@ -457,16 +457,22 @@ fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
 fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String]) -> Result<()> {
     check_render_outputs(output, png)?;
     let scene = Scene::load(scene_path, sets)?;
-    write_frame(&scene, None, output, png)
+    write_frame(&scene, None, output, png, &render::RenderCache::default())
 }
 
-fn write_frame(scene: &Scene, frame: Option<(usize, usize)>, output: &Path, png: Option<&Path>) -> Result<()> {
-    let image = render::render_scene(scene, frame)?;
+/// Renders one frame (or frame k of n) with what `cache` kept from earlier frames, and
+/// writes it; a single frame also prints its statistics and each node's times.
+fn write_frame(scene: &Scene, frame: Option<(usize, usize)>, output: &Path, png: Option<&Path>, cache: &render::RenderCache) -> Result<()> {
+    let camera = scene.camera(frame)?;
+    let image = render::render_view(scene, &camera, (scene.file.image.width, scene.file.image.height), cache)?;
     if frame.is_none() {
         let counters: Vec<String> = image.stats.counters.iter().map(|(k, v)| format!("{k} {}", short(*v))).collect();
         eprintln!("{}: {}", image.stats.renderer, counters.join(", "));
         for n in &image.stats.notes {
             eprintln!("  {n}");
+        }
+        for t in &image.stats.nodes {
+            eprintln!("node '{}' ({}): load {:.3} s, preparation {:.3} s, render {:.3} s", t.node, t.renderer, t.load, t.prepare, t.render);
         }
     }
     let bg = scene.file.image.background;
@@ -534,12 +540,26 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         bail!("{}: --frames needs [[keyframe]]s in the scene (a camera path)", scene_path.display());
     }
     let bar = volterra::progress::bar(n as u64, "frames");
+    // One cache for every frame: shear-warp's preparation and the terrain's pyramid are
+    // built once, not per frame.
+    let cache = render::RenderCache::default();
+    let mut seconds = Vec::with_capacity(n);
     for k in 0..n {
-        write_frame(&scene, Some((k, n)), &numbered(output, k), png.map(|p| numbered(p, k)).as_deref())?;
+        let t = std::time::Instant::now();
+        write_frame(&scene, Some((k, n)), &numbered(output, k), png.map(|p| numbered(p, k)).as_deref(), &cache)?;
+        seconds.push(t.elapsed().as_secs_f64());
         bar.inc(1);
     }
     bar.finish_and_clear();
-    eprintln!("wrote {n} frames: {} … {}", numbered(output, 0).display(), numbered(output, n - 1).display());
+    let first = seconds[0];
+    seconds.sort_by(f64::total_cmp);
+    eprintln!(
+        "wrote {n} frames: {} … {} (first {:.3} s, median {:.3} s per frame)",
+        numbered(output, 0).display(),
+        numbered(output, n - 1).display(),
+        first,
+        seconds[n / 2]
+    );
     Ok(())
 }
 

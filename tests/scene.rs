@@ -87,17 +87,41 @@ fn renderer_settings_are_checked_at_load_with_their_line_before_any_data_is_read
     let data = dir.path().join("v.nii");
     std::fs::File::create(&data).unwrap().set_len(200 << 20).unwrap();
     let cases: &[(&str, &str, &str)] = &[
-        ("settings = { step = 0.05 }", "settings = { stp = 0.05 }", "line 17: node 'vol': reference setting 'stp': unknown (known: step, termination)"),
-        ("settings = { step = 0.05 }", "settings = { step = \"fine\" }", "line 17: node 'vol': reference setting 'step': expected number, found string"),
-        ("settings = { step = 0.05 }", "settings = { step = 2.0 }", "line 17: node 'vol': reference setting 'step': 2 is out of range: must be (0, 1]"),
+        (
+            "settings = { step = 0.05 }",
+            "settings = { stp = 0.05 }",
+            "line 17: node 'vol': reference setting 'stp': unknown (known: step, termination)",
+        ),
+        (
+            "settings = { step = 0.05 }",
+            "settings = { step = \"fine\" }",
+            "line 17: node 'vol': reference setting 'step': expected number, found string",
+        ),
+        (
+            "settings = { step = 0.05 }",
+            "settings = { step = 2.0 }",
+            "line 17: node 'vol': reference setting 'step': 2 is out of range: must be (0, 1]",
+        ),
         (
             "settings = { step = 0.05 }",
             "renderer = \"shear-warp\"\nsettings = { leaping = \"fast\" }",
             "line 18: node 'vol': shear-warp setting 'leaping': \"fast\" is not one of \"overlapped\" | \"multi-scanline\" | \"none\"",
         ),
-        ("settings = { step = 0.05 }", "renderer = \"shear-warp\"\nsettings = { block = -1 }", "block': -1 is out of range: must be [1, 256]"),
-        ("settings = { step = 0.05 }", "renderer = \"sheer-warp\"", "line 17: node 'vol': unknown renderer 'sheer-warp' (known: reference, shear-warp,"),
-        ("settings = { step = 0.05 }", "renderer = \"terrain\"", "line 17: node 'vol': renderer 'terrain' draws Heightfield nodes, not Volume"),
+        (
+            "settings = { step = 0.05 }",
+            "renderer = \"shear-warp\"\nsettings = { block = -1 }",
+            "block': -1 is out of range: must be [1, 256]",
+        ),
+        (
+            "settings = { step = 0.05 }",
+            "renderer = \"sheer-warp\"",
+            "line 17: node 'vol': unknown renderer 'sheer-warp' (known: reference, shear-warp,",
+        ),
+        (
+            "settings = { step = 0.05 }",
+            "renderer = \"terrain\"",
+            "line 17: node 'vol': renderer 'terrain' draws Heightfield nodes, not Volume",
+        ),
     ];
     for (from, to, expected) in cases {
         let p = write(dir.path(), "bad.toml", &CUBE_SCENE.replace(from, to));

@@ -127,7 +127,7 @@ pub fn render_bands<S: Send>(
     extra: &mut [&mut [f32]],
     shade: impl Fn(Band) -> S + Sync,
 ) -> Result<Vec<S>, Cancelled> {
-    let height = if width == 0 { 0 } else { rgba.len() / width };
+    let height = rgba.len().checked_div(width).unwrap_or(0);
     assert!(depth.len() == rgba.len() && extra.iter().all(|e| e.len() == rgba.len()), "planes of one size");
     let task = Task::begin(what, height as u64);
     let chunk = (width * band_rows.max(1)).max(1);

@@ -10,6 +10,20 @@ pub struct FrameStats {
     /// Named counters (samples taken, rays terminated early, …).
     pub counters: Vec<(String, f64)>,
     pub notes: Vec<String>,
+    /// Per node drawn: its time to read data, to prepare, and to render.
+    pub nodes: Vec<NodeTime>,
+}
+
+/// Where one node's time went, in seconds: reading its data (0 once the scene holds it),
+/// preparing what its renderer keeps across frames (0 when kept from an earlier frame),
+/// and rendering.
+#[derive(Debug, Clone, Default)]
+pub struct NodeTime {
+    pub node: String,
+    pub renderer: String,
+    pub load: f64,
+    pub prepare: f64,
+    pub render: f64,
 }
 
 #[derive(Debug, Clone)]
@@ -59,6 +73,7 @@ impl Frame {
             out.extra.extend(l.extra.iter().cloned());
             out.stats.counters.extend(l.stats.counters.iter().cloned());
             out.stats.notes.extend(l.stats.notes.iter().cloned());
+            out.stats.nodes.extend(l.stats.nodes.iter().cloned());
         }
         out.stats.renderer = layers.iter().map(|l| l.stats.renderer.clone()).collect::<Vec<_>>().join("+");
         out

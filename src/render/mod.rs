@@ -12,27 +12,34 @@ pub mod shear_warp;
 pub mod smoke;
 pub mod terrain;
 
-pub use frame::{Frame, FrameStats};
+pub use frame::{Frame, FrameStats, NodeTime};
 
-use crate::scene::{Camera, Scene};
-use registry::NodeSettings;
+use crate::scene::{Camera, NodeData, Scene};
 use anyhow::{anyhow, Context, Result};
+use registry::NodeSettings;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
-use volterra_formats::Volume;
+use std::time::Instant;
+use volterra_formats::{Heightfield, RgbImage, Volume};
 
 /// What renderers may keep between frames of one scene: the shear-warp preparation of each
 /// volume (quantised copy, permuted axes, min-max maps), which depends only on the volume,
-/// not on the camera or the transfer function. An interactive viewer keeps one for its
-/// scene; a one-off render uses a fresh one.
+/// and each placed heightfield's terrain grid and GPU pyramid — not on the camera or the
+/// transfer function. The viewer keeps one for its scene, `render --frames` one for all
+/// its frames; a one-off render uses a fresh one.
 #[derive(Default)]
 pub struct RenderCache {
     /// Keyed by the volume's address: a node whose data is replaced gets a new entry.
     prepared: Mutex<HashMap<usize, PreparedVolume>>,
+    /// Keyed by the heightfield's and texture's addresses and the placement's bits.
+    terrain: Mutex<HashMap<TerrainKey, PreparedTerrain>>,
 }
 
 /// A volume and its shear-warp preparation (the volume is held so its address stays taken).
 type PreparedVolume = (Arc<Volume>, Arc<shear_warp::Prepared>);
+type TerrainKey = (usize, usize, [u64; 16]);
+/// A heightfield and its terrain preparation (held, so the addresses stay taken).
+type PreparedTerrain = (Arc<Heightfield>, Arc<terrain::Prepared>);
 
 impl RenderCache {
     fn shear_warp(&self, volume: &Arc<Volume>) -> Result<Arc<shear_warp::Prepared>> {
@@ -44,6 +51,19 @@ impl RenderCache {
         }
         let p = Arc::new(shear_warp::Prepared::new(volume)?);
         map.insert(key, (volume.clone(), p.clone()));
+        Ok(p)
+    }
+
+    fn terrain(&self, hf: &Arc<Heightfield>, texture: Option<Arc<RgbImage>>, node_to_world: glam::DMat4) -> Result<Arc<terrain::Prepared>> {
+        let tex = texture.as_ref().map_or(0, |t| Arc::as_ptr(t) as usize);
+        let key = (Arc::as_ptr(hf) as usize, tex, node_to_world.to_cols_array().map(f64::to_bits));
+        let mut map = self.terrain.lock().unwrap();
+        if let Some((_, p)) = map.get(&key) {
+            return Ok(p.clone());
+        }
+        // The prepared terrain holds the texture, so its address stays taken too.
+        let p = Arc::new(terrain::Prepared::new(hf, texture, node_to_world)?);
+        map.insert(key, (hf.clone(), p.clone()));
         Ok(p)
     }
 }
@@ -66,46 +86,67 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     let rays = camera.rays(size.0, size.1);
     let transfer_function =
         || desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name));
-    let frame = match settings {
-        NodeSettings::Reference(s) => {
-            let tf = transfer_function()?;
-            let vol = scene.volume(node)?;
-            let input = reference_volume::VolumeInput { volume: &vol, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
+    let medium = || {
+        desc.medium
+            .as_ref()
+            .ok_or_else(|| anyhow!("node '{}': a particle node needs medium = {{ c_ext = …, albedo = …, g = … }}", desc.name))
+    };
+    // What the node's description lacks is an error before its data is read.
+    match desc.kind {
+        crate::scene::NodeKind::Volume => drop(transfer_function()?),
+        crate::scene::NodeKind::Particles => drop(medium()?),
+        _ => {}
+    }
+    // Reading the data (once per scene: the scene keeps it), preparing what the renderer
+    // keeps across frames, and the render itself, timed apart.
+    let t = Instant::now();
+    let data = scene.data(node)?;
+    let texture = scene.texture(node)?;
+    let load = t.elapsed().as_secs_f64();
+    let mut prepare = 0.0;
+    let node_to_world = scene.world_transform(node);
+    let t = Instant::now();
+    let mut frame = match (settings, data) {
+        (NodeSettings::Reference(s), NodeData::Volume(vol)) => {
+            let input = reference_volume::VolumeInput { volume: &vol, node_to_world, tf: transfer_function()?, blend: desc.blend };
             reference_volume::render(&input, &rays, s)?
         }
-        NodeSettings::ShearWarp(s) => {
-            let tf = transfer_function()?;
-            let prepared = cache.shear_warp(&scene.volume(node)?)?;
-            let input = shear_warp::Input { prepared: &prepared, node_to_world: scene.world_transform(node), tf, blend: desc.blend };
+        (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
+            let prepared = timed(&mut prepare, || cache.shear_warp(&vol))?;
+            let input = shear_warp::Input { prepared: &prepared, node_to_world, tf: transfer_function()?, blend: desc.blend };
             shear_warp::render(&input, &rays, s)?
         }
-        NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_) => {
-            let hf = scene.heightfield(node)?;
-            let texture = scene.texture(node)?;
-            let input = terrain::TerrainInput {
-                heightfield: &hf,
-                texture: texture.as_deref(),
-                node_to_world: scene.world_transform(node),
-                lights: &scene.file.lights,
-            };
+        (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), NodeData::Heightfield(hf)) => {
+            let prepared = timed(&mut prepare, || {
+                let p = cache.terrain(&hf, texture.clone(), node_to_world)?;
+                if matches!(settings, NodeSettings::Terrain(_)) {
+                    p.prepare_gpu()?;
+                }
+                Ok(p)
+            })?;
             match settings {
-                NodeSettings::Terrain(s) => terrain::render(&input, &rays, s)?,
-                NodeSettings::TerrainReference(s) => terrain::render_reference(&input, &rays, &s.into())?,
+                NodeSettings::Terrain(s) => prepared.render(&scene.file.lights, &rays, s)?,
+                NodeSettings::TerrainReference(s) => prepared.render_reference(&scene.file.lights, &rays, &s.into())?,
                 _ => unreachable!(),
             }
         }
-        NodeSettings::Smoke(s) => {
-            let medium = desc
-                .medium
-                .as_ref()
-                .ok_or_else(|| anyhow!("node '{}': a particle node needs medium = {{ c_ext = …, albedo = …, g = … }}", desc.name))?;
-            let particles = scene.particles(node)?;
-            let input =
-                smoke::SmokeInput { particles: &particles, node_to_world: scene.world_transform(node), medium, lights: &scene.file.lights };
+        (NodeSettings::Smoke(s), NodeData::Particles(particles)) => {
+            let input = smoke::SmokeInput { particles: &particles, node_to_world, medium: medium()?, lights: &scene.file.lights };
             smoke::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
         }
+        _ => unreachable!("the scene checked that the node's data is of its kind and its renderer draws that kind"),
     };
+    let render = t.elapsed().as_secs_f64() - prepare;
+    frame.stats.nodes.push(NodeTime { node: desc.name.clone(), renderer: frame.stats.renderer.clone(), load, prepare, render });
     Ok(Some(frame))
+}
+
+/// `f()`, its seconds added to `total`.
+fn timed<T>(total: &mut f64, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    let t = Instant::now();
+    let r = f();
+    *total += t.elapsed().as_secs_f64();
+    r
 }
 
 /// Renders the scene's camera (or frame k of n along its keyframes).

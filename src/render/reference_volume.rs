@@ -5,13 +5,13 @@
 //! skipping, no shading.
 
 use super::frame::{Frame, FrameStats};
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Preview, Widget};
+use crate::scene::NodeKind;
 use crate::scene::{BlendMode, RayGenerator, TransferFunction};
 use anyhow::{anyhow, Result};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
-use super::registry::{NodeSettings, RendererDecl};
-use super::settings::{Bounds, Control, Preview, Widget};
-use crate::scene::NodeKind;
 use volterra_formats::Volume;
 
 crate::declare_settings! {
@@ -100,7 +100,8 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
     let (lo, hi) = (-pad, hi + pad);
 
     let mut frame = Frame::empty(width, height);
-    let samples: u64 = super::driver::render_bands("reference ray casting", width, 1, &mut frame.rgba, &mut frame.depth, &mut [], |band| {
+    let samples: u64 =
+        super::driver::render_bands("reference ray casting", width, 1, &mut frame.rgba, &mut frame.depth, &mut [], |band| {
             let (y, row, depth) = (band.y0, band.rgba, band.depth);
             let mut n = 0u64;
             for x in 0..width {
@@ -168,6 +169,7 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
         seconds: start.elapsed().as_secs_f64(),
         counters: vec![("samples".into(), samples as f64), ("step_mm".into(), dt)],
         notes: vec![],
+        nodes: vec![],
     };
     Ok(frame)
 }

@@ -117,7 +117,12 @@ pub fn markdown() -> String {
                 super::settings::Value::Choice(c) => format!("`{c}`"),
                 v => format!("{v}"),
             };
-            out += &format!("| `{}` | {} | {default} | {allowed} | {} |\n", d.key, d.ty.describe().replace('|', "\\|"), meaning.replace('|', "\\|"));
+            out += &format!(
+                "| `{}` | {} | {default} | {allowed} | {} |\n",
+                d.key,
+                d.ty.describe().replace('|', "\\|"),
+                meaning.replace('|', "\\|")
+            );
         }
         out += "\n";
     }

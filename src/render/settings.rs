@@ -124,8 +124,16 @@ impl fmt::Display for Bounds {
 pub enum Widget {
     /// A check box or a combo box, from the setting's type.
     ByType,
-    Slider { lo: f64, hi: f64, step: f64 },
-    Drag { lo: f64, hi: f64, speed: f64 },
+    Slider {
+        lo: f64,
+        hi: f64,
+        step: f64,
+    },
+    Drag {
+        lo: f64,
+        hi: f64,
+        speed: f64,
+    },
 }
 
 /// A setting the viewer offers, with its label.
@@ -185,7 +193,7 @@ impl SettingDecl {
         if let Some(x) = value.as_f64() {
             let zero_ok = x == 0.0 && self.zero.is_some();
             for b in [self.range, self.natural].into_iter().flatten() {
-                if !zero_ok && !(x.is_finite() && b.contains(x)) {
+                if !(zero_ok || x.is_finite() && b.contains(x)) {
                     let zero = self.zero.map(|z| format!(" or 0 ({z})")).unwrap_or_default();
                     return Err(format!("{value} is out of range: must be {b}{zero}"));
                 }

@@ -12,13 +12,13 @@ pub mod transfer;
 pub use camera::{Camera, Ray, RayGenerator};
 pub use transfer::TransferFunction;
 
+use crate::render::registry::{self, NodeSettings, RendererDecl};
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{DMat4, DVec3};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
-use crate::render::registry::{self, NodeSettings, RendererDecl};
 use volterra_formats::png_height::PngHeightOptions;
 use volterra_formats::{Dataset, Heightfield, LoadOptions, ParticleArrayNames, ParticleSet, RgbImage, Volume};
 
@@ -414,9 +414,8 @@ impl Scene {
                 None => None,
                 Some(d) => Some((
                     d,
-                    (d.parse)(&n.settings).map_err(|e| {
-                        anyhow!("{src}:{}: node '{}': {} {e}", lines.at(&n.name, Some(&e.key)), n.name, d.name)
-                    })?,
+                    (d.parse)(&n.settings)
+                        .map_err(|e| anyhow!("{src}:{}: node '{}': {} {e}", lines.at(&n.name, Some(&e.key)), n.name, d.name))?,
                 )),
             });
         }

@@ -84,8 +84,7 @@ impl RenderWorker {
         let mailbox: Arc<(Mutex<Mailbox>, Condvar)> = Arc::default();
         let (tx, done) = channel();
         let mb = mailbox.clone();
-        let progress =
-            Arc::new(WorkerProgress { mailbox: mailbox.clone(), now: Mutex::new(None), cancellable: Default::default() });
+        let progress = Arc::new(WorkerProgress { mailbox: mailbox.clone(), now: Mutex::new(None), cancellable: Default::default() });
         let p = progress.clone();
         // Detached: a render in progress when the viewer closes is left to finish on its
         // own (its result goes nowhere) rather than holding up the window's closing.

@@ -13,6 +13,9 @@ pub mod minmax;
 pub mod preint;
 
 use super::frame::{Frame, FrameStats};
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Preview, Widget};
+use crate::scene::NodeKind;
 use crate::scene::{BlendMode, RayGenerator, TransferFunction};
 use anyhow::{bail, Result};
 use factor::Factorization;
@@ -20,9 +23,6 @@ use glam::DMat4;
 use minmax::{next_unclear, ClearMask, OverlappedMap, ScanlineMap};
 use preint::{ClearQuanta, PreintTable};
 use rayon::prelude::*;
-use super::registry::{NodeSettings, RendererDecl};
-use super::settings::{Bounds, Control, Preview, Widget};
-use crate::scene::NodeKind;
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -510,222 +510,222 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     // still in cache.
     const BAND: usize = 8;
     super::driver::render_bands("shear-warp", iw, BAND, &mut inter.rgba, &mut inter.depth, &mut [], |band| {
-            let (band_rgba, band_depth, band_rows, v_first) = (band.rgba, band.depth, band.rows, band.y0);
-            let mut states: Vec<RowState> = (0..band_rows).map(|_| RowState::new(iw)).collect();
-            let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r));
-            let mut n_samples = 0u64;
-            let mut n_leapt = 0u64;
-            // Inverse Mapping: x = U / ratio + Iz[z], one lookup (U/ratio) and one add.
-            let x_of = |u: usize, iz: f64| u_over_ratio[u] + iz;
-            let y_at = |vf: f64, z: usize| vf * inv_ratio + fac.vmin + z as f64 * fac.sy;
+        let (band_rgba, band_depth, band_rows, v_first) = (band.rgba, band.depth, band.rows, band.y0);
+        let mut states: Vec<RowState> = (0..band_rows).map(|_| RowState::new(iw)).collect();
+        let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r));
+        let mut n_samples = 0u64;
+        let mut n_leapt = 0u64;
+        // Inverse Mapping: x = U / ratio + Iz[z], one lookup (U/ratio) and one add.
+        let x_of = |u: usize, iz: f64| u_over_ratio[u] + iz;
+        let y_at = |vf: f64, z: usize| vf * inv_ratio + fac.vmin + z as f64 * fac.sy;
 
-            for r in (0..band_rows).filter(|&r| nz == 1 && live(r)) {
-                // One slice: one slab of constant value, one voxel thick.
+        for r in (0..band_rows).filter(|&r| nz == 1 && live(r)) {
+            // One slice: one slab of constant value, one voxel thick.
+            let vf = (v_first + r) as f64;
+            let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
+            let max_level = &mut states[r].max_level;
+            let y = y_at(vf, 0);
+            if y < y_lo || y > y_hi {
+                continue;
+            }
+            let (y0, y1, wy) = rows(y, ny);
+            if let Some((ua, ub)) = slice_runs[0].span {
+                let iz = slice_runs[0].iz;
+                let slice = SliceRows::new(axis, 0, y0, y1, wy);
+                for u in ua..=ub {
+                    let s = slice.at(x_of(u, iz)) * q_to_level;
+                    n_samples += 1;
+                    if mip {
+                        max_level[u] = s;
+                    } else {
+                        let e = table.lookup(s, s);
+                        row[u] = [e.c[0], e.c[1], e.c[2], e.a];
+                        if e.a >= 0.5 {
+                            depth[u] = fac.depth(u as f64, vf, 0.0) as f32;
+                        }
+                    }
+                }
+            }
+        }
+
+        for zi in 0..nz {
+            for r in (0..band_rows).filter(|&r| live(r)) {
                 let vf = (v_first + r) as f64;
                 let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
-                let max_level = &mut states[r].max_level;
-                let y = y_at(vf, 0);
-                if y < y_lo || y > y_hi {
+                let RowState { links, prev, stamp, max_level, max_z } = &mut states[r];
+                let z = slice_at(zi);
+                let y = y_at(vf, z);
+                if nz == 1 || y < y_lo || y > y_hi {
                     continue;
                 }
+                let runs = &slice_runs[z];
+                let Some((ua, ub)) = runs.span else { continue };
                 let (y0, y1, wy) = rows(y, ny);
-                if let Some((ua, ub)) = slice_runs[0].span {
-                    let iz = slice_runs[0].iz;
-                    let slice = SliceRows::new(axis, 0, y0, y1, wy);
-                    for u in ua..=ub {
-                        let s = slice.at(x_of(u, iz)) * q_to_level;
-                        n_samples += 1;
-                        if mip {
-                            max_level[u] = s;
-                        } else {
-                            let e = table.lookup(s, s);
-                            row[u] = [e.c[0], e.c[1], e.c[2], e.a];
-                            if e.a >= 0.5 {
-                                depth[u] = fac.depth(u as f64, vf, 0.0) as f32;
-                            }
-                        }
-                    }
-                }
-            }
-
-            for zi in 0..nz {
-                for r in (0..band_rows).filter(|&r| live(r)) {
-                    let vf = (v_first + r) as f64;
-                    let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
-                    let RowState { links, prev, stamp, max_level, max_z } = &mut states[r];
-                    let z = slice_at(zi);
-                    let y = y_at(vf, z);
-                    if nz == 1 || y < y_lo || y > y_hi {
-                        continue;
-                    }
-                    let runs = &slice_runs[z];
-                    let Some((ua, ub)) = runs.span else { continue };
-                    let (y0, y1, wy) = rows(y, ny);
-                    let iz = runs.iz;
-                    let back_slice = SliceRows::new(axis, z, y0, y1, wy);
-                    if mip {
-                        // Sample every slice (and, with k samples per slab, k − 1 trilinear
-                        // samples between it and the previous one: the maximum along an
-                        // oblique ray often lies between slices); skip runs whose block
-                        // cannot raise any pixel's max.
-                        let between = (zi > 0 && k > 1).then(|| {
-                            let zp = slice_at(zi - 1);
-                            let dz = zp as f64 - z as f64;
-                            let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
-                            // Points outside the volume (the ray enters between the slices)
-                            // are not samples.
-                            let pairs: [Option<(f64, SliceRows, SliceRows)>; MAX_SLAB_SAMPLES - 1] = std::array::from_fn(|i| {
-                                let w = (i + 1) as f64 / k as f64;
-                                let yj = y + dyo * (1.0 - w);
-                                (i + 1 < k && yj >= y_lo && yj <= y_hi).then(|| {
-                                    let (r0, r1, rw) = rows(yj, ny);
-                                    (w, SliceRows::new(axis, zp, r0, r1, rw), SliceRows::new(axis, z, r0, r1, rw))
-                                })
-                            });
-                            // The composite loop's block: both slices over the whole segment.
-                            let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
-                            (zp, dxo, z.min(zp), row_start, usize::from(dxo < 0.0), pairs)
+                let iz = runs.iz;
+                let back_slice = SliceRows::new(axis, z, y0, y1, wy);
+                if mip {
+                    // Sample every slice (and, with k samples per slab, k − 1 trilinear
+                    // samples between it and the previous one: the maximum along an
+                    // oblique ray often lies between slices); skip runs whose block
+                    // cannot raise any pixel's max.
+                    let between = (zi > 0 && k > 1).then(|| {
+                        let zp = slice_at(zi - 1);
+                        let dz = zp as f64 - z as f64;
+                        let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
+                        // Points outside the volume (the ray enters between the slices)
+                        // are not samples.
+                        let pairs: [Option<(f64, SliceRows, SliceRows)>; MAX_SLAB_SAMPLES - 1] = std::array::from_fn(|i| {
+                            let w = (i + 1) as f64 / k as f64;
+                            let yj = y + dyo * (1.0 - w);
+                            (i + 1 < k && yj >= y_lo && yj <= y_hi).then(|| {
+                                let (r0, r1, rw) = rows(yj, ny);
+                                (w, SliceRows::new(axis, zp, r0, r1, rw), SliceRows::new(axis, z, r0, r1, rw))
+                            })
                         });
-                        let mut u = ua;
-                        while u <= ub {
-                            let (bx, run_end) = runs.run(u, ub + 1);
-                            if let Some(map) = over_map {
-                                let mm = match &between {
-                                    Some((_, _, zs, row_start, variant, _)) => map.get(*zs, *row_start, *variant, bx),
-                                    None => map.get(if z + 1 < nz { z } else { z - 1 }, y0 as isize, 0, bx),
-                                };
-                                let block_max = mm.max as f32 * q_to_level;
-                                let run_min = max_level[u..run_end].iter().cloned().fold(f32::INFINITY, f32::min);
-                                if block_max <= run_min {
-                                    n_leapt += 1;
-                                    u = run_end;
-                                    continue;
-                                }
-                            }
-                            for uu in u..run_end {
-                                let xb = x_of(uu, iz);
-                                let s = back_slice.at(xb) * q_to_level;
-                                n_samples += 1;
-                                if s > max_level[uu] {
-                                    max_level[uu] = s;
-                                    max_z[uu] = z as f32;
-                                }
-                                if let Some((zp, dxo, _, _, _, pairs)) = &between {
-                                    for (w, fs, bs) in pairs.iter().flatten() {
-                                        let xj = xb + dxo * (1.0 - w);
-                                        if xj < x_lo || xj > x_hi {
-                                            continue;
-                                        }
-                                        let (a, b) = (fs.at(xj), bs.at(xj));
-                                        let s = (a + *w as f32 * (b - a)) * q_to_level;
-                                        n_samples += 2;
-                                        if s > max_level[uu] {
-                                            max_level[uu] = s;
-                                            max_z[uu] = (*zp as f64 + w * (z as f64 - *zp as f64)) as f32;
-                                        }
-                                    }
-                                }
-                            }
-                            u = run_end;
-                        }
-                        continue;
-                    }
-                    if zi == 0 {
-                        continue; // the first slice only starts rays; its samples are taken below
-                    }
-                    let zp = slice_at(zi - 1);
-                    let zs = z.min(zp);
-                    let dz = zp as f64 - z as f64; // the front slice relative to this one
-                    let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
-                    let yp = y + dyo;
-                    let front_slice = (yp >= y_lo && yp <= y_hi).then(|| {
-                        let (f0, f1, fw) = rows(yp, ny);
-                        SliceRows::new(axis, zp, f0, f1, fw)
+                        // The composite loop's block: both slices over the whole segment.
+                        let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
+                        (zp, dxo, z.min(zp), row_start, usize::from(dxo < 0.0), pairs)
                     });
-                    let slab = Slab {
-                        back: back_slice,
-                        front: front_slice,
-                        axis,
-                        y,
-                        dyo,
-                        iz,
-                        u_over_ratio: &u_over_ratio,
-                        dxo,
-                        x_range: (x_lo, x_hi),
-                        zi: zi as u32,
-                        z,
-                        zp,
-                        vf,
-                        table: &table,
-                        q_to_level,
-                        termination,
-                        fac: &fac,
-                    };
-                    let variant = usize::from(dxo < 0.0);
-                    let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
-                    let mask_row = clear_mask.map(|m| m.row(zs, row_start, variant));
-                    let block_clear = |bx: usize| match leaping {
-                        Leaping::None => false,
-                        Leaping::Overlapped => mask_row.unwrap()[bx / 64] >> (bx % 64) & 1 == 1,
-                        Leaping::MultiScanline => {
-                            let xl = (n * bx) as isize - variant as isize;
-                            let mm = scan_map.unwrap().region(xl, xl + n as isize + 1, row_start, row_start + 2, zs, zs + 1);
-                            clear.clear(mm.min, mm.max)
-                        }
-                    };
-                    let mut u = next_live(links, ua);
+                    let mut u = ua;
                     while u <= ub {
                         let (bx, run_end) = runs.run(u, ub + 1);
-                        if block_clear(bx) {
-                            // Leap this block and the transparent blocks after it (one bit
-                            // scan with the overlapped map's mask, one test per block for
-                            // the multi-scanline baseline), then find the next live pixel.
-                            let (b, end) = match mask_row {
-                                Some(mask_row) => {
-                                    let b = next_unclear(mask_row, bx + 1, nbx);
-                                    (b, if b < nbx { runs.block_end[b - 1].max(run_end) } else { usize::MAX })
-                                }
-                                None => {
-                                    let (mut b, mut end) = (bx + 1, run_end);
-                                    while end <= ub && b < nbx && block_clear(b) {
-                                        end = runs.block_end[b];
-                                        b += 1;
-                                    }
-                                    (b, end)
-                                }
+                        if let Some(map) = over_map {
+                            let mm = match &between {
+                                Some((_, _, zs, row_start, variant, _)) => map.get(*zs, *row_start, *variant, bx),
+                                None => map.get(if z + 1 < nz { z } else { z - 1 }, y0 as isize, 0, bx),
                             };
-                            n_leapt += (b - bx) as u64;
-                            u = if end > ub { ub + 1 } else { next_live(links, end) };
-                            continue;
+                            let block_max = mm.max as f32 * q_to_level;
+                            let run_min = max_level[u..run_end].iter().cloned().fold(f32::INFINITY, f32::min);
+                            if block_max <= run_min {
+                                n_leapt += 1;
+                                u = run_end;
+                                continue;
+                            }
                         }
-                        u = match k {
-                            1 => slab.composite_run::<1>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
-                            2 => slab.composite_run::<2>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
-                            3 => slab.composite_run::<3>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
-                            _ => slab.composite_run::<4>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                        for uu in u..run_end {
+                            let xb = x_of(uu, iz);
+                            let s = back_slice.at(xb) * q_to_level;
+                            n_samples += 1;
+                            if s > max_level[uu] {
+                                max_level[uu] = s;
+                                max_z[uu] = z as f32;
+                            }
+                            if let Some((zp, dxo, _, _, _, pairs)) = &between {
+                                for (w, fs, bs) in pairs.iter().flatten() {
+                                    let xj = xb + dxo * (1.0 - w);
+                                    if xj < x_lo || xj > x_hi {
+                                        continue;
+                                    }
+                                    let (a, b) = (fs.at(xj), bs.at(xj));
+                                    let s = (a + *w as f32 * (b - a)) * q_to_level;
+                                    n_samples += 2;
+                                    if s > max_level[uu] {
+                                        max_level[uu] = s;
+                                        max_z[uu] = (*zp as f64 + w * (z as f64 - *zp as f64)) as f32;
+                                    }
+                                }
+                            }
+                        }
+                        u = run_end;
+                    }
+                    continue;
+                }
+                if zi == 0 {
+                    continue; // the first slice only starts rays; its samples are taken below
+                }
+                let zp = slice_at(zi - 1);
+                let zs = z.min(zp);
+                let dz = zp as f64 - z as f64; // the front slice relative to this one
+                let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
+                let yp = y + dyo;
+                let front_slice = (yp >= y_lo && yp <= y_hi).then(|| {
+                    let (f0, f1, fw) = rows(yp, ny);
+                    SliceRows::new(axis, zp, f0, f1, fw)
+                });
+                let slab = Slab {
+                    back: back_slice,
+                    front: front_slice,
+                    axis,
+                    y,
+                    dyo,
+                    iz,
+                    u_over_ratio: &u_over_ratio,
+                    dxo,
+                    x_range: (x_lo, x_hi),
+                    zi: zi as u32,
+                    z,
+                    zp,
+                    vf,
+                    table: &table,
+                    q_to_level,
+                    termination,
+                    fac: &fac,
+                };
+                let variant = usize::from(dxo < 0.0);
+                let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
+                let mask_row = clear_mask.map(|m| m.row(zs, row_start, variant));
+                let block_clear = |bx: usize| match leaping {
+                    Leaping::None => false,
+                    Leaping::Overlapped => mask_row.unwrap()[bx / 64] >> (bx % 64) & 1 == 1,
+                    Leaping::MultiScanline => {
+                        let xl = (n * bx) as isize - variant as isize;
+                        let mm = scan_map.unwrap().region(xl, xl + n as isize + 1, row_start, row_start + 2, zs, zs + 1);
+                        clear.clear(mm.min, mm.max)
+                    }
+                };
+                let mut u = next_live(links, ua);
+                while u <= ub {
+                    let (bx, run_end) = runs.run(u, ub + 1);
+                    if block_clear(bx) {
+                        // Leap this block and the transparent blocks after it (one bit
+                        // scan with the overlapped map's mask, one test per block for
+                        // the multi-scanline baseline), then find the next live pixel.
+                        let (b, end) = match mask_row {
+                            Some(mask_row) => {
+                                let b = next_unclear(mask_row, bx + 1, nbx);
+                                (b, if b < nbx { runs.block_end[b - 1].max(run_end) } else { usize::MAX })
+                            }
+                            None => {
+                                let (mut b, mut end) = (bx + 1, run_end);
+                                while end <= ub && b < nbx && block_clear(b) {
+                                    end = runs.block_end[b];
+                                    b += 1;
+                                }
+                                (b, end)
+                            }
                         };
+                        n_leapt += (b - bx) as u64;
+                        u = if end > ub { ub + 1 } else { next_live(links, end) };
+                        continue;
+                    }
+                    u = match k {
+                        1 => slab.composite_run::<1>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                        2 => slab.composite_run::<2>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                        3 => slab.composite_run::<3>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                        _ => slab.composite_run::<4>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                    };
+                }
+            }
+        }
+        for r in (0..band_rows).filter(|&r| mip && live(r)) {
+            let vf = (v_first + r) as f64;
+            let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
+            let RowState { max_level, max_z, .. } = &states[r];
+            for u in 0..iw {
+                if max_level[u].is_finite() {
+                    let value = level_to_value(max_level[u]);
+                    let a = tf.opacity(value).min(1.0) as f32;
+                    let c = tf.color(value);
+                    row[u] = [c[0] as f32 * a, c[1] as f32 * a, c[2] as f32 * a, a];
+                    if a > 0.0 {
+                        depth[u] = fac.depth(u as f64, vf, max_z[u] as f64) as f32;
                     }
                 }
             }
-            for r in (0..band_rows).filter(|&r| mip && live(r)) {
-                let vf = (v_first + r) as f64;
-                let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
-                let RowState { max_level, max_z, .. } = &states[r];
-                for u in 0..iw {
-                    if max_level[u].is_finite() {
-                        let value = level_to_value(max_level[u]);
-                        let a = tf.opacity(value).min(1.0) as f32;
-                        let c = tf.color(value);
-                        row[u] = [c[0] as f32 * a, c[1] as f32 * a, c[2] as f32 * a, a];
-                        if a > 0.0 {
-                            depth[u] = fac.depth(u as f64, vf, max_z[u] as f64) as f32;
-                        }
-                    }
-                }
-            }
-            samples.fetch_add(n_samples, Ordering::Relaxed);
-            slabs_leapt.fetch_add(n_leapt, Ordering::Relaxed);
-        })?;
+        }
+        samples.fetch_add(n_samples, Ordering::Relaxed);
+        slabs_leapt.fetch_add(n_leapt, Ordering::Relaxed);
+    })?;
 
     let mut frame = warp(&inter, &fac, w, h)?;
     frame.stats = FrameStats {
@@ -740,6 +740,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             ("principal_axis".into(), fac.perm[2] as f64),
         ],
         notes: vec![],
+        nodes: vec![],
     };
     Ok(frame)
 }

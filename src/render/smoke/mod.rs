@@ -21,15 +21,15 @@ pub mod rng;
 pub mod store;
 pub mod tracking;
 
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Preview, Widget};
 use crate::render::Frame;
 use crate::scene::camera::RayGenerator;
+use crate::scene::NodeKind;
 use crate::scene::{Light, Medium as MediumParams};
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3};
 use medium::{Kernel, SphMedium};
-use super::registry::{NodeSettings, RendererDecl};
-use super::settings::{Bounds, Control, Preview, Widget};
-use crate::scene::NodeKind;
 use std::time::Instant;
 use volterra_formats::ParticleSet;
 

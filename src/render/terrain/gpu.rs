@@ -460,7 +460,7 @@ impl GpuTerrain {
         let stats = StepStats::new(&steps[..w * h]);
         let hits = frame.depth.iter().filter(|d| d.is_finite()).count();
         frame.stats = FrameStats {
-            renderer: "terrain".into(),
+            renderer: super::RENDERER.name.into(),
             seconds,
             counters: vec![
                 ("rays".into(), (w * h) as f64),
@@ -472,6 +472,7 @@ impl GpuTerrain {
                 ("pyramid build ms".into(), self.build_seconds * 1e3),
             ],
             notes: vec![format!("GPU: {} ({:?})", gpu.info.name, gpu.info.backend)],
+            nodes: vec![],
         };
         if counters[0] > 0 {
             frame.stats.notes.push(format!("{} rays stopped at the step cap of {max_steps}; raise settings.max_steps", counters[0]));

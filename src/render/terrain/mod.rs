@@ -12,14 +12,14 @@ pub mod grid;
 pub mod reference;
 pub mod shading;
 
+use super::registry::{NodeSettings, RendererDecl};
+use super::settings::{Bounds, Control, Widget};
 use crate::render::Frame;
 use crate::scene::camera::RayGenerator;
 use crate::scene::Light;
+use crate::scene::NodeKind;
 use anyhow::Result;
 use glam::DMat4;
-use super::registry::{NodeSettings, RendererDecl};
-use super::settings::{Bounds, Control, Widget};
-use crate::scene::NodeKind;
 use volterra_formats::{Heightfield, RgbImage};
 
 crate::setting_choice! {
@@ -108,33 +108,80 @@ pub struct TerrainInput<'a> {
     pub lights: &'a [Light],
 }
 
-impl TerrainInput<'_> {
-    fn prepare(&self, settings: &Settings) -> Result<(grid::TerrainGrid, shading::Shading)> {
-        settings.check()?;
+/// What both terrain renderers build from a heightfield placed in the world, kept across
+/// frames: the grid (heights in grid space), and on first GPU use the GPU's pyramid and
+/// textures.
+pub struct Prepared {
+    pub grid: grid::TerrainGrid,
+    texture: Option<std::sync::Arc<RgbImage>>,
+    gpu: std::sync::OnceLock<gpu::GpuTerrain>,
+}
+
+impl Prepared {
+    pub fn new(heightfield: &Heightfield, texture: Option<std::sync::Arc<RgbImage>>, node_to_world: DMat4) -> Result<Prepared> {
         // The grid's heights and their upload copy, against the memory limit (on lavapipe the
         // GPU textures live in host memory too, allocated by Mesa outside this count).
-        let samples = (self.heightfield.width * self.heightfield.height) as u64;
+        let samples = (heightfield.width * heightfield.height) as u64;
         volterra_formats::memory::check_alloc(std::path::Path::new("terrain"), "the height grid and its upload", &[samples, 8])?;
-        let grid = grid::TerrainGrid::new(self.heightfield, self.node_to_world)?;
-        let shading = shading::Shading { lights: shading::sun_lights(self.lights)?, ambient: settings.ambient, shadows: settings.shadows };
-        Ok((grid, shading))
+        let grid = grid::TerrainGrid::new(heightfield, node_to_world)?;
+        Ok(Prepared { grid, texture, gpu: std::sync::OnceLock::new() })
+    }
+
+    /// Builds the GPU's pyramid and textures now (else on the first GPU render).
+    pub fn prepare_gpu(&self) -> Result<()> {
+        self.gpu_terrain(gpu::gpu()?).map(|_| ())
+    }
+
+    fn gpu_terrain(&self, gpu: &gpu::Gpu) -> Result<&gpu::GpuTerrain> {
+        if let Some(t) = self.gpu.get() {
+            return Ok(t);
+        }
+        let t = gpu::GpuTerrain::new(gpu, &self.grid, self.texture.as_deref())?;
+        Ok(self.gpu.get_or_init(|| t))
+    }
+
+    fn shading(&self, lights: &[Light], settings: &Settings) -> Result<shading::Shading> {
+        settings.check()?;
+        Ok(shading::Shading { lights: shading::sun_lights(lights)?, ambient: settings.ambient, shadows: settings.shadows })
+    }
+
+    /// Renders with the GPU ray-caster (the pyramid is built on first use).
+    pub fn render(&self, lights: &[Light], rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
+        let shading = self.shading(lights, settings)?;
+        let gpu = gpu::gpu()?;
+        let terrain = self.gpu_terrain(gpu)?;
+        let view = gpu::View {
+            grid: &self.grid,
+            rays,
+            shading: &shading,
+            traversal: settings.traversal,
+            max_steps: settings.step_cap(&self.grid),
+        };
+        terrain.render(gpu, &view)
+    }
+
+    /// Renders with the f64 CPU reference (`traversal` and `max_steps` do not apply).
+    pub fn render_reference(&self, lights: &[Light], rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
+        let shading = self.shading(lights, settings)?;
+        let texture = self.texture.as_deref().map(shading::LinearTexture::new);
+        Ok(reference::render(&self.grid, texture.as_ref(), rays, &shading)?)
+    }
+}
+
+impl TerrainInput<'_> {
+    fn prepare(&self) -> Result<Prepared> {
+        Prepared::new(self.heightfield, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world)
     }
 }
 
 /// Renders with the GPU ray-caster.
 pub fn render(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-    let (grid, shading) = input.prepare(settings)?;
-    let gpu = gpu::gpu()?;
-    let terrain = gpu::GpuTerrain::new(gpu, &grid, input.texture)?;
-    let view = gpu::View { grid: &grid, rays, shading: &shading, traversal: settings.traversal, max_steps: settings.step_cap(&grid) };
-    terrain.render(gpu, &view)
+    input.prepare()?.render(input.lights, rays, settings)
 }
 
 /// Renders with the f64 CPU reference (`traversal` and `max_steps` do not apply).
 pub fn render_reference(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-    let (grid, shading) = input.prepare(settings)?;
-    let texture = input.texture.map(shading::LinearTexture::new);
-    Ok(reference::render(&grid, texture.as_ref(), rays, &shading)?)
+    input.prepare()?.render_reference(input.lights, rays, settings)
 }
 
 /// How closely two terrain renders agree on what they hit and how far away it is.

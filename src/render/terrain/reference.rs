@@ -4,10 +4,10 @@
 
 use super::grid::{intersect_patch, intersect_triangles, Hit, TerrainGrid};
 use super::shading::{elevation_colour, shade, LinearTexture, Shading};
+use crate::render::driver::{render_bands, Cancelled};
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
 use glam::DVec3;
-use crate::render::driver::{render_bands, Cancelled};
 use std::time::Instant;
 
 /// The surface each cell holds: the bilinear patch (what `terrain` draws), or two
@@ -165,25 +165,25 @@ pub fn render_surface(
     let mut steps = vec![0f32; w * h];
     let mut walls = vec![0f32; w * h];
     render_bands("terrain reference", w, 1, &mut frame.rgba, &mut frame.depth, &mut [&mut steps, &mut walls], |band| {
-            let (y, rgba, depth) = (band.y0, band.rgba, band.depth);
-            let [steps, walls] = <[&mut [f32]; 2]>::try_from(band.extra).ok().expect("two extra planes");
-            for x in 0..w {
-                let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
-                let (hit, n) = trace_world(grid, &ray, surface);
-                steps[x] = n as f32;
-                if let Some(hit) = hit {
-                    let (o, d) = grid.ray_to_grid(&ray);
-                    let ray_z = o.z + hit.t * d.z;
-                    let z = grid.patch(hit.cell[0], hit.cell[1]).expect("a hit lies on a valid patch");
-                    if super::grid::bilinear(z, hit.u, hit.v) - ray_z > wall_tolerance(grid) {
-                        walls[x] = 1.0;
-                    }
-                    let c = hit_colour(grid, texture, shading, &hit, ray_z);
-                    rgba[x] = [c[0] as f32, c[1] as f32, c[2] as f32, 1.0];
-                    depth[x] = hit.t as f32;
+        let (y, rgba, depth) = (band.y0, band.rgba, band.depth);
+        let [steps, walls] = <[&mut [f32]; 2]>::try_from(band.extra).expect("two extra planes");
+        for x in 0..w {
+            let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
+            let (hit, n) = trace_world(grid, &ray, surface);
+            steps[x] = n as f32;
+            if let Some(hit) = hit {
+                let (o, d) = grid.ray_to_grid(&ray);
+                let ray_z = o.z + hit.t * d.z;
+                let z = grid.patch(hit.cell[0], hit.cell[1]).expect("a hit lies on a valid patch");
+                if super::grid::bilinear(z, hit.u, hit.v) - ray_z > wall_tolerance(grid) {
+                    walls[x] = 1.0;
                 }
+                let c = hit_colour(grid, texture, shading, &hit, ray_z);
+                rgba[x] = [c[0] as f32, c[1] as f32, c[2] as f32, 1.0];
+                depth[x] = hit.t as f32;
             }
-        })?;
+        }
+    })?;
     let hits = frame.depth.iter().filter(|d| d.is_finite()).count();
     frame.stats = FrameStats {
         renderer: super::REFERENCE_RENDERER.name.into(),
@@ -194,6 +194,7 @@ pub fn render_surface(
             ("mean cells per ray".into(), steps.iter().map(|&s| s as f64).sum::<f64>() / (w * h) as f64),
         ],
         notes: vec![],
+        nodes: vec![],
     };
     frame.extra.push(("steps".into(), steps));
     // 1 where the ray met a side of the terrain's box (a wall), not its surface.
