@@ -54,9 +54,9 @@ fn stats(name: &str, a: &[f32], b: &[f32]) -> ChannelStats {
 
 /// Compares the channels the two images share (A against B, B the reference). Depth-like
 /// channels (Z) with infinities are compared where both are finite.
-pub fn compare(a: &FloatImage, b: &FloatImage) -> Result<Comparison, String> {
+pub fn compare(a: &FloatImage, b: &FloatImage) -> anyhow::Result<Comparison> {
     if (a.width, a.height) != (b.width, b.height) {
-        return Err(format!("sizes differ: {}×{} vs {}×{}", a.width, a.height, b.width, b.height));
+        anyhow::bail!("sizes differ: {}×{} vs {}×{}", a.width, a.height, b.width, b.height);
     }
     let mut channels = Vec::new();
     let mut all_a = Vec::new();
@@ -72,7 +72,7 @@ pub fn compare(a: &FloatImage, b: &FloatImage) -> Result<Comparison, String> {
         channels.push(stats(name, &fa, &fb));
     }
     if channels.is_empty() {
-        return Err("the images share no channel".into());
+        anyhow::bail!("the images share no channel");
     }
     let overall = if all_a.is_empty() { channels[0].clone() } else { stats("RGBA", &all_a, &all_b) };
     let coverage_mismatch = match (a.channel("A"), b.channel("A")) {

@@ -17,4 +17,5 @@ pub mod progress;
 pub mod render;
 pub mod samples;
 pub mod scene;
+pub mod shared_error;
 pub mod view;

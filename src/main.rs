@@ -441,7 +441,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
 fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
     let ia = formats::exr_io::read_exr(a)?;
     let ib = formats::exr_io::read_exr(b)?;
-    let c = compare::compare(&ia, &ib).map_err(|m| anyhow!(m)).with_context(|| format!("{} vs {}", a.display(), b.display()))?;
+    let c = compare::compare(&ia, &ib).with_context(|| format!("{} vs {}", a.display(), b.display()))?;
     if json {
         println!("{}", serde_json::to_string_pretty(&c)?);
     } else {

@@ -56,26 +56,26 @@ pub struct RayGenerator {
 impl Camera {
     /// Checks the camera describes a view: distinct eye and focal point, an up vector not
     /// parallel to the view direction, a sensible angle or scale.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> anyhow::Result<()> {
         let eye = DVec3::from(self.position);
         let fp = DVec3::from(self.focal_point);
         let up = DVec3::from(self.view_up);
         if !(eye.is_finite() && fp.is_finite() && up.is_finite()) {
-            return Err("camera position, focal_point and view_up must be finite".into());
+            anyhow::bail!("camera position, focal_point and view_up must be finite");
         }
         let f = fp - eye;
         if f.length() == 0.0 {
-            return Err("camera position and focal_point coincide".into());
+            anyhow::bail!("camera position and focal_point coincide");
         }
         if f.normalize().cross(up).length() < 1e-9 || up.length() == 0.0 {
-            return Err("camera view_up is parallel to the view direction".into());
+            anyhow::bail!("camera view_up is parallel to the view direction");
         }
         if self.parallel_projection {
             if !(self.parallel_scale > 0.0 && self.parallel_scale.is_finite()) {
-                return Err(format!("parallel_scale {} must be positive", self.parallel_scale));
+                anyhow::bail!("parallel_scale {} must be positive", self.parallel_scale);
             }
         } else if !(self.view_angle > 0.0 && self.view_angle < 180.0) {
-            return Err(format!("view_angle {} must be between 0 and 180 degrees", self.view_angle));
+            anyhow::bail!("view_angle {} must be between 0 and 180 degrees", self.view_angle);
         }
         Ok(())
     }

@@ -13,6 +13,7 @@ pub use camera::{Camera, Ray, RayGenerator};
 pub use transfer::TransferFunction;
 
 use crate::render::registry::{self, NodeSettings, RendererDecl};
+use crate::shared_error::SharedError;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{DMat4, DVec3};
 use serde::{Deserialize, Serialize};
@@ -257,8 +258,8 @@ pub struct Scene {
     world: Vec<DMat4>,
     /// Each node's renderer and its checked settings (None for groups).
     renderers: Vec<Option<(&'static RendererDecl, NodeSettings)>>,
-    data: Vec<OnceLock<Result<NodeData, String>>>,
-    textures: Vec<OnceLock<Result<Arc<RgbImage>, String>>>,
+    data: Vec<OnceLock<Result<NodeData, SharedError>>>,
+    textures: Vec<OnceLock<Result<Arc<RgbImage>, SharedError>>>,
 }
 
 /// The line (1-based) of a byte offset in `text`.
@@ -527,7 +528,7 @@ impl Scene {
     /// The node's data, read on first call and cached.
     pub fn data(&self, node: usize) -> Result<NodeData> {
         let cell = &self.data[node];
-        cell.get_or_init(|| self.read_node(node).map_err(|e| format!("{e:#}"))).clone().map_err(|e| anyhow!(e))
+        cell.get_or_init(|| self.read_node(node).map_err(SharedError::new)).clone().map_err(anyhow::Error::new)
     }
 
     fn read_node(&self, node: usize) -> Result<NodeData> {
@@ -574,9 +575,9 @@ impl Scene {
         let Some(t) = &self.file.nodes[node].texture else { return Ok(None) };
         let path = self.base_dir.join(t);
         let r = self.textures[node]
-            .get_or_init(|| volterra_formats::image::read_rgb_png(&path).map(Arc::new).map_err(|e| e.to_string()))
+            .get_or_init(|| volterra_formats::image::read_rgb_png(&path).map(Arc::new).map_err(|e| SharedError::new(e.into())))
             .clone();
-        r.map(Some).map_err(|e| anyhow!(e))
+        r.map(Some).map_err(anyhow::Error::new)
     }
 
     /// A scene from an edited copy of this one's description (same base directory and

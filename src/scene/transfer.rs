@@ -25,32 +25,32 @@ fn one() -> f64 {
 }
 
 impl TransferFunction {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> anyhow::Result<()> {
         if self.scalar_opacity.is_empty() {
-            return Err("transfer_function.scalar_opacity needs at least one point".into());
+            anyhow::bail!("transfer_function.scalar_opacity needs at least one point");
         }
         if self.color.is_empty() {
-            return Err("transfer_function.color needs at least one point".into());
+            anyhow::bail!("transfer_function.color needs at least one point");
         }
         let finite = |p: &[f64]| p.iter().all(|v| v.is_finite());
         if !self.scalar_opacity.iter().all(|p| finite(p)) || !self.color.iter().all(|p| finite(p)) {
-            return Err("transfer_function points must be finite numbers".into());
+            anyhow::bail!("transfer_function points must be finite numbers");
         }
         for w in self.scalar_opacity.windows(2) {
             if w[1][0] < w[0][0] {
-                return Err(format!("transfer_function.scalar_opacity values must increase ({} then {})", w[0][0], w[1][0]));
+                anyhow::bail!("transfer_function.scalar_opacity values must increase ({} then {})", w[0][0], w[1][0]);
             }
         }
         for w in self.color.windows(2) {
             if w[1][0] < w[0][0] {
-                return Err(format!("transfer_function.color values must increase ({} then {})", w[0][0], w[1][0]));
+                anyhow::bail!("transfer_function.color values must increase ({} then {})", w[0][0], w[1][0]);
             }
         }
         if self.scalar_opacity.iter().any(|p| !(0.0..=1.0).contains(&p[1])) {
-            return Err("transfer_function.scalar_opacity opacities must lie in [0, 1]".into());
+            anyhow::bail!("transfer_function.scalar_opacity opacities must lie in [0, 1]");
         }
         if !(self.scalar_opacity_unit_distance > 0.0 && self.scalar_opacity_unit_distance.is_finite()) {
-            return Err("transfer_function.scalar_opacity_unit_distance must be positive".into());
+            anyhow::bail!("transfer_function.scalar_opacity_unit_distance must be positive");
         }
         Ok(())
     }

@@ -120,13 +120,13 @@ pub fn load(key: u64) -> Option<Traced> {
 }
 
 /// Stores a tracing run under `key`; returns why not, where it could not.
-pub fn store(key: u64, traced: &Traced) -> Result<PathBuf, String> {
+pub fn store(key: u64, traced: &Traced) -> anyhow::Result<PathBuf> {
     let Traced { photons, emitted, escaped, capped } = traced;
-    let p = path(key).ok_or("no cache directory (set VOLTERRA_CACHE_DIR)")?;
+    let p = path(key).ok_or_else(|| anyhow::anyhow!("no cache directory (set VOLTERRA_CACHE_DIR)"))?;
     let limit = max_bytes();
     let size = 72 + 72 * photons.len() as u64;
     if size > limit {
-        return Err(format!("{size} bytes of photons exceed the cache's limit of {limit} (VOLTERRA_CACHE_MAX)"));
+        anyhow::bail!("{size} bytes of photons exceed the cache's limit of {limit} (VOLTERRA_CACHE_MAX)");
     }
     let mut bytes = Vec::with_capacity(72 + 72 * photons.len());
     bytes.extend_from_slice(MAGIC);
@@ -139,8 +139,8 @@ pub fn store(key: u64, traced: &Traced) -> Result<PathBuf, String> {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
     }
-    std::fs::create_dir_all(p.parent().unwrap()).map_err(|e| format!("{}: {e}", p.display()))?;
-    volterra_formats::atomic::write_bytes_atomically(&p, &bytes).map_err(|e| e.to_string())?;
+    std::fs::create_dir_all(p.parent().unwrap()).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+    volterra_formats::atomic::write_bytes_atomically(&p, &bytes)?;
     evict(p.parent().unwrap(), limit, &p);
     Ok(p)
 }

@@ -270,18 +270,18 @@ pub struct SphMedium {
 impl SphMedium {
     /// `positions`, `mass` (kg) and `h` (m) per particle. Fails on an empty set or on a
     /// smoothing length or mass that is not a positive finite number.
-    pub fn new(positions: Vec<[f64; 3]>, mass: Vec<f64>, h: Vec<f64>, kernel: Kernel) -> Result<SphMedium, String> {
+    pub fn new(positions: Vec<[f64; 3]>, mass: Vec<f64>, h: Vec<f64>, kernel: Kernel) -> anyhow::Result<SphMedium> {
         if positions.is_empty() {
-            return Err("the particle set is empty: there is no smoke to render".into());
+            anyhow::bail!("the particle set is empty: there is no smoke to render");
         }
         if let Some(i) = h.iter().position(|v| !(v.is_finite() && *v > 0.0)) {
-            return Err(format!("particle {i} has smoothing length h = {}; h must be a positive number", h[i]));
+            anyhow::bail!("particle {i} has smoothing length h = {}; h must be a positive number", h[i]);
         }
         if let Some(i) = mass.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(format!("particle {i} has mass {}; masses must be non-negative numbers", mass[i]));
+            anyhow::bail!("particle {i} has mass {}; masses must be non-negative numbers", mass[i]);
         }
         if let Some(i) = positions.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
-            return Err(format!("particle {i} has a position that is not finite: {:?}", positions[i]));
+            anyhow::bail!("particle {i} has a position that is not finite: {:?}", positions[i]);
         }
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);

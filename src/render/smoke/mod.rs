@@ -149,7 +149,6 @@ pub fn build_medium(input: &SmokeInput, kernel: Kernel) -> Result<SphMedium> {
     let scale = DMat3::from_mat4(m).determinant().abs().cbrt();
     let positions = p.positions.iter().map(|x| m.transform_point3(DVec3::from(*x)).to_array()).collect();
     SphMedium::new(positions, mass.iter().map(|&v| v as f64).collect(), h.iter().map(|&v| v as f64 * scale).collect(), kernel)
-        .map_err(anyhow::Error::msg)
 }
 
 fn median_h(medium: &SphMedium) -> f64 {

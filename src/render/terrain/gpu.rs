@@ -7,6 +7,7 @@ use super::shading::{Shading, MAX_LIGHTS};
 use super::Traversal;
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
+use crate::shared_error::SharedError;
 use anyhow::{anyhow, bail, Result};
 use std::sync::OnceLock;
 use std::time::Instant;
@@ -29,14 +30,14 @@ struct Pipelines {
     ray: wgpu::ComputePipeline,
 }
 
-static GPU: OnceLock<Result<Gpu, String>> = OnceLock::new();
+static GPU: OnceLock<Result<Gpu, SharedError>> = OnceLock::new();
 
-/// The shared GPU, or why there is none.
+/// The shared GPU, or why there is none (asked once per process).
 pub fn gpu() -> Result<&'static Gpu> {
-    GPU.get_or_init(open).as_ref().map_err(|e| anyhow!("{e}"))
+    GPU.get_or_init(|| open().map_err(SharedError::new)).as_ref().map_err(|e| anyhow::Error::new(e.clone()))
 }
 
-fn open() -> Result<Gpu, String> {
+fn open() -> Result<Gpu> {
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
     desc.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
     let instance = wgpu::Instance::new(desc);
@@ -49,7 +50,7 @@ fn open() -> Result<Gpu, String> {
         }))
     };
     let adapter = ask(false).or_else(|_| ask(true)).map_err(|e| {
-        format!(
+        anyhow!(
             "no GPU adapter for the terrain ray-caster ({e}); without a GPU, install a software \
              Vulkan driver (Debian/Ubuntu: apt install mesa-vulkan-drivers)"
         )
@@ -61,7 +62,7 @@ fn open() -> Result<Gpu, String> {
         required_limits: limits,
         ..Default::default()
     }))
-    .map_err(|e| format!("cannot open the GPU '{}': {e}", adapter.get_info().name))?;
+    .map_err(|e| anyhow!("cannot open the GPU '{}': {e}", adapter.get_info().name))?;
     let pipelines = Pipelines::new(&device);
     Ok(Gpu { device, queue, info: adapter.get_info(), pipelines })
 }
