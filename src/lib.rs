@@ -1,6 +1,8 @@
 //! volterra: medical and scientific visualization. The file readers and writers live in
-//! the `volterra-formats` crate; this crate holds the scene graph, the renderers and the
-//! command-line tool.
+//! the `volterra-formats` crate; this crate holds the scene graph, the renderers and image
+//! comparison. The viewer (`volterra-view`) and the command line with its benchmarks
+//! (`volterra-cli`) are crates of their own, so the library needs no UI or CLI crates.
+//! ARCHITECTURE.md is the map.
 
 // Matrix and grid code indexes several arrays by the same loop variable; iterators would hide that.
 #![allow(clippy::needless_range_loop)]
@@ -9,13 +11,7 @@ pub mod compare;
 pub mod info;
 
 pub use volterra_formats as formats;
-pub mod bench;
-pub mod bench_shear_warp;
-pub mod bench_smoke;
-pub mod bench_terrain;
-pub mod progress;
 pub mod render;
 pub mod samples;
 pub mod scene;
 pub mod shared_error;
-pub mod view;

@@ -6,7 +6,7 @@ use common::repo_path;
 use std::process::Command;
 
 fn volterra(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_volterra")).args(args).output().unwrap()
+    Command::new(common::volterra_bin()).args(args).output().unwrap()
 }
 
 #[test]

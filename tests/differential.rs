@@ -21,7 +21,7 @@ fn readers_agree_with_pydicom_and_nibabel_on_their_test_suites() {
         return;
     }
     let mut cmd = Command::new(&python);
-    cmd.arg(repo_path("tests/reference/differential.py")).arg(env!("CARGO_BIN_EXE_volterra")).arg(repo_path("docs/differential.md"));
+    cmd.arg(repo_path("tests/reference/differential.py")).arg(common::volterra_bin()).arg(repo_path("docs/differential.md"));
     if let Some(shared) = common::shared_data() {
         cmd.arg(shared);
     }

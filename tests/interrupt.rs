@@ -2,12 +2,14 @@
 //! file, and an older output file intact.
 #![cfg(unix)]
 
+mod common;
+
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn volterra() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_volterra"))
+    Command::new(common::volterra_bin())
 }
 
 fn signal(pid: u32, sig: &str) {

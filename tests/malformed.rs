@@ -290,7 +290,7 @@ fn vtk_cases(s: &mut Suite) {
 }
 
 fn run_info(path: &Path) -> (Option<i32>, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_volterra")).args(["--max-memory", "1G", "info"]).arg(path).output().unwrap();
+    let out = Command::new(common::volterra_bin()).args(["--max-memory", "1G", "info"]).arg(path).output().unwrap();
     (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
 }
 
@@ -397,7 +397,7 @@ fn non_utf8_file_names_are_read_and_named() {
     let tmp = tempfile::tempdir().unwrap();
     let good = tmp.path().join(OsStr::from_bytes(b"good\xff\xfe.nii"));
     std::fs::write(&good, fixture("nifti/i16_nifti1.nii")).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_volterra")).arg("info").arg(&good).output().unwrap();
+    let out = Command::new(common::volterra_bin()).arg("info").arg(&good).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let bad = tmp.path().join(OsStr::from_bytes(b"bad\xff.nii"));
     std::fs::write(&bad, b"not a header").unwrap();
@@ -414,8 +414,7 @@ fn scene_errors_name_the_key_line_and_the_path_tried() {
     let scene = |body: &str| {
         let p = tmp.path().join("scene.toml");
         std::fs::write(&p, body).unwrap();
-        let out =
-            Command::new(env!("CARGO_BIN_EXE_volterra")).arg("render").arg(&p).arg("-o").arg(tmp.path().join("out.exr")).output().unwrap();
+        let out = Command::new(common::volterra_bin()).arg("render").arg(&p).arg("-o").arg(tmp.path().join("out.exr")).output().unwrap();
         assert_eq!(out.status.code(), Some(1));
         assert!(!tmp.path().join("out.exr").exists());
         let err = String::from_utf8_lossy(&out.stderr).trim_end().to_string();

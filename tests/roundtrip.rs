@@ -9,7 +9,7 @@ use std::process::Command;
 use volterra_formats::{exr_io, load, Dataset, LoadOptions};
 
 fn volterra(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_volterra")).args(args).output().unwrap()
+    Command::new(common::volterra_bin()).args(args).output().unwrap()
 }
 
 fn convert(input: &Path, output: &Path) {

@@ -3,6 +3,8 @@
 //! scene with the CLI and get the same image. Then a real window under Xvfb on the software
 //! adapter, screenshot checked.
 
+mod common;
+
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
 use std::path::{Path, PathBuf};
@@ -10,8 +12,8 @@ use std::process::Command;
 use std::time::Duration;
 use volterra::formats::{exr_io, LoadOptions};
 use volterra::scene::presets::{Preset, ValueStats};
-use volterra::view::worker::Quality;
-use volterra::view::Viewer;
+use volterra_view::worker::Quality;
+use volterra_view::Viewer;
 
 fn samples() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
@@ -31,7 +33,7 @@ fn settle(h: &mut Harness<'_, Viewer>) {
             panic!("viewer error: {e}");
         }
         // Past the settle time of a change, and until the worker has delivered.
-        std::thread::sleep(volterra::view::app::SETTLE / 4);
+        std::thread::sleep(volterra_view::app::SETTLE / 4);
         h.state().wait_for_renders(Duration::from_secs(120));
     }
     panic!("no full-quality frame after 200 rounds");
@@ -134,7 +136,7 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     assert!(!text.contains(&dir.path().display().to_string()), "data path written relative: {text}");
 
     let cli = out.path().join("cli.exr");
-    let st = Command::new(env!("CARGO_BIN_EXE_volterra")).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
+    let st = Command::new(common::volterra_bin()).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
     assert!(st.success());
     let (a, b) = (exr_io::read_exr(&exr_path).unwrap(), exr_io::read_exr(&cli).unwrap());
     assert_eq!((a.width, a.height), (b.width, b.height));
@@ -271,7 +273,7 @@ fn a_real_window_under_xvfb_shows_the_render() {
     let runtime = tempfile::tempdir().unwrap();
     let out = Command::new(xvfb)
         .args(["-a", "-s", "-screen 0 1280x800x24"])
-        .arg(env!("CARGO_BIN_EXE_volterra"))
+        .arg(common::volterra_bin())
         .arg("view")
         .arg(dir.path().join("angio_shear_warp.toml"))
         .arg("--screenshot")
@@ -369,7 +371,7 @@ fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
     let runtime = tempfile::tempdir().unwrap();
     let mut child = Command::new(xvfb)
         .args(["-a", "-s", "-screen 0 1280x800x24"])
-        .arg(env!("CARGO_BIN_EXE_volterra"))
+        .arg(common::volterra_bin())
         .arg("view")
         .arg(&scene)
         .arg("--screenshot")

@@ -9,7 +9,7 @@ use std::process::{Command, Stdio};
 use volterra_formats::{dicom, LoadOptions};
 
 fn volterra(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_volterra")).args(args).output().unwrap()
+    Command::new(common::volterra_bin()).args(args).output().unwrap()
 }
 
 /// pydicom's test files in the reference venv (tests/setup_venv.py installs it). Under CI a
@@ -231,7 +231,7 @@ fn render_output_format_follows_the_extension() {
 fn a_closed_pipe_ends_info_quietly() {
     let p = repo_path("tests/fixtures/nifti/scaled.nii");
     for _ in 0..3 {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_volterra"))
+        let mut child = Command::new(common::volterra_bin())
             .args(["info", "--json", p.to_str().unwrap()])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -271,7 +271,7 @@ fn a_gpu_render_without_a_runtime_directory_prints_no_wayland_error() {
     let samples = dir.path().join("samples");
     assert!(volterra(&["samples", samples.to_str().unwrap()]).status.success());
     let out = dir.path().join("t.exr");
-    let r = Command::new(env!("CARGO_BIN_EXE_volterra"))
+    let r = Command::new(common::volterra_bin())
         .args(["render", samples.join("terrain.toml").to_str().unwrap(), "-o", out.to_str().unwrap()])
         .args(["--set", "image.width=64", "--set", "image.height=48"])
         .env_remove("XDG_RUNTIME_DIR")
@@ -344,7 +344,7 @@ color = [[-1000.0, 0.3, 0.1, 0.1], [300.0, 0.9, 0.3, 0.2], [1000.0, 1.0, 1.0, 0.
     let stored = (nx * ny * nz * 2) as f64;
     let out = dir.path().join("ct.exr");
     let render = |limit: &str| {
-        Command::new(env!("CARGO_BIN_EXE_volterra"))
+        Command::new(common::volterra_bin())
             .args(["--max-memory", limit, "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap()])
             .output()
             .unwrap()

@@ -490,7 +490,7 @@ mod tests {
                 [s * (next() - 0.5), s * (next() - 0.5), s * (next() - 0.5)]
             })
             .collect();
-        p.extend_from_slice(&p[..40].to_vec());
+        p.extend_from_within(..40);
         let n = p.len();
         for k in [1, 7, 32] {
             let fast = kth_neighbour_distance(&p, k);

@@ -11,17 +11,17 @@ use super::navigate::{self, AxisView};
 use super::slices::{Plane, SliceImage, SliceSource};
 use super::transfer_editor::TfEditor;
 use super::worker::{Done, Job, Quality, RenderWorker};
-use crate::render::registry;
-use crate::render::Frame;
-use crate::scene::auto::{data_bounds, fit_camera, relative_path, scene_for_file};
-use crate::scene::presets::ValueStats;
-use crate::scene::{BlendMode, Camera, NodeData, NodeKind, Scene};
 use anyhow::{anyhow, Result};
 use egui::{Color32, Pos2, Rect, Sense, Vec2};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
+use volterra::render::registry;
+use volterra::render::Frame;
+use volterra::scene::auto::{data_bounds, fit_camera, relative_path, scene_for_file};
+use volterra::scene::presets::ValueStats;
+use volterra::scene::{BlendMode, Camera, NodeData, NodeKind, Scene};
 use volterra_formats::LoadOptions;
 
 /// How long the view must stay unchanged before the full-resolution frame is requested.
@@ -324,7 +324,7 @@ impl Viewer {
     }
 
     /// Applies an edit to the scene description and rebuilds the scene (data kept).
-    fn edit(&mut self, moving: bool, f: impl FnOnce(&mut crate::scene::SceneFile)) {
+    fn edit(&mut self, moving: bool, f: impl FnOnce(&mut volterra::scene::SceneFile)) {
         let Some(doc) = &mut self.doc else { return };
         let mut file = doc.scene.file.clone();
         f(&mut file);
@@ -351,7 +351,7 @@ impl Viewer {
         // The eye height of a walk is already applied to the camera; keep walking on.
         if let (NavMode::Walk, None) = (self.mode, &file.walk) {
             if let Some(n) = file.nodes.iter().find(|n| n.kind == NodeKind::Heightfield) {
-                file.walk = Some(crate::scene::Walk { node: n.name.clone(), eye_height: self.eye_height });
+                file.walk = Some(volterra::scene::Walk { node: n.name.clone(), eye_height: self.eye_height });
             }
         }
         let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
@@ -453,7 +453,7 @@ impl Viewer {
         if done.quality == Quality::Reference {
             self.reference_pending = false;
             let err = match &self.last_full {
-                Some((v, f)) if *v == done.version => Ok(crate::compare::rgba_rel_rmse(&f.rgba, &frame.rgba)),
+                Some((v, f)) if *v == done.version => Ok(volterra::compare::rgba_rel_rmse(&f.rgba, &frame.rgba)),
                 _ => Err("the view changed while the reference rendered".to_string()),
             };
             self.error_vs_reference = Some((done.version, err));
@@ -680,7 +680,7 @@ impl Viewer {
         let mut chosen = None;
         egui::ComboBox::from_label("Renderer").selected_text(current.name).show_ui(ui, |ui| {
             for r in registry::for_kind(n.kind) {
-                if ui.selectable_label(current.name == r.name, r.name).on_hover_text(crate::render::settings::summary(r.doc)).clicked() {
+                if ui.selectable_label(current.name == r.name, r.name).on_hover_text(volterra::render::settings::summary(r.doc)).clicked() {
                     chosen = Some(r.name);
                 }
             }
@@ -726,7 +726,7 @@ impl Viewer {
         let Some(mut tf) = n.transfer_function.clone() else {
             if ui.button("Add a transfer function").clicked() {
                 if let Some(v) = volume {
-                    let p = crate::scene::presets::Preset::for_volume(&v, &stats);
+                    let p = volterra::scene::presets::Preset::for_volume(&v, &stats);
                     let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
                     self.edit(false, |f| f.nodes[i].transfer_function = Some(p.transfer_function(&stats, unit)));
                 }
@@ -770,8 +770,8 @@ impl Viewer {
 
     /// Sun azimuth (degrees clockwise from north, where the light comes from) and
     /// elevation above the horizon, editing the first directional light.
-    fn sun_controls(&mut self, ui: &mut egui::Ui, lights: &[crate::scene::Light]) {
-        let Some(li) = lights.iter().position(|l| l.kind == crate::scene::LightKind::Directional) else { return };
+    fn sun_controls(&mut self, ui: &mut egui::Ui, lights: &[volterra::scene::Light]) {
+        let Some(li) = lights.iter().position(|l| l.kind == volterra::scene::LightKind::Directional) else { return };
         let d = DVec3::from(lights[li].direction.unwrap_or([0.0, 0.0, -1.0])).normalize();
         let from = -d;
         let mut azimuth = from.x.atan2(from.y).to_degrees().rem_euclid(360.0);
@@ -1180,9 +1180,9 @@ fn steps_image(frame: &Frame, steps: &[f32]) -> egui::ColorImage {
 
 fn metadata_grid(ui: &mut egui::Ui, data: &NodeData, names: volterra_formats::ParticleArrayNames) {
     let json = match data {
-        NodeData::Volume(v) => crate::info::volume_json(v),
-        NodeData::Heightfield(h) => crate::info::heightfield_json(h),
-        NodeData::Particles(p) => crate::info::particles_json(p, &names),
+        NodeData::Volume(v) => volterra::info::volume_json(v),
+        NodeData::Heightfield(h) => volterra::info::heightfield_json(h),
+        NodeData::Particles(p) => volterra::info::particles_json(p, &names),
     };
     // What the file says about itself (codes, patient, series, compression, corners): whole,
     // under a header that starts closed so the panel keeps its layout.

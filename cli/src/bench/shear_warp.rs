@@ -3,14 +3,14 @@
 //! (through Python in the same command), each as the median ms per frame over several
 //! views and the relative RMSE from the reference ray caster (cached per view).
 
-use crate::bench::median;
-use crate::compare::{rgba_pixels as rgba_of, rgba_psnr, rgba_rel_rmse as rel_rmse};
-use crate::render::{reference_volume, shear_warp, Frame};
-use crate::scene::{BlendMode, Camera, Scene, TransferFunction};
+use super::median;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
+use volterra::compare::{rgba_pixels as rgba_of, rgba_psnr, rgba_rel_rmse as rel_rmse};
+use volterra::render::{reference_volume, shear_warp, Frame};
+use volterra::scene::{BlendMode, Camera, Scene, TransferFunction};
 
 pub struct ShearWarpBench {
     /// A scene with one volume node and a parallel camera (its view is the first of four).
@@ -18,6 +18,8 @@ pub struct ShearWarpBench {
     pub runs: usize,
     pub work_dir: PathBuf,
     pub python: PathBuf,
+    /// The reference scripts (tests/reference).
+    pub scripts: PathBuf,
     pub json: bool,
     pub plot: PathBuf,
     /// Time only the configurations whose name contains this (None: all).
@@ -57,7 +59,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     }
     let scene = Scene::load(&b.scene, &[])?;
     let node =
-        scene.nodes().iter().position(|n| n.kind == crate::scene::NodeKind::Volume).context("the bench scene needs a volume node")?;
+        scene.nodes().iter().position(|n| n.kind == volterra::scene::NodeKind::Volume).context("the bench scene needs a volume node")?;
     let desc = &scene.nodes()[node];
     let tf: &TransferFunction = desc.transfer_function.as_ref().context("the volume node needs a transfer_function")?;
     if !scene.file.camera.parallel_projection {
@@ -175,7 +177,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     let rows_path = b.work_dir.join("shear_warp_rows.json");
     std::fs::write(&rows_path, serde_json::to_string_pretty(&rows)?)?;
     if b.only.is_none() {
-        crate::bench::plot(&b.python, "plot_bench.py", &rows_path, &b.plot, "plot");
+        super::plot(&b.python, &b.scripts, "plot_bench.py", &rows_path, &b.plot, "plot");
     }
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -205,7 +207,7 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Resu
     let spec_path = b.work_dir.join("vtk_spec.json");
     std::fs::write(&spec_path, spec.to_string())?;
     let out = std::process::Command::new(&b.python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/vtk_volume.py"))
+        .arg(b.scripts.join("vtk_volume.py"))
         .arg("--bench")
         .arg(&spec_path)
         .output()

@@ -4,6 +4,9 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+mod bench;
+mod progress;
+
 use volterra::{compare, info, render, scene::Scene};
 use volterra_formats::{self as formats, dicom, Dataset, LoadOptions};
 
@@ -41,9 +44,21 @@ struct ReadArgs {
     /// PNG heightmap: metres between samples.
     #[arg(long)]
     cell_size: Option<f64>,
-    /// PNG heightmap: grey, terrarium or mapbox.
-    #[arg(long)]
-    encoding: Option<String>,
+    /// PNG heightmap: how heights are stored in the pixels.
+    #[arg(long, value_enum)]
+    encoding: Option<Encoding>,
+}
+
+/// `--encoding`, as formats::png_height::HeightEncoding (the formats crate knows no clap).
+#[derive(clap::ValueEnum, Clone, Copy)]
+enum Encoding {
+    /// 8- or 16-bit grey levels times the vertical scale.
+    #[value(alias = "gray")]
+    Grey,
+    /// Mapzen terrarium RGB: (R·256 + G + B/256) − 32768 metres.
+    Terrarium,
+    /// Mapbox terrain-RGB: −10000 + (R·65536 + G·256 + B)·0.1 metres.
+    Mapbox,
 }
 
 impl ReadArgs {
@@ -61,12 +76,11 @@ impl ReadArgs {
         if let Some(v) = self.cell_size {
             o.png.cell_size = v;
         }
-        if let Some(e) = &self.encoding {
-            o.png.encoding = match e.as_str() {
-                "grey" | "gray" => formats::png_height::HeightEncoding::Grey,
-                "terrarium" => formats::png_height::HeightEncoding::Terrarium,
-                "mapbox" => formats::png_height::HeightEncoding::Mapbox,
-                other => bail!("--encoding {other}: expected grey, terrarium or mapbox"),
+        if let Some(e) = self.encoding {
+            o.png.encoding = match e {
+                Encoding::Grey => formats::png_height::HeightEncoding::Grey,
+                Encoding::Terrarium => formats::png_height::HeightEncoding::Terrarium,
+                Encoding::Mapbox => formats::png_height::HeightEncoding::Mapbox,
             };
         }
         Ok(o)
@@ -128,48 +142,10 @@ enum Command {
         #[arg(long, default_value = "out")]
         out: PathBuf,
     },
-    /// Benchmarks: `formats` times loading against pydicom + numpy and nibabel;
-    /// `shear-warp` times the renderer's configurations and VTK's fixed-point mapper
-    /// against their error from the reference ray caster; `terrain` times the GPU
-    /// ray-caster's traversals on 256²..4096² DEMs, fly- and walk-through, with steps per
-    /// ray and depth error against the f64 reference; `smoke` times photon map / particle
-    /// map with and without the irradiance map against their error from Mitsuba.
+    /// Benchmarks: speed against error, side by side with the peers in one run.
     Bench {
-        /// What to measure: formats, shear-warp, terrain or smoke.
-        what: String,
-        /// The scene (shear-warp: one volume, parallel camera; default samples/aneurysm.toml.
-        /// smoke: one particle node with a Mitsuba reference in ../data; default
-        /// tests/reference/smoke_scenes/plume110k.toml).
-        #[arg(long)]
-        scene: Option<PathBuf>,
-        /// smoke: photons traced.
-        #[arg(long, default_value_t = 640_000)]
-        photons: usize,
-        /// shear-warp: print the rows as JSON.
-        #[arg(long)]
-        json: bool,
-        /// Where to write the plot (default out/bench_<what>.png).
-        #[arg(long)]
-        plot: Option<PathBuf>,
-        /// terrain: heightfield sizes (samples per side).
-        #[arg(long, value_delimiter = ',', default_values_t = [256usize, 512, 1024, 2048, 4096])]
-        sizes: Vec<usize>,
-        /// terrain, smoke: image size in pixels, WIDTHxHEIGHT (default 1920x1080 for
-        /// terrain, 500x500 for smoke, as in the papers).
-        #[arg(long)]
-        image: Option<String>,
-        #[arg(long, default_value_t = 5)]
-        runs: usize,
-        /// shear-warp: time only the configurations whose name contains this text (e.g.
-        /// "overlapped ×1", "vtk"); for profiling one path.
-        #[arg(long)]
-        only: Option<String>,
-        /// Where the benchmark inputs are written (reused between runs).
-        #[arg(long, default_value = "target/bench-data")]
-        work_dir: PathBuf,
-        /// Python with pydicom, nibabel and numpy.
-        #[arg(long, default_value = "tests/reference/.venv/bin/python")]
-        python: PathBuf,
+        #[command(subcommand)]
+        bench: BenchCommand,
     },
     /// The renderers, the node kinds they draw and every setting they take (type, default,
     /// allowed values, meaning), as the tables in docs/scene-format.md.
@@ -241,6 +217,116 @@ fn quiet_vulkan_device_select() {
 #[global_allocator]
 static ALLOCATOR: formats::memory::CountingAllocator = formats::memory::CountingAllocator;
 
+/// What every benchmark takes.
+#[derive(Args)]
+struct BenchCommon {
+    /// Where the benchmark inputs are written (reused between runs).
+    #[arg(long, default_value = "target/bench-data")]
+    work_dir: PathBuf,
+    /// Python with the reference packages (pydicom, nibabel, VTK, Mitsuba, matplotlib);
+    /// default: the venv tests/setup_venv.py makes beside the scripts.
+    #[arg(long)]
+    python: Option<PathBuf>,
+    /// The reference scripts (a checkout's tests/reference; default: found beside the
+    /// executable or under the working directory).
+    #[arg(long, value_name = "DIR")]
+    scripts: Option<PathBuf>,
+}
+
+impl BenchCommon {
+    /// (the scripts' directory, the Python to run them with).
+    fn resolve(&self) -> Result<(PathBuf, PathBuf)> {
+        let scripts = crate::bench::scripts_dir(self.scripts.as_deref())?;
+        let python = self.python.clone().unwrap_or_else(|| scripts.join(".venv/bin/python"));
+        Ok((scripts, python))
+    }
+}
+
+/// Timed runs per configuration (medians are quoted).
+#[derive(Args)]
+struct Runs {
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..))]
+    runs: u64,
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Loading DICOM series and gzipped NIfTI against pydicom + numpy and nibabel.
+    Formats {
+        #[command(flatten)]
+        runs: Runs,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
+    /// Shear-warp's configurations and VTK's fixed-point mapper against their error from
+    /// the reference ray caster.
+    ShearWarp {
+        /// One volume node and a parallel camera.
+        #[arg(long, default_value = "samples/aneurysm.toml")]
+        scene: PathBuf,
+        /// Time only the configurations whose name contains this text (e.g.
+        /// "overlapped ×1", "vtk"); for profiling one path.
+        #[arg(long)]
+        only: Option<String>,
+        /// Print the rows as JSON.
+        #[arg(long)]
+        json: bool,
+        /// Where to write the plot.
+        #[arg(long, default_value = "out/bench_shear_warp.png")]
+        plot: PathBuf,
+        #[command(flatten)]
+        runs: Runs,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
+    /// The GPU ray-caster's traversals on 256²..4096² DEMs, fly- and walk-through, with
+    /// steps per ray and depth error against the f64 reference.
+    Terrain {
+        /// Heightfield sizes (samples per side, at least 2).
+        #[arg(long, value_delimiter = ',', default_values_t = [256u64, 512, 1024, 2048, 4096], value_parser = clap::value_parser!(u64).range(2..))]
+        sizes: Vec<u64>,
+        /// Image size in pixels, as in the paper.
+        #[arg(long, default_value = "1920x1080", value_parser = parse_image_size)]
+        image: (usize, usize),
+        /// Print the rows as JSON.
+        #[arg(long)]
+        json: bool,
+        /// Where to write the step histogram.
+        #[arg(long, default_value = "out/bench_terrain.png")]
+        plot: PathBuf,
+        #[command(flatten)]
+        runs: Runs,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
+    /// Photon map and particle map, with and without the irradiance map, against their
+    /// error from Mitsuba.
+    Smoke {
+        /// One particle node with a Mitsuba reference in ../data.
+        #[arg(long, default_value = "tests/reference/smoke_scenes/plume110k.toml")]
+        scene: PathBuf,
+        /// Photons traced.
+        #[arg(long, default_value_t = 640_000)]
+        photons: usize,
+        /// Image size in pixels, as in the paper.
+        #[arg(long, default_value = "500x500", value_parser = parse_image_size)]
+        image: (usize, usize),
+        /// Print the rows as JSON.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
+}
+
+/// `WIDTHxHEIGHT`, e.g. 1920x1080.
+fn parse_image_size(s: &str) -> Result<(usize, usize), String> {
+    s.split_once('x')
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .filter(|&(w, h): &(usize, usize)| w > 0 && h > 0)
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, e.g. 1920x1080, not {s}"))
+}
+
 fn main() -> ExitCode {
     quiet_vulkan_device_select();
     default_sigpipe();
@@ -248,7 +334,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let budget = cli.max_memory.is_some();
     // The renderers' progress, as bars on the terminal.
-    let outcome = volterra::render::driver::observed(std::sync::Arc::new(volterra::progress::TerminalProgress::default()), || run(cli));
+    let outcome = volterra::render::driver::observed(std::sync::Arc::new(crate::progress::TerminalProgress::default()), || run(cli));
     if budget && outcome.is_ok() {
         // What the command held at most, against the limit it was given.
         let (peak, limit) = (formats::memory::peak(), formats::memory::limit());
@@ -305,58 +391,58 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Demo { out } => cmd_demo(&out),
-        Command::View { path, screenshot, read } => volterra::view::run(path, read.options()?, screenshot),
-        Command::Bench { what, runs, work_dir, python, scene, json, plot, sizes, image, photons, only } => {
-            let image = image.unwrap_or_else(|| if what == "smoke" { "500x500".into() } else { "1920x1080".into() });
-            let (width, height) = image
-                .split_once('x')
-                .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-                .filter(|&(w, h): &(usize, usize)| w > 0 && h > 0)
-                .ok_or_else(|| anyhow!("--image {image}: expected WIDTHxHEIGHT, e.g. 1920x1080"))?;
-            let plot = plot.unwrap_or_else(|| PathBuf::from(format!("out/bench_{}.png", what.replace('-', "_"))));
-            if let Some(dir) = plot.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(dir)?;
-            }
-            match what.as_str() {
-                "formats" => volterra::bench::run(&volterra::bench::FormatsBench { work_dir, runs, python }),
-                "shear-warp" => volterra::bench_shear_warp::run(&volterra::bench_shear_warp::ShearWarpBench {
-                    scene: scene.unwrap_or_else(|| PathBuf::from("samples/aneurysm.toml")),
-                    runs,
-                    work_dir,
-                    python,
-                    json,
-                    plot,
-                    only,
-                }),
-                "smoke" => {
-                    std::fs::create_dir_all(&work_dir)?;
-                    volterra::bench_smoke::run(&volterra::bench_smoke::SmokeBench {
-                        scene: scene.unwrap_or_else(|| PathBuf::from("tests/reference/smoke_scenes/plume110k.toml")),
-                        width,
-                        height,
-                        photons,
-                        python,
-                        work_dir,
-                        json,
-                    })
-                }
-                "terrain" => {
-                    if let Some(&s) = sizes.iter().find(|&&s| s < 2) {
-                        bail!("--sizes: a heightfield needs at least 2 samples per side, not {s}");
-                    }
-                    volterra::bench_terrain::run(&volterra::bench_terrain::TerrainBench {
-                        sizes,
-                        width,
-                        height,
-                        runs,
-                        work_dir,
-                        python,
-                        json,
-                        plot,
-                    })
-                }
-                other => bail!("bench {other}: known benchmarks: formats, shear-warp, terrain, smoke"),
-            }
+        Command::View { path, screenshot, read } => volterra_view::run(path, read.options()?, screenshot),
+        Command::Bench { bench } => cmd_bench(bench),
+    }
+}
+
+fn cmd_bench(bench: BenchCommand) -> Result<()> {
+    use crate::bench as b;
+    // The directory a plot goes into exists before the benchmark runs.
+    let plot_dir = |plot: &Path| -> Result<()> {
+        match plot.parent().filter(|d| !d.as_os_str().is_empty()) {
+            Some(dir) => Ok(std::fs::create_dir_all(dir)?),
+            None => Ok(()),
+        }
+    };
+    match bench {
+        BenchCommand::Formats { runs, common } => {
+            let (scripts, python) = common.resolve()?;
+            b::formats::run(&b::formats::FormatsBench { scripts, work_dir: common.work_dir, runs: runs.runs as usize, python })
+        }
+        BenchCommand::ShearWarp { scene, only, json, plot, runs, common } => {
+            plot_dir(&plot)?;
+            let (scripts, python) = common.resolve()?;
+            b::shear_warp::run(&b::shear_warp::ShearWarpBench {
+                scripts,
+                scene,
+                runs: runs.runs as usize,
+                work_dir: common.work_dir,
+                python,
+                json,
+                plot,
+                only,
+            })
+        }
+        BenchCommand::Terrain { sizes, image: (width, height), json, plot, runs, common } => {
+            plot_dir(&plot)?;
+            let (scripts, python) = common.resolve()?;
+            b::terrain::run(&b::terrain::TerrainBench {
+                scripts,
+                sizes: sizes.into_iter().map(|s| s as usize).collect(),
+                width,
+                height,
+                runs: runs.runs as usize,
+                work_dir: common.work_dir,
+                python,
+                json,
+                plot,
+            })
+        }
+        BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
+            std::fs::create_dir_all(&common.work_dir)?;
+            let (scripts, python) = common.resolve()?;
+            b::smoke::run(&b::smoke::SmokeBench { scripts, scene, width, height, photons, python, work_dir: common.work_dir, json })
         }
     }
 }
@@ -377,7 +463,7 @@ fn cmd_info(path: &Path, json: bool, read: &ReadArgs) -> Result<()> {
             return Ok(());
         }
     }
-    let spin = volterra::progress::spinner(&format!("reading {}", path.display()));
+    let spin = crate::progress::spinner(&format!("reading {}", path.display()));
     let data = formats::load(path, &opts);
     spin.finish_and_clear();
     let data = data?;
@@ -403,7 +489,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
     if read.volume.is_none() && nifti_out && formats::detect(input)? == formats::FileKind::Nifti {
         let header = formats::nifti::read_nifti_header(input)?;
         if (4..=header.dim[0]).any(|i| header.dim[i as usize] > 1) {
-            let spin = volterra::progress::spinner(&format!("reading {}", input.display()));
+            let spin = crate::progress::spinner(&format!("reading {}", input.display()));
             let all = formats::nifti::read_nifti_volumes(input);
             spin.finish_and_clear();
             let all = all?;
@@ -412,7 +498,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
             return Ok(());
         }
     }
-    let spin = volterra::progress::spinner(&format!("reading {}", input.display()));
+    let spin = crate::progress::spinner(&format!("reading {}", input.display()));
     let data = formats::load(input, &opts);
     spin.finish_and_clear();
     let data = data?;
@@ -539,7 +625,7 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
     if scene.file.keyframes.is_empty() {
         bail!("{}: --frames needs [[keyframe]]s in the scene (a camera path)", scene_path.display());
     }
-    let bar = volterra::progress::bar(n as u64, "frames");
+    let bar = crate::progress::bar(n as u64, "frames");
     // One cache for every frame: shear-warp's preparation and the terrain's pyramid are
     // built once, not per frame.
     let cache = render::RenderCache::default();

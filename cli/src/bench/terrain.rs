@@ -4,16 +4,16 @@
 //! steps per ray, for the paper's traversal and the two baselines (no raise, linear
 //! march), and the depth error against the f64 reference.
 
-use crate::bench::median;
-use crate::render::terrain::gpu::{self, GpuTerrain, StepStats, View};
-use crate::render::terrain::grid::TerrainGrid;
-use crate::render::terrain::shading::{sun_lights, Shading};
-use crate::render::terrain::{depth_agreement, reference, Settings, Traversal};
-use crate::scene::camera::Camera;
+use super::median;
 use anyhow::{bail, Result};
 use glam::DMat4;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
+use volterra::render::terrain::gpu::{self, GpuTerrain, StepStats, View};
+use volterra::render::terrain::grid::TerrainGrid;
+use volterra::render::terrain::shading::{sun_lights, Shading};
+use volterra::render::terrain::{depth_agreement, reference, Settings, Traversal};
+use volterra::scene::camera::Camera;
 use volterra_formats::{Crs, Heightfield};
 
 pub struct TerrainBench {
@@ -23,6 +23,8 @@ pub struct TerrainBench {
     pub runs: usize,
     pub work_dir: PathBuf,
     pub python: PathBuf,
+    /// The reference scripts (tests/reference).
+    pub scripts: PathBuf,
     pub json: bool,
     pub plot: PathBuf,
 }
@@ -52,7 +54,7 @@ pub struct Row {
 /// A size² DEM, 30 m cells, 0..4000 m: the built-in fractal terrain, cropped.
 pub fn bench_dem(size: usize) -> Heightfield {
     let levels = size.next_power_of_two().trailing_zeros().max(1);
-    let dem = crate::samples::fractal_dem(levels, 30.0, 11);
+    let dem = volterra::samples::fractal_dem(levels, 30.0, 11);
     let mut elevations = Vec::with_capacity(size * size);
     let mut nodata = Vec::with_capacity(size * size);
     for row in 0..size {
@@ -178,7 +180,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
 
     let steps_path = b.work_dir.join("terrain_steps.json");
     std::fs::write(&steps_path, serde_json::to_string(&histograms)?)?;
-    crate::bench::plot(&b.python, "plot_terrain_steps.py", &steps_path, &b.plot, "step histogram");
+    super::plot(&b.python, &b.scripts, "plot_terrain_steps.py", &steps_path, &b.plot, "step histogram");
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
         return Ok(());
@@ -218,7 +220,7 @@ fn vtk_rows(b: &TerrainBench) -> Result<Vec<Row>> {
     use anyhow::Context;
     let sizes: Vec<String> = b.sizes.iter().map(|s| s.to_string()).collect();
     let out = std::process::Command::new(&b.python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/vtk_terrain.py"))
+        .arg(b.scripts.join("vtk_terrain.py"))
         .args(["--bench", &sizes.join(","), &b.width.to_string(), &b.height.to_string(), &b.runs.to_string()])
         .arg(&b.work_dir)
         .output()

@@ -3,8 +3,8 @@
 //! in ParaView/pyvista (trackball around the focal point); fly and walk as in a game
 //! (mouse look about the eye, WASD along the view).
 
-use crate::scene::Camera;
 use glam::{DQuat, DVec3};
+use volterra::scene::Camera;
 
 fn frame(cam: &Camera) -> (DVec3, DVec3, DVec3, DVec3) {
     let eye = DVec3::from(cam.position);

@@ -5,9 +5,9 @@
 //! Mouse: drag a point to move it; double-click to add one (on the curve area: opacity,
 //! on the bar: colour); right-click a point to remove it.
 
-use crate::scene::presets::{Preset, ValueStats};
-use crate::scene::TransferFunction;
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
+use volterra::scene::presets::{Preset, ValueStats};
+use volterra::scene::TransferFunction;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Selected {

@@ -1,6 +1,7 @@
 //! `volterra bench formats`: load speed against the reference readers, measured side by
 //! side in one run on the same files (medians of several runs; these machines are noisy).
 
+use super::median;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -11,6 +12,8 @@ pub struct FormatsBench {
     pub runs: usize,
     /// Python with pydicom, nibabel and numpy (tests/reference/.venv by default).
     pub python: PathBuf,
+    /// The reference scripts (tests/reference).
+    pub scripts: PathBuf,
 }
 
 /// A 512-slice CT-like series (256×256, i16) and a 256³ i16 gzipped NIfTI, made from the
@@ -23,10 +26,10 @@ fn prepare(dir: &Path) -> Result<(PathBuf, PathBuf)> {
         return Ok((series, nii));
     }
     std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
-    let phantom = crate::samples::angio_phantom(256);
+    let phantom = volterra::samples::angio_phantom(256);
     let n = 256;
     let noise: Vec<i16> = {
-        let mut rng = crate::samples::SplitMix64(99);
+        let mut rng = volterra::samples::SplitMix64(99);
         (0..n * n * n).map(|_| ((rng.next_f64() + rng.next_f64() + rng.next_f64() - 1.5) * 24.0) as i16).collect()
     };
     let hu = |i: usize| (phantom.data.stored(i) * 6.0 - 1000.0) as i16 + noise[i];
@@ -57,31 +60,6 @@ fn prepare(dir: &Path) -> Result<(PathBuf, PathBuf)> {
     Ok((series, nii))
 }
 
-/// The median (sorts `v`).
-/// Runs the plot script `tests/reference/SCRIPT` on `data`, writing `out`; says on stderr
-/// where the `what` went, or that it was skipped (no matplotlib in `python`).
-pub fn plot(python: &Path, script: &str, data: &Path, out: &Path, what: &str) {
-    let status = std::process::Command::new(python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference").join(script))
-        .arg(data)
-        .arg(out)
-        .status();
-    match status {
-        Ok(s) if s.success() => eprintln!("{what} written to {}", out.display()),
-        _ => eprintln!("{what} skipped (needs matplotlib in {})", python.display()),
-    }
-}
-
-pub fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    }
-}
-
 fn time_runs(runs: usize, f: impl Fn() -> Result<()>) -> Result<Vec<f64>> {
     (0..runs)
         .map(|_| {
@@ -97,12 +75,8 @@ fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path) -> Res
     let opts = dicom::DicomOptions::default();
     let mut ours_dicom = time_runs(b.runs, || dicom::read_dicom(series, &opts).map(|_| ()).map_err(Into::into))?;
     let mut ours_nifti = time_runs(b.runs, || nifti::read_nifti(nii, &Default::default()).map(|_| ()).map_err(Into::into))?;
-    let py = std::process::Command::new(&b.python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/bench_readers.py"))
-        .arg(series)
-        .arg(nii)
-        .arg(b.runs.to_string())
-        .output();
+    let py =
+        std::process::Command::new(&b.python).arg(b.scripts.join("bench_readers.py")).arg(series).arg(nii).arg(b.runs.to_string()).output();
     let theirs: Option<serde_json::Value> = match py {
         Ok(o) if o.status.success() => serde_json::from_slice(&o.stdout).ok(),
         Ok(o) => {
@@ -145,7 +119,7 @@ pub fn run(b: &FormatsBench) -> Result<()> {
     println!("{:<50} {:>10} {:>18} {:>7}", "input", "volterra", "reference", "ratio");
     compare_pair(b, "synthetic 512×256² i16", &series, &nii)?;
     // The real aneurism scan in ../shared/data, where present.
-    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/volumes/aneurism");
+    let shared = b.scripts.join("../../../shared/data/volumes/aneurism");
     if shared.join("dicom_ct").is_dir() {
         compare_pair(b, "aneurism 256³", &shared.join("dicom_ct"), &shared.join("aneurism.nii.gz"))?;
     }

@@ -8,13 +8,13 @@
 //! time to reach comparable errors at rising sample counts; `view s` is each one's time for
 //! the comparison view itself, so time and error compare on one image.
 
-use crate::compare::{rgba_pixels, rgba_rel_rmse};
-use crate::render::smoke::{self, FreeFlight, Settings, ShadowMode, SmokeInput, Store};
-use crate::render::Frame;
-use crate::scene::{NodeKind, Scene};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
+use volterra::compare::{rgba_pixels, rgba_rel_rmse};
+use volterra::render::smoke::{self, FreeFlight, Settings, ShadowMode, SmokeInput, Store};
+use volterra::render::Frame;
+use volterra::scene::{NodeKind, Scene};
 
 pub struct SmokeBench {
     pub scene: PathBuf,
@@ -22,6 +22,8 @@ pub struct SmokeBench {
     pub height: usize,
     pub photons: usize,
     pub python: PathBuf,
+    /// The reference scripts (tests/reference).
+    pub scripts: PathBuf,
     pub work_dir: PathBuf,
     pub json: bool,
 }
@@ -159,7 +161,7 @@ fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) ->
     for spp in [16, 64, 256, 1024] {
         let out_dir = b.work_dir.join(format!("mitsuba_{spp}"));
         let out = std::process::Command::new(&b.python)
-            .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/mitsuba_smoke.py"))
+            .arg(b.scripts.join("mitsuba_smoke.py"))
             .arg(&out_dir)
             .arg(spp.to_string())
             .arg(&b.scene)

@@ -3,12 +3,12 @@
 //! one [`RenderCache`], so shear-warp's prepared volume and min-max maps are built once
 //! per volume, not per frame.
 
-use crate::render::{self, Frame, RenderCache};
-use crate::scene::{Camera, Scene};
 use std::path::PathBuf;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Instant;
+use volterra::render::{self, Frame, RenderCache};
+use volterra::scene::{Camera, Scene};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Quality {
@@ -196,7 +196,7 @@ fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
     let mut file = scene.file.clone();
     for (i, n) in file.nodes.iter_mut().enumerate() {
         if let Some(r) = scene.renderer(i) {
-            crate::render::settings::apply_preview(r.settings, &mut n.settings);
+            volterra::render::settings::apply_preview(r.settings, &mut n.settings);
         }
     }
     scene.edited(file)
@@ -207,7 +207,7 @@ fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
 /// Smoke has no reference renderer in-process (Mitsuba is the reference), so a scene with
 /// particles has no error figure.
 fn render_reference(scene: &Scene, camera: &Camera, size: (usize, usize)) -> Result<Frame, String> {
-    use crate::render::registry;
+    use volterra::render::registry;
     let mut file = scene.file.clone();
     for (i, n) in file.nodes.iter_mut().enumerate() {
         let Some(from) = scene.renderer(i) else { continue };

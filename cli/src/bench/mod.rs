@@ -1,0 +1,54 @@
+//! `volterra bench …`: speed against error, side by side with the peers (pydicom/nibabel,
+//! VTK, Mitsuba) in one run. Each benchmark is its own subcommand with its own flags.
+
+pub mod formats;
+pub mod shear_warp;
+pub mod smoke;
+pub mod terrain;
+
+use anyhow::{bail, Result};
+use std::path::{Path, PathBuf};
+
+/// The reference scripts the benchmarks run (tests/reference in a checkout): `given`, else
+/// found beside the executable (target/{debug,release}/volterra in a checkout) or under
+/// the working directory.
+pub fn scripts_dir(given: Option<&Path>) -> Result<PathBuf> {
+    let marker = "bench_readers.py";
+    if let Some(d) = given {
+        if !d.join(marker).is_file() {
+            bail!("--scripts {}: no {marker} there (give the checkout's tests/reference)", d.display());
+        }
+        return Ok(d.to_path_buf());
+    }
+    let exe = std::env::current_exe().ok();
+    let beside_exe =
+        exe.as_deref().and_then(Path::parent).and_then(Path::parent).and_then(Path::parent).map(|root| root.join("tests/reference"));
+    let candidates: Vec<PathBuf> = beside_exe.into_iter().chain([PathBuf::from("tests/reference")]).collect();
+    candidates.into_iter().find(|d| d.join(marker).is_file()).ok_or_else(|| {
+        anyhow::anyhow!(
+            "the benchmarks' reference scripts (tests/reference/*.py of a volterra checkout) are neither beside this \
+             executable nor under the working directory; give --scripts DIR"
+        )
+    })
+}
+
+/// Runs the plot script `scripts/SCRIPT` on `data`, writing `out`; says on stderr where
+/// the `what` went, or that it was skipped (no matplotlib in `python`).
+pub fn plot(python: &Path, scripts: &Path, script: &str, data: &Path, out: &Path, what: &str) {
+    let status = std::process::Command::new(python).arg(scripts.join(script)).arg(data).arg(out).status();
+    match status {
+        Ok(s) if s.success() => eprintln!("{what} written to {}", out.display()),
+        _ => eprintln!("{what} skipped (needs matplotlib in {})", python.display()),
+    }
+}
+
+/// The median (sorts `v`).
+pub fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
