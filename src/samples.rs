@@ -10,25 +10,7 @@ use std::path::Path;
 use volterra_formats::heightfield::{Crs, Heightfield};
 use volterra_formats::{image, ParticleArrayNames, ParticleSet, PointArray, Rescale, RgbImage, Volume, VoxelData};
 
-/// SplitMix64: a tiny, fast, seedable generator; good enough for procedural samples.
-pub struct SplitMix64(pub u64);
-
-impl SplitMix64 {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    pub fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next_f64()
-    }
-}
+pub use volterra_formats::rng::SplitMix64;
 
 /// The scene files `samples` writes, by file name. Kept identical to `samples/*.toml` in
 /// the repository (a test checks it).

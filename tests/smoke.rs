@@ -1,12 +1,12 @@
 //! The smoke renderer's building blocks against closed forms, and its hard cases.
 
 use glam::{DMat4, DVec3};
+use volterra::formats::rng::Rng;
 use volterra::render::smoke::lights::Emitter;
 use volterra::render::smoke::march::{LightTransmittance, MarchView};
 use volterra::render::smoke::medium::{Homogeneous, Kernel, Medium, Shape, SphMedium};
 use volterra::render::smoke::phase::{hg, sample_hg, sample_hg_cos};
 use volterra::render::smoke::photons::{trace, TraceSettings};
-use volterra::render::smoke::rng::Rng;
 use volterra::render::smoke::tracking::{delta_track, local_free_path, marched_transmittance, ratio_track};
 use volterra::render::smoke::{self, FreeFlight, Settings, SmokeInput, Store};
 use volterra::scene::camera::Camera;

@@ -33,10 +33,9 @@ pub fn write_series(dir: &Path, vol: &Volume, series_uid: &str, shuffle: Option<
     let origin = [-a[0][3], -a[1][3], a[2][3]];
     let mut names: Vec<usize> = (0..nz).collect();
     if let Some(seed) = shuffle {
-        let mut s = seed;
+        let mut rng = crate::rng::SplitMix64(seed);
         for i in (1..nz).rev() {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            names.swap(i, (s >> 33) as usize % (i + 1));
+            names.swap(i, rng.below(i + 1));
         }
     }
     let plane = nx * ny * 2;

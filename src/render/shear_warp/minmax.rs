@@ -233,13 +233,8 @@ mod tests {
     #[test]
     fn overlapped_blocks_cover_exactly_their_voxels() {
         let dims = [21, 7, 5];
-        let mut s = 12345u64;
-        let data: Vec<u16> = (0..dims[0] * dims[1] * dims[2])
-            .map(|_| {
-                s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
-                (s >> 48) as u16
-            })
-            .collect();
+        let mut rng = volterra_formats::rng::SplitMix64(12345);
+        let data: Vec<u16> = (0..dims[0] * dims[1] * dims[2]).map(|_| (rng.next_u64() >> 48) as u16).collect();
         let n = 4;
         let map = OverlappedMap::new(&data, dims, n);
         let scan = ScanlineMap::new(&data, dims, n);

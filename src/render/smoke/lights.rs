@@ -3,11 +3,11 @@
 //! light's is radiant intensity I (W/sr). Emitted power: directional E·πR² over the disc of
 //! radius R that covers the smoke's bounding sphere; point 4π·I; spot 2π(1 − cos θc)·I.
 
-use super::rng::Rng;
 use crate::scene::{Light, LightKind};
 use anyhow::{bail, Result};
 use glam::DVec3;
 use std::f64::consts::PI;
+use volterra_formats::rng::Rng;
 
 #[derive(Debug, Clone)]
 pub enum Emitter {

@@ -8,11 +8,11 @@
 use super::lights::Emitter;
 use super::medium::Medium;
 use super::phase::hg;
-use super::rng::Rng;
 use super::tracking::{marched_transmittance, StepBatch};
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
 use glam::DVec3;
+use volterra_formats::rng::Rng;
 
 /// How light reaching a point from a light is attenuated.
 pub enum LightTransmittance<'a> {

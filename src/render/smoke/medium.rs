@@ -7,9 +7,10 @@
 //! (ρ(x) = Σ m_i W(|x − x_i|, h_i)), and [`Homogeneous`], a box or sphere of constant
 //! density, for the closed-form checks.
 
+use super::point_grid::PointGrid;
 use crate::render::geometry::clip_box;
 use glam::DVec3;
-use volterra_formats::sph::{cubic_spline, PointGrid};
+use volterra_formats::sph::cubic_spline;
 
 crate::setting_choice! {
     /// The SPH smoothing kernel. Both have support 2h and integrate to 1 over space.

@@ -4,9 +4,11 @@
 //! and ray marching with exact single scattering.
 //!
 //! - `medium`: SPH density (cubic spline or poly6), majorant grid, homogeneous test media;
+//!   `point_grid`: the uniform grid its neighbour and ray-band searches run on;
 //! - `tracking`: delta tracking, the paper's local free path, ratio tracking, marched
 //!   transmittance;
-//! - `phase`, `rng`, `lights`: Henyey–Greenstein, the PRNG, photon emission;
+//! - `phase`, `lights`: Henyey–Greenstein, photon emission (random numbers:
+//!   `volterra_formats::rng`);
 //! - `photons`: photon tracing; `store`: particle map and photon map;
 //! - `grid`: lazily filled grids (irradiance map, transmittance grid); `march`: the camera.
 
@@ -17,7 +19,7 @@ pub mod march;
 pub mod medium;
 pub mod phase;
 pub mod photons;
-pub mod rng;
+pub mod point_grid;
 pub mod store;
 pub mod tracking;
 

@@ -11,11 +11,11 @@
 use super::lights::Emitter;
 use super::medium::Medium;
 use super::phase::sample_hg;
-use super::rng::Rng;
 use super::tracking::{delta_track, local_free_path};
 use super::FreeFlight;
 use glam::DVec3;
 use rayon::prelude::*;
+use volterra_formats::rng::Rng;
 
 /// A stored photon: where it collided, the direction it was travelling, and the power it
 /// scatters there (watts, RGB) — its power times the albedo.

@@ -16,8 +16,8 @@ use super::phase::hg;
 use super::photons::Photon;
 use glam::DVec3;
 use rayon::prelude::*;
-use std::collections::BinaryHeap;
 use std::f64::consts::PI;
+use volterra_formats::kdtree::KdTree;
 
 pub struct ParticleMap {
     /// Scattered power per particle (W, RGB).
@@ -99,93 +99,24 @@ impl ParticleMap {
     }
 }
 
-/// A balanced kd-tree over photons: node = the median of its range, children the halves.
+/// The photons in the workspace's kd-tree (`volterra_formats::kdtree`).
 pub struct PhotonMap {
     photons: Vec<Photon>,
-    axis: Vec<u8>,
+    tree: KdTree,
     /// Neighbours gathered per estimate, and the largest radius searched.
     pub k: usize,
     pub max_radius: f64,
 }
 
 impl PhotonMap {
-    pub fn build(mut photons: Vec<Photon>, k: usize, max_radius: f64) -> PhotonMap {
-        let mut axis = vec![0u8; photons.len()];
-        fn split(p: &mut [Photon], axis: &mut [u8]) {
-            if p.len() <= 1 {
-                return;
-            }
-            let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-            for ph in p.iter() {
-                lo = lo.min(ph.position);
-                hi = hi.max(ph.position);
-            }
-            let ext = hi - lo;
-            let a = if ext.x >= ext.y && ext.x >= ext.z {
-                0
-            } else if ext.y >= ext.z {
-                1
-            } else {
-                2
-            };
-            let mid = p.len() / 2;
-            p.select_nth_unstable_by(mid, |x, y| x.position[a].total_cmp(&y.position[a]));
-            axis[mid] = a as u8;
-            let (left, right) = p.split_at_mut(mid);
-            let (al, ar) = axis.split_at_mut(mid);
-            split(left, al);
-            split(&mut right[1..], &mut ar[1..]);
-        }
-        split(&mut photons, &mut axis);
-        PhotonMap { photons, axis, k: k.max(1), max_radius }
+    pub fn build(photons: Vec<Photon>, k: usize, max_radius: f64) -> PhotonMap {
+        let positions: Vec<[f64; 3]> = photons.iter().map(|p| p.position.to_array()).collect();
+        PhotonMap { tree: KdTree::new(&positions), photons, k: k.max(1), max_radius }
     }
 
     /// The k nearest photons within max_radius of x: (squared distance, index), unordered.
     fn nearest(&self, x: DVec3) -> Vec<(f64, usize)> {
-        #[derive(PartialEq)]
-        struct E(f64, usize);
-        impl Eq for E {}
-        impl PartialOrd for E {
-            fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
-                Some(self.cmp(o))
-            }
-        }
-        impl Ord for E {
-            fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-                self.0.total_cmp(&o.0)
-            }
-        }
-        let mut heap: BinaryHeap<E> = BinaryHeap::with_capacity(self.k + 1);
-        let mut r2 = self.max_radius * self.max_radius;
-        let mut stack = vec![(0usize, self.photons.len())];
-        while let Some((lo, hi)) = stack.pop() {
-            if lo >= hi {
-                continue;
-            }
-            let mid = lo + (hi - lo) / 2;
-            let p = &self.photons[mid];
-            let d2 = (p.position - x).length_squared();
-            if d2 < r2 {
-                heap.push(E(d2, mid));
-                if heap.len() > self.k {
-                    heap.pop();
-                }
-                if heap.len() == self.k {
-                    r2 = heap.peek().unwrap().0;
-                }
-            }
-            if hi - lo == 1 {
-                continue;
-            }
-            let a = self.axis[mid] as usize;
-            let delta = x[a] - p.position[a];
-            let (near, far) = if delta < 0.0 { ((lo, mid), (mid + 1, hi)) } else { ((mid + 1, hi), (lo, mid)) };
-            if delta * delta < r2 {
-                stack.push(far);
-            }
-            stack.push(near);
-        }
-        heap.into_iter().map(|e| (e.0, e.1)).collect()
+        self.tree.k_nearest(x.to_array(), self.k, self.max_radius * self.max_radius, None)
     }
 
     /// S(x, ω_out) in W/m³/sr.
@@ -218,6 +149,6 @@ impl PhotonMap {
     }
 
     pub fn memory(&self) -> usize {
-        self.photons.len() * (std::mem::size_of::<Photon>() + 1)
+        self.photons.len() * std::mem::size_of::<Photon>() + self.tree.memory()
     }
 }

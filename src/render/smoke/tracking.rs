@@ -9,8 +9,8 @@
 //!   smooth estimate the camera's shadow rays use.
 
 use super::medium::Medium;
-use super::rng::Rng;
 use glam::DVec3;
+use volterra_formats::rng::Rng;
 
 /// Tentative collisions along o + t·d for t < t_max at the rate μ = c_ext·majorant of each
 /// majorant cell: calls `f(t, σ_t(x), μ, rng)` at each until it returns false. Leaving a
