@@ -906,9 +906,20 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
 
     let ty = scalar_type(first);
     let (rows, cols) = (first.rows as usize, first.columns as usize);
-    let frame_bytes = rows * cols * ty.size();
-    check_alloc(src, "DICOM volume", &[cols as u64, rows as u64, n as u64, ty.size() as u64])?;
-    let mut data = VoxelData::zeroed(ty, cols * rows * n);
+    let plane = rows * cols;
+    let frame_bytes = plane * ty.size();
+    // One rescale for all slices keeps the stored type; differing ones force real values,
+    // which each file's frames are turned into as they are decoded (so the stored-type
+    // volume is never held beside the real-valued one).
+    let slice_rescale: Vec<Rescale> =
+        frames.iter().map(|f| infos[f.file].frame_rescale.get(f.frame).copied().unwrap_or(infos[f.file].rescale)).collect();
+    let per_slice = slice_rescale.iter().any(|r| r != &slice_rescale[0]);
+    let mut rescale = slice_rescale[0];
+    let out_ty = if per_slice { ScalarType::F32 } else { ty };
+    let what = if per_slice { "real-valued volume (the rescale differs between slices)" } else { "DICOM volume" };
+    check_alloc(src, what, &[cols as u64, rows as u64, n as u64, out_ty.size() as u64])?;
+    let mut data = VoxelData::zeroed(out_ty, plane * n);
+    let out_frame_bytes = plane * out_ty.size();
 
     // Decode files in parallel; each file's frames are copied to their sorted slots as soon
     // as it is decoded and its buffer freed, so the series needs the volume plus one decoded
@@ -920,26 +931,35 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     let slots = std::sync::Mutex::new(data.as_bytes_mut());
     infos.par_iter().enumerate().try_for_each(|(fi, info)| -> Result<()> {
         let file_bytes = decode_frames(info)?;
+        let frame = |k: usize| &file_bytes[k * frame_bytes..(k + 1) * frame_bytes];
+        // Real values in native order, converted before the lock is taken.
+        let real: Vec<Vec<f32>> = if per_slice {
+            slot_of[fi]
+                .iter()
+                .map(|&(k, slot)| {
+                    let stored = VoxelData::from_bytes(ty, frame(k), false);
+                    (0..plane).map(|i| slice_rescale[slot].apply(stored.stored(i)) as f32).collect()
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         let mut bytes = slots.lock().unwrap_or_else(|e| e.into_inner());
-        for &(frame, slot) in &slot_of[fi] {
-            bytes[slot * frame_bytes..(slot + 1) * frame_bytes]
-                .copy_from_slice(&file_bytes[frame * frame_bytes..(frame + 1) * frame_bytes]);
+        for (j, &(k, slot)) in slot_of[fi].iter().enumerate() {
+            let to = &mut bytes[slot * out_frame_bytes..(slot + 1) * out_frame_bytes];
+            match real.get(j) {
+                Some(values) => to.copy_from_slice(bytemuck::cast_slice(values)),
+                None => to.copy_from_slice(frame(k)),
+            }
         }
         Ok(())
     })?;
-    // decode_frames yields little-endian samples.
-    data.fix_byte_order(false);
-
-    // One rescale for all slices keeps the stored type; differing ones force real values.
-    let slice_rescale: Vec<Rescale> =
-        frames.iter().map(|f| infos[f.file].frame_rescale.get(f.frame).copied().unwrap_or(infos[f.file].rescale)).collect();
-    let mut rescale = slice_rescale[0];
-    if slice_rescale.iter().any(|r| r != &rescale) {
-        check_alloc(src, "real-valued volume (the rescale differs between slices)", &[(cols * rows * n) as u64, 4])?;
-        let plane = rows * cols;
-        data = VoxelData::F32((0..plane * n).map(|i| slice_rescale[i / plane].apply(data.stored(i)) as f32).collect());
+    if per_slice {
         rescale = Rescale::IDENTITY;
         notes.push("rescale differs between slices: real-world values stored as f32".to_string());
+    } else {
+        // decode_frames yields little-endian samples.
+        data.fix_byte_order(false);
     }
     let mut depth = n;
     if let Some((spacing, d)) = resample_to {

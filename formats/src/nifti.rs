@@ -759,13 +759,13 @@ pub fn write_nifti_volumes(path: &Path, vols: &[Volume], extra_dims: &[usize], t
             let mut gz = flate2::write::GzEncoder::new(w, flate2::Compression::new(6));
             gz.write_all(&h).map_err(mk)?;
             for v in vols {
-                gz.write_all(&v.data.to_le_bytes()).map_err(mk)?;
+                v.data.write_le(&mut gz).map_err(mk)?;
             }
             gz.finish().map_err(mk)?;
         } else {
             w.write_all(&h).map_err(mk)?;
             for v in vols {
-                w.write_all(&v.data.to_le_bytes()).map_err(mk)?;
+                v.data.write_le(w).map_err(mk)?;
             }
         }
         Ok(())
