@@ -82,10 +82,7 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
     let (width, height) = rays.size();
     settings.validate().map_err(|e| anyhow!("{}: {e}", RENDERER.name))?;
     let start = std::time::Instant::now();
-    let index_to_world = node_to_world * DMat4::from_cols_array_2d(&volume.affine).transpose();
-    if index_to_world.determinant().abs() < 1e-300 {
-        return Err(anyhow!("volume affine is singular"));
-    }
+    let index_to_world = super::geometry::index_to_world(node_to_world, super::geometry::affine_matrix(&volume.affine))?;
     let world_to_index = index_to_world.inverse();
     let min_spacing = (0..3).map(|c| index_to_world.col(c).truncate().length()).fold(f64::INFINITY, f64::min);
     let dt = settings.step * min_spacing;

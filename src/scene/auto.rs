@@ -98,7 +98,7 @@ pub fn data_bounds(data: &NodeData, node_to_world: DMat4) -> Option<(DVec3, DVec
     let mut pts: Vec<DVec3> = Vec::new();
     match data {
         NodeData::Volume(v) => {
-            let a = node_to_world * DMat4::from_cols_array_2d(&v.affine).transpose();
+            let a = node_to_world * crate::render::geometry::affine_matrix(&v.affine);
             for c in 0..8 {
                 let ijk = DVec3::new(
                     if c & 1 == 0 { -0.5 } else { v.dims[0] as f64 - 0.5 },

@@ -83,7 +83,7 @@ pub struct SliceSource {
 
 impl SliceSource {
     pub fn new(volume: Arc<Volume>, node_to_world: DMat4) -> SliceSource {
-        let index_to_world = node_to_world * DMat4::from_cols_array_2d(&volume.affine).transpose();
+        let index_to_world = node_to_world * volterra::render::geometry::affine_matrix(&volume.affine);
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for c in 0..8 {
             let ijk = DVec3::new(

@@ -153,7 +153,7 @@ impl Prepared {
             hi,
             quanta,
             axes: [OnceLock::new(), OnceLock::new(), OnceLock::new()],
-            affine: DMat4::from_cols_array_2d(&volume.affine).transpose(),
+            affine: super::geometry::affine_matrix(&volume.affine),
         })
     }
 
@@ -450,10 +450,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let start = std::time::Instant::now();
     let prep = input.prepared;
     let tf = input.tf;
-    let index_to_world = input.node_to_world * prep.affine;
-    if index_to_world.determinant().abs() < 1e-300 {
-        bail!("volume affine is singular");
-    }
+    let index_to_world = super::geometry::index_to_world(input.node_to_world, prep.affine)?;
     let ratio = (settings.supersampling > 0.0).then_some(settings.supersampling);
     let fac = Factorization::new(index_to_world, prep.dims, rays, ratio);
     let axis = prep.axis(fac.perm)?;
