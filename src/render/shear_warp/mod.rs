@@ -8,9 +8,18 @@
 //! shear-warp (Lacroute 1995; Schulze et al. 2001) is not implemented; the `reference`
 //! renderer draws them.
 
+mod composite;
 pub mod factor;
 pub mod minmax;
 pub mod preint;
+mod prepare;
+mod scanline;
+mod warp;
+
+use composite::Slab;
+pub use prepare::Prepared;
+use scanline::{next_live, rows, RowState, SliceRows, SliceRuns};
+use warp::warp;
 
 use super::frame::{Frame, FrameStats};
 use super::registry::{NodeSettings, RendererDecl};
@@ -20,14 +29,10 @@ use crate::scene::{BlendMode, RayGenerator, TransferFunction};
 use anyhow::{bail, Result};
 use factor::Factorization;
 use glam::DMat4;
-use minmax::{next_unclear, ClearMask, OverlappedMap, ScanlineMap};
-use preint::{ClearQuanta, PreintTable};
+use minmax::next_unclear;
+use preint::PreintTable;
 use rayon::prelude::*;
-use std::collections::HashMap;
-use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, OnceLock};
-use volterra_formats::Volume;
 
 crate::setting_choice! {
     /// Empty-space leaping.
@@ -88,103 +93,6 @@ pub const RENDERER: RendererDecl = RendererDecl {
     parse: |t| Settings::from_table(t).map(NodeSettings::ShearWarp),
 };
 
-/// The volume resampled for one principal axis: permuted so that axis is z, x fastest,
-/// values as u16 quanta of the volume's value range; with its min-max maps, built on
-/// first use.
-struct Axis {
-    dims: [usize; 3],
-    data: Vec<u16>,
-    /// Min-max maps by block size n.
-    overlapped: Mutex<HashMap<usize, Arc<OverlappedMap>>>,
-    /// The overlapped map's test under the last transfer function used, by block size:
-    /// (the test's key, the mask).
-    clear_masks: Mutex<HashMap<usize, (u64, Arc<ClearMask>)>>,
-    scanline: Mutex<HashMap<usize, Arc<ScanlineMap>>>,
-}
-
-impl Axis {
-    fn overlapped(&self, n: usize) -> Arc<OverlappedMap> {
-        self.overlapped.lock().unwrap().entry(n).or_insert_with(|| Arc::new(OverlappedMap::new(&self.data, self.dims, n))).clone()
-    }
-    /// The transparent-block mask of the size-n overlapped map under `clear`; rebuilt only
-    /// when the test changes (a new transfer function), never for a new view.
-    fn clear_mask(&self, map: &OverlappedMap, clear: &ClearQuanta) -> Arc<ClearMask> {
-        let mut masks = self.clear_masks.lock().unwrap();
-        match masks.get(&map.n) {
-            Some((key, mask)) if *key == clear.key => mask.clone(),
-            _ => {
-                let mask = Arc::new(map.clear_mask(|mm| clear.clear(mm.min, mm.max)));
-                masks.insert(map.n, (clear.key, mask.clone()));
-                mask
-            }
-        }
-    }
-    fn scanline(&self, n: usize) -> Arc<ScanlineMap> {
-        self.scanline.lock().unwrap().entry(n).or_insert_with(|| Arc::new(ScanlineMap::new(&self.data, self.dims, n))).clone()
-    }
-}
-
-/// A volume prepared for shear-warp rendering. Everything here depends only on the
-/// volume: transfer-function and view changes reuse it.
-pub struct Prepared {
-    dims: [usize; 3],
-    /// Real-world value range mapped onto quanta 0..65535.
-    pub lo: f64,
-    pub hi: f64,
-    quanta: Vec<u16>,
-    axes: [OnceLock<Axis>; 3],
-    affine: DMat4,
-}
-
-impl Prepared {
-    /// Quantises `volume`, within the memory limit (`--max-memory`).
-    pub fn new(volume: &Volume) -> Result<Prepared> {
-        volterra_formats::memory::check_alloc(Path::new("shear-warp"), "the quantised volume", &[volume.voxel_count() as u64, 2])?;
-        let (lo, hi) = volume.value_range().unwrap_or((0.0, 1.0));
-        let hi = if hi > lo { hi } else { lo + 1.0 };
-        let scale = 65535.0 / (hi - lo);
-        let quanta = (0..volume.voxel_count())
-            .into_par_iter()
-            .map(|i| ((volume.value(i) - lo) * scale).round().clamp(0.0, 65535.0) as u16)
-            .collect();
-        Ok(Prepared {
-            dims: volume.dims,
-            lo,
-            hi,
-            quanta,
-            axes: [OnceLock::new(), OnceLock::new(), OnceLock::new()],
-            affine: super::geometry::affine_matrix(&volume.affine),
-        })
-    }
-
-    /// The slices along `perm[2]`, permuted once and kept (checked against the memory limit
-    /// the first time).
-    fn axis(&self, perm: [usize; 3]) -> Result<&Axis> {
-        if self.axes[perm[2]].get().is_none() {
-            volterra_formats::memory::check_alloc(
-                Path::new("shear-warp"),
-                "the slices along the viewing axis",
-                &[self.quanta.len() as u64, 2],
-            )?;
-        }
-        Ok(self.axes[perm[2]].get_or_init(|| {
-            let d = self.dims;
-            let pd = [d[perm[0]], d[perm[1]], d[perm[2]]];
-            let stride = [1, d[0], d[0] * d[1]];
-            let (sx, sy, sz) = (stride[perm[0]], stride[perm[1]], stride[perm[2]]);
-            let mut data = vec![0u16; self.quanta.len()];
-            data.par_chunks_mut(pd[0] * pd[1]).enumerate().for_each(|(z, slice)| {
-                for y in 0..pd[1] {
-                    for x in 0..pd[0] {
-                        slice[y * pd[0] + x] = self.quanta[x * sx + y * sy + z * sz];
-                    }
-                }
-            });
-            Axis { dims: pd, data, overlapped: Mutex::default(), clear_masks: Mutex::default(), scanline: Mutex::default() }
-        }))
-    }
-}
-
 /// What to draw.
 pub struct Input<'a> {
     pub prepared: &'a Prepared,
@@ -200,247 +108,7 @@ struct Intermediate {
     depth: Vec<f32>,
 }
 
-/// Two neighbouring rows of one permuted slice and the weight between them, looked up once
-/// per intermediate row and slice; `at` is then a bilinear sample at continuous x (clamped
-/// into the slice), in quanta.
-struct SliceRows<'a> {
-    r0: &'a [u16],
-    r1: &'a [u16],
-    wy: f32,
-}
-
-impl<'a> SliceRows<'a> {
-    #[inline]
-    fn new(axis: &'a Axis, z: usize, y0: usize, y1: usize, wy: f32) -> Self {
-        let nx = axis.dims[0];
-        let base = z * nx * axis.dims[1];
-        SliceRows { r0: &axis.data[base + y0 * nx..base + (y0 + 1) * nx], r1: &axis.data[base + y1 * nx..base + (y1 + 1) * nx], wy }
-    }
-
-    #[inline(always)]
-    fn at(&self, x: f64) -> f32 {
-        let nx = self.r0.len();
-        let xc = x.clamp(0.0, (nx - 1) as f64);
-        let x0 = (xc as usize).min(nx.saturating_sub(2));
-        let x1 = (x0 + 1).min(nx - 1);
-        let wx = (xc - x0 as f64) as f32;
-        let (r0, r1) = (self.r0, self.r1);
-        let a = r0[x0] as f32 + wx * (r0[x1] as f32 - r0[x0] as f32);
-        let b = r1[x0] as f32 + wx * (r1[x1] as f32 - r1[x0] as f32);
-        a + self.wy * (b - a)
-    }
-}
-
-/// Rows and weight for continuous y in [ylo, yhi].
-#[inline]
-fn rows(y: f64, ny: usize) -> (usize, usize, f32) {
-    let yc = y.clamp(0.0, (ny - 1) as f64);
-    let y0 = (yc as usize).min(ny.saturating_sub(2));
-    let y1 = (y0 + 1).min(ny - 1);
-    (y0, y1, (yc - y0 as f64) as f32)
-}
-
-/// Per intermediate row: early-termination links, the previous slice's samples for
-/// pre-integration, and the running maximum for MIP.
-struct RowState {
-    /// links[u] == u while pixel u is live; otherwise it points further right.
-    links: Vec<u32>,
-    prev: Vec<f32>,
-    /// The slice index (in compositing order) each pixel's `prev` sample comes from.
-    stamp: Vec<u32>,
-    max_level: Vec<f32>,
-    max_z: Vec<f32>,
-}
-
-impl RowState {
-    fn new(iw: usize) -> RowState {
-        RowState {
-            links: (0..=iw as u32).collect(),
-            prev: vec![0.0; iw],
-            stamp: vec![u32::MAX; iw],
-            max_level: vec![f32::NEG_INFINITY; iw],
-            max_z: vec![0.0; iw],
-        }
-    }
-}
-
-/// One slice's place on the intermediate scanlines, the same for every row: Mapping
-/// (U = ratio·x + Tz) and the runs of pixels whose x falls in each min-max block. Built
-/// once per frame, so the compositing loop finds a pixel's block and the block's end with
-/// two lookups; computing them per run (a division by n, a ceil, u64↔f64 conversions) was
-/// over half the time on the aneurism at ratio 1.
-struct SliceRuns {
-    /// Inverse Mapping offset: x = U / ratio + iz.
-    iz: f64,
-    /// Pixels where x lies inside the slice (clipped to the view), if any.
-    span: Option<(usize, usize)>,
-    /// Block of each pixel of `span`, from its first pixel.
-    block: Vec<u32>,
-    /// block_end[bx]: the first pixel past block bx.
-    block_end: Vec<usize>,
-}
-
-impl SliceRuns {
-    fn new(fac: &Factorization, z: usize, x_range: (f64, f64), u_clip: (usize, usize), n: usize, nbx: usize) -> SliceRuns {
-        let iz = fac.umin + z as f64 * fac.sx;
-        let tz = -fac.ratio * iz;
-        let lo = (fac.ratio * x_range.0 + tz).ceil().max(u_clip.0 as f64);
-        let hi = (fac.ratio * x_range.1 + tz).floor().min(u_clip.1 as f64);
-        let span = (lo <= hi).then_some((lo as usize, hi as usize));
-        let inv_ratio = 1.0 / fac.ratio;
-        let block = match span {
-            Some((ua, ub)) => (ua..=ub).map(|u| ((u as f64 * inv_ratio + iz).max(0.0) as usize / n) as u32).collect(),
-            None => Vec::new(),
-        };
-        // Pixels whose x falls in block bx: U < ratio·(n·(bx+1) − iz).
-        let block_end = (0..nbx).map(|bx| ((((bx + 1) * n) as f64 - iz) * fac.ratio).ceil().max(0.0) as usize).collect();
-        SliceRuns { iz, span, block, block_end }
-    }
-
-    /// The block of pixel u (in `span`) and the end of its run, at most `limit`.
-    #[inline]
-    fn run(&self, u: usize, limit: usize) -> (usize, usize) {
-        let ua = self.span.map_or(0, |s| s.0);
-        let bx = self.block[u - ua] as usize;
-        (bx, self.block_end[bx].max(u + 1).min(limit))
-    }
-}
-
-/// Next live (not yet opaque) pixel at or after u, with path halving.
-#[inline]
-fn next_live(links: &mut [u32], mut u: usize) -> usize {
-    while links[u] as usize != u {
-        let nxt = links[u] as usize;
-        links[u] = links[nxt];
-        u = nxt;
-    }
-    u
-}
-
 const MAX_SLAB_SAMPLES: usize = 4;
-
-/// One slab (the front slice zp to the back slice z) of one intermediate row: what
-/// compositing its runs needs.
-struct Slab<'a> {
-    back: SliceRows<'a>,
-    /// None where the rays enter the volume between the slices.
-    front: Option<SliceRows<'a>>,
-    axis: &'a Axis,
-    /// The back sample's row, and the front sample's relative to it.
-    y: f64,
-    dyo: f64,
-    iz: f64,
-    /// Inverse Mapping: x = u_over_ratio[U] + iz, one lookup and one add per pixel.
-    u_over_ratio: &'a [f64],
-    /// x of the front slice's sample relative to the back slice's.
-    dxo: f64,
-    x_range: (f64, f64),
-    /// Compositing-order index of the back slice.
-    zi: u32,
-    z: usize,
-    zp: usize,
-    /// The intermediate row.
-    vf: f64,
-    table: &'a PreintTable,
-    q_to_level: f32,
-    termination: f32,
-    fac: &'a Factorization,
-}
-
-impl Slab<'_> {
-    /// Composites the live pixels of u..run_end through K segments per slab and returns
-    /// the next live pixel at or after run_end. Generic over K so that the paper's one
-    /// segment per slab compiles without the loop over samples between the slices (a
-    /// runtime count cost it a fifth of its speed).
-    #[allow(clippy::too_many_arguments)]
-    #[inline(never)]
-    fn composite_run<const K: usize>(
-        &self,
-        links: &mut [u32],
-        prev: &mut [f32],
-        stamp: &mut [u32],
-        row: &mut [[f32; 4]],
-        depth: &mut [f32],
-        u: usize,
-        run_end: usize,
-        n_samples: &mut u64,
-    ) -> usize {
-        let (table, q) = (self.table, self.q_to_level);
-        // Slices zp and z at the rows of the K − 1 samples between them: point j lies at
-        // fraction j/K from the front slice to the back one, where the trilinear value is
-        // the mix of both slices at that point's (x, y). Looked up once per run.
-        let between: Option<[(SliceRows, SliceRows); MAX_SLAB_SAMPLES - 1]> = (K > 1).then(|| {
-            std::array::from_fn(|i| {
-                let j = (i + 1).min(K.max(2) - 1);
-                let yj = self.y + self.dyo * (1.0 - j as f64 / K as f64);
-                let (r0, r1, rw) = rows(yj, self.axis.dims[1]);
-                (SliceRows::new(self.axis, self.zp, r0, r1, rw), SliceRows::new(self.axis, self.z, r0, r1, rw))
-            })
-        });
-        let mut uu = u;
-        while uu < run_end {
-            let xb = self.u_over_ratio[uu] + self.iz;
-            let back = self.back.at(xb) * q;
-            *n_samples += 1;
-            let front = if stamp[uu] == self.zi - 1 {
-                Some(prev[uu])
-            } else {
-                let xf = xb + self.dxo;
-                match &self.front {
-                    Some(front) if xf >= self.x_range.0 && xf <= self.x_range.1 => {
-                        *n_samples += 1;
-                        Some(front.at(xf) * q)
-                    }
-                    _ => None, // the ray entered the volume between these slices
-                }
-            };
-            prev[uu] = back;
-            stamp[uu] = self.zi;
-            if let Some(front) = front {
-                // K segments, front to back, through the trilinear values between the
-                // slices; stop once the pixel is opaque.
-                let mut f = front;
-                for j in 0..K {
-                    let b = if j + 1 == K {
-                        back
-                    } else {
-                        let (fs, bs) = &between.as_ref().unwrap()[j];
-                        let w = (j + 1) as f32 / K as f32;
-                        let xj = xb + self.dxo * (1.0 - w as f64);
-                        let (sf, sb) = (fs.at(xj), bs.at(xj));
-                        *n_samples += 2;
-                        (sf + w * (sb - sf)) * q
-                    };
-                    if f.max(b) >= table.clear_below {
-                        let e = table.lookup(f, b);
-                        if e.a > 0.0 {
-                            let p = &mut row[uu];
-                            let t = 1.0 - p[3];
-                            let before = p[3];
-                            p[0] += t * e.c[0];
-                            p[1] += t * e.c[1];
-                            p[2] += t * e.c[2];
-                            p[3] += t * e.a;
-                            if before < 0.5 && p[3] >= 0.5 {
-                                // Where inside the segment opacity passed 0.5 (uniform extinction).
-                                let f = if e.a < 1.0 { ((0.5 / (1.0 - before)).ln() / (1.0 - e.a).ln()).clamp(0.0, 1.0) } else { 0.0 };
-                                let zf = self.zp as f64 + (j as f64 + f as f64) / K as f64 * (self.z as f64 - self.zp as f64);
-                                depth[uu] = self.fac.depth(uu as f64, self.vf, zf) as f32;
-                            }
-                            if p[3] >= self.termination {
-                                links[uu] = uu as u32 + 1; // early ray termination
-                                break;
-                            }
-                        }
-                    }
-                    f = b;
-                }
-            }
-            uu = next_live(links, uu + 1);
-        }
-        uu
-    }
-}
 
 pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
     if !rays.is_parallel() {
@@ -740,81 +408,4 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         nodes: vec![],
     };
     Ok(frame)
-}
-
-/// ⌊v⌋ without a libm call (x86-64 without SSE4.1 has no rounding instruction; the calls
-/// were a quarter of the warp's time).
-#[inline]
-fn floor_i64(v: f64) -> i64 {
-    let t = v as i64;
-    if (t as f64) > v {
-        t - 1
-    } else {
-        t
-    }
-}
-
-/// The 2-D warp: each final pixel samples the intermediate image bilinearly (premultiplied
-/// colour and opacity; depth from the finite neighbours).
-fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Result<Frame, super::driver::Cancelled> {
-    let mut f = Frame::empty(w, h);
-    let ih = inter.rgba.len() / inter.width;
-    let iw = inter.width;
-    // Which groups of 8 intermediate pixels hold anything (opacity > 0; colour and depth
-    // come only with opacity): a final pixel whose four neighbours lie in empty groups
-    // stays empty without being filtered. Most of an angiogram is background.
-    let words = iw.div_ceil(8 * 64);
-    let mut occupied = vec![0u64; words * ih];
-    occupied.par_chunks_mut(words).zip(inter.rgba.par_chunks(iw)).for_each(|(bits, row)| {
-        for (u, p) in row.iter().enumerate() {
-            if p[3] > 0.0 {
-                bits[u / 512] |= 1 << ((u / 8) % 64);
-            }
-        }
-    });
-    let group_empty = |u: i64, v: i64| {
-        let (g, v) = (u as usize / 8, v as usize);
-        occupied[v * words + g / 64] >> (g % 64) & 1 == 0
-    };
-    super::driver::render_bands("warp", w, 1, &mut f.rgba, &mut f.depth, &mut [], |band| {
-        let (y, row, depth) = (band.y0, band.rgba, band.depth);
-        for x in 0..w {
-            let (u, v) = fac.to_intermediate(x as f64 + 0.5, y as f64 + 0.5);
-            if !(u >= -1.0 && v >= -1.0 && u <= iw as f64 && v <= ih as f64) {
-                continue;
-            }
-            let (u0, v0) = (floor_i64(u), floor_i64(v));
-            let (tu, tv) = ((u - u0 as f64) as f32, (v - v0 as f64) as f32);
-            let weights = [(0, 0, (1.0 - tu) * (1.0 - tv)), (1, 0, tu * (1.0 - tv)), (0, 1, (1.0 - tu) * tv), (1, 1, tu * tv)];
-            let inside = u0 >= 0 && v0 >= 0 && u0 + 1 < iw as i64 && v0 + 1 < ih as i64;
-            if inside && [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)].iter().all(|&(u, v)| group_empty(u, v)) {
-                continue;
-            }
-            let mut acc = [0f32; 4];
-            let (mut zsum, mut zw) = (0f32, 0f32);
-            for (du, dv, wgt) in weights {
-                let (pu, pv) = (u0 + du, v0 + dv);
-                // Inside the image the bounds tests are known to pass; a zero weight adds
-                // exactly nothing, so skipping it is only needed at the edges.
-                if !inside && (pu < 0 || pv < 0 || pu >= iw as i64 || pv >= ih as i64 || wgt == 0.0) {
-                    continue;
-                }
-                let i = pv as usize * iw + pu as usize;
-                let p = inter.rgba[i];
-                for k in 0..4 {
-                    acc[k] += wgt * p[k];
-                }
-                let d = inter.depth[i];
-                if d.is_finite() {
-                    zsum += wgt * d;
-                    zw += wgt;
-                }
-            }
-            row[x] = acc;
-            if zw >= 0.5 {
-                depth[x] = zsum / zw;
-            }
-        }
-    })?;
-    Ok(f)
 }

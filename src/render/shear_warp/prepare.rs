@@ -1,0 +1,162 @@
+//! The preparation shear-warp keeps per volume: the values quantised to u16 over the
+//! volume's range, and per principal axis the slices permuted so that axis is z (built on
+//! first use), with their min-max maps. Nothing here depends on the view or the transfer
+//! function (the transparent-block masks are cached per transfer-function test).
+
+use super::minmax::{ClearMask, OverlappedMap, ScanlineMap};
+use super::preint::ClearQuanta;
+use anyhow::Result;
+use glam::DMat4;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::{Arc, Mutex, OnceLock};
+use volterra_formats::Volume;
+
+/// The volume resampled for one principal axis: permuted so that axis is z, x fastest,
+/// values as u16 quanta of the volume's value range; with its min-max maps, built on
+/// first use.
+pub(super) struct Axis {
+    pub(super) dims: [usize; 3],
+    pub(super) data: Vec<u16>,
+    /// Min-max maps by block size n.
+    overlapped: Mutex<HashMap<usize, Arc<OverlappedMap>>>,
+    /// The overlapped map's test under the last transfer function used, by block size:
+    /// (the test's key, the mask).
+    clear_masks: Mutex<HashMap<usize, (u64, Arc<ClearMask>)>>,
+    scanline: Mutex<HashMap<usize, Arc<ScanlineMap>>>,
+}
+
+impl Axis {
+    pub(super) fn overlapped(&self, n: usize) -> Arc<OverlappedMap> {
+        self.overlapped.lock().unwrap().entry(n).or_insert_with(|| Arc::new(OverlappedMap::new(&self.data, self.dims, n))).clone()
+    }
+    /// The transparent-block mask of the size-n overlapped map under `clear`; rebuilt only
+    /// when the test changes (a new transfer function), never for a new view.
+    pub(super) fn clear_mask(&self, map: &OverlappedMap, clear: &ClearQuanta) -> Arc<ClearMask> {
+        let mut masks = self.clear_masks.lock().unwrap();
+        match masks.get(&map.n) {
+            Some((key, mask)) if *key == clear.key => mask.clone(),
+            _ => {
+                let mask = Arc::new(map.clear_mask(|mm| clear.clear(mm.min, mm.max)));
+                masks.insert(map.n, (clear.key, mask.clone()));
+                mask
+            }
+        }
+    }
+    pub(super) fn scanline(&self, n: usize) -> Arc<ScanlineMap> {
+        self.scanline.lock().unwrap().entry(n).or_insert_with(|| Arc::new(ScanlineMap::new(&self.data, self.dims, n))).clone()
+    }
+}
+
+/// A volume prepared for shear-warp rendering. Everything here depends only on the
+/// volume: transfer-function and view changes reuse it.
+pub struct Prepared {
+    pub(super) dims: [usize; 3],
+    /// Real-world value range mapped onto quanta 0..65535.
+    pub lo: f64,
+    pub hi: f64,
+    quanta: Vec<u16>,
+    axes: [OnceLock<Axis>; 3],
+    pub(super) affine: DMat4,
+}
+
+impl Prepared {
+    /// Quantises `volume`, within the memory limit (`--max-memory`).
+    pub fn new(volume: &Volume) -> Result<Prepared> {
+        volterra_formats::memory::check_alloc(Path::new("shear-warp"), "the quantised volume", &[volume.voxel_count() as u64, 2])?;
+        let (lo, hi) = volume.value_range().unwrap_or((0.0, 1.0));
+        let hi = if hi > lo { hi } else { lo + 1.0 };
+        let scale = 65535.0 / (hi - lo);
+        let quanta = (0..volume.voxel_count())
+            .into_par_iter()
+            .map(|i| ((volume.value(i) - lo) * scale).round().clamp(0.0, 65535.0) as u16)
+            .collect();
+        Ok(Prepared {
+            dims: volume.dims,
+            lo,
+            hi,
+            quanta,
+            axes: [OnceLock::new(), OnceLock::new(), OnceLock::new()],
+            affine: crate::render::geometry::affine_matrix(&volume.affine),
+        })
+    }
+
+    /// The slices along `perm[2]`, permuted once and kept (checked against the memory limit
+    /// the first time).
+    pub(super) fn axis(&self, perm: [usize; 3]) -> Result<&Axis> {
+        if self.axes[perm[2]].get().is_none() {
+            volterra_formats::memory::check_alloc(
+                Path::new("shear-warp"),
+                "the slices along the viewing axis",
+                &[self.quanta.len() as u64, 2],
+            )?;
+        }
+        Ok(self.axes[perm[2]].get_or_init(|| {
+            let d = self.dims;
+            let pd = [d[perm[0]], d[perm[1]], d[perm[2]]];
+            let stride = [1, d[0], d[0] * d[1]];
+            let (sx, sy, sz) = (stride[perm[0]], stride[perm[1]], stride[perm[2]]);
+            let mut data = vec![0u16; self.quanta.len()];
+            data.par_chunks_mut(pd[0] * pd[1]).enumerate().for_each(|(z, slice)| {
+                for y in 0..pd[1] {
+                    for x in 0..pd[0] {
+                        slice[y * pd[0] + x] = self.quanta[x * sx + y * sy + z * sz];
+                    }
+                }
+            });
+            Axis { dims: pd, data, overlapped: Mutex::default(), clear_masks: Mutex::default(), scanline: Mutex::default() }
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use volterra_formats::{Rescale, VoxelData};
+
+    fn volume(dims: [usize; 3], values: Vec<i16>) -> Volume {
+        let affine = volterra_formats::volume::identity_affine();
+        Volume {
+            dims,
+            spacing: [1.0; 3],
+            affine,
+            data: VoxelData::I16(values),
+            rescale: Rescale { slope: 2.0, intercept: -10.0 },
+            modality: None,
+            units: None,
+            volume_count: 1,
+            volume_index: 0,
+            notes: vec![],
+            attributes: vec![],
+        }
+    }
+
+    #[test]
+    fn values_are_quantised_over_their_real_range_and_slices_permuted_per_axis() {
+        let dims = [4, 3, 2];
+        let v = volume(dims, (0..24).map(|i| i as i16 * 3).collect());
+        let p = Prepared::new(&v).unwrap();
+        // Real values 2·stored − 10: −10 … 128.
+        assert_eq!((p.lo, p.hi), (-10.0, 128.0));
+        assert_eq!((p.quanta[0], p.quanta[23]), (0, 65535));
+        let q = |x: usize, y: usize, z: usize| p.quanta[x + 4 * (y + 3 * z)];
+        // Principal axis x: permuted (y, z, x); slices of 3 × 2 along x.
+        let a = p.axis([1, 2, 0]).unwrap();
+        assert_eq!(a.dims, [3, 2, 4]);
+        for (x, y, z) in [(0, 0, 0), (3, 2, 1), (1, 2, 0), (2, 0, 1)] {
+            assert_eq!(a.data[y + 3 * (z + 2 * x)], q(x, y, z), "({x}, {y}, {z})");
+        }
+        // Kept: the same slices the second time.
+        assert!(std::ptr::eq(a, p.axis([1, 2, 0]).unwrap()));
+        let z = p.axis([0, 1, 2]).unwrap();
+        assert_eq!(z.data, p.quanta);
+    }
+
+    #[test]
+    fn a_constant_volume_gets_a_unit_range() {
+        let p = Prepared::new(&volume([2, 2, 2], vec![7; 8])).unwrap();
+        assert_eq!((p.lo, p.hi), (4.0, 5.0));
+        assert!(p.quanta.iter().all(|&q| q == 0));
+    }
+}
