@@ -13,6 +13,9 @@ mkdir -p target
 # Where cargo puts the binaries: CARGO_TARGET_DIR or a config may move them out of ./target.
 TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | "$VENV_PY" -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
 set +e
+# The integration tests run the `volterra` binary, which lives in its own package
+# (volterra-cli): `cargo test` builds only its test harness, so build the binary first.
+cargo build --workspace --bins 2>&1 | tail -3
 cargo test --workspace --all-targets --no-fail-fast 2>&1 | tee target/test-output.log
 status=${PIPESTATUS[0]}
 # The Mitsuba reference of the built-in plume, from the particles the built binary writes.

@@ -94,14 +94,15 @@ pub fn gpu() -> Option<&'static volterra::render::terrain::gpu::Gpu> {
 
 /// The `volterra` binary, which the volterra-cli package builds into the same target
 /// directory as the tests (target/<profile>/volterra; the tests' own executables sit in
-/// target/<profile>/deps). `cargo test --workspace` (tests/run.sh) builds it first.
+/// target/<profile>/deps). `cargo test` builds only the binary's test harness, so build it
+/// first: `cargo build --workspace --bins` (tests/run.sh does).
 pub fn volterra_bin() -> PathBuf {
     let exe = std::env::current_exe().expect("the test executable's path");
     let profile_dir = exe.parent().and_then(|deps| deps.parent()).expect("target/<profile>/deps/<test>");
     let bin = profile_dir.join(format!("volterra{}", std::env::consts::EXE_SUFFIX));
     assert!(
         bin.is_file(),
-        "{} is not built: run the tests with `cargo test --workspace` (as tests/run.sh does) or build it with `cargo build -p volterra-cli`",
+        "{} is not built: build it with `cargo build --workspace --bins` before `cargo test` (tests/run.sh does)",
         bin.display()
     );
     bin
