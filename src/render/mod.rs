@@ -31,15 +31,17 @@ use volterra_formats::{Heightfield, RgbImage, Volume};
 pub struct RenderCache {
     /// Keyed by the volume's address: a node whose data is replaced gets a new entry.
     prepared: Mutex<HashMap<usize, PreparedVolume>>,
-    /// Keyed by the heightfield's and texture's addresses and the placement's bits.
+    /// Keyed by the heightfield's and texture's addresses; one placement each (a new one,
+    /// such as the viewer's exaggeration slider, replaces the entry instead of adding one).
     terrain: Mutex<HashMap<TerrainKey, PreparedTerrain>>,
 }
 
 /// A volume and its shear-warp preparation (the volume is held so its address stays taken).
 type PreparedVolume = (Arc<Volume>, Arc<shear_warp::Prepared>);
-type TerrainKey = (usize, usize, [u64; 16]);
-/// A heightfield and its terrain preparation (held, so the addresses stay taken).
-type PreparedTerrain = (Arc<Heightfield>, Arc<terrain::Prepared>);
+type TerrainKey = (usize, usize);
+/// A heightfield, the placement's bits and the terrain preparation for it (the
+/// heightfield is held, so its address stays taken).
+type PreparedTerrain = (Arc<Heightfield>, [u64; 16], Arc<terrain::Prepared>);
 
 impl RenderCache {
     fn shear_warp(&self, volume: &Arc<Volume>) -> Result<Arc<shear_warp::Prepared>> {
@@ -56,14 +58,17 @@ impl RenderCache {
 
     fn terrain(&self, hf: &Arc<Heightfield>, texture: Option<Arc<RgbImage>>, node_to_world: glam::DMat4) -> Result<Arc<terrain::Prepared>> {
         let tex = texture.as_ref().map_or(0, |t| Arc::as_ptr(t) as usize);
-        let key = (Arc::as_ptr(hf) as usize, tex, node_to_world.to_cols_array().map(f64::to_bits));
+        let key = (Arc::as_ptr(hf) as usize, tex);
+        let placement = node_to_world.to_cols_array().map(f64::to_bits);
         let mut map = self.terrain.lock().unwrap();
-        if let Some((_, p)) = map.get(&key) {
-            return Ok(p.clone());
+        if let Some((_, at, p)) = map.get(&key) {
+            if *at == placement {
+                return Ok(p.clone());
+            }
         }
         // The prepared terrain holds the texture, so its address stays taken too.
         let p = Arc::new(terrain::Prepared::new(hf, texture, node_to_world)?);
-        map.insert(key, (hf.clone(), p.clone()));
+        map.insert(key, (hf.clone(), placement, p.clone()));
         Ok(p)
     }
 }
