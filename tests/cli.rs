@@ -95,7 +95,7 @@ fn render_then_compare_with_itself_and_with_a_coarser_render() {
     let rel = diff["overall"]["relative_rmse"].as_f64().unwrap();
     // A step of one voxel instead of 0.1 changes the image, but not beyond recognition.
     assert!(rel > 1e-4 && rel < 0.2, "relative RMSE {rel}");
-    let img = volterra_formats::exr_io::read_exr(&fine).unwrap();
+    let img = volterra_formats::exr_io::read_exr(&fine, &Default::default()).unwrap();
     for c in ["R", "G", "B", "A", "Z"] {
         assert!(img.channel(c).is_some(), "channel {c}");
     }
@@ -132,7 +132,7 @@ fn render_frames_writes_a_numbered_sequence() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for k in 0..3 {
         assert!(d.join(format!("walk_{k:04}.exr")).exists() && d.join(format!("walk_{k:04}.png")).exists(), "frame {k}");
-        let img = volterra_formats::exr_io::read_exr(&d.join(format!("walk_{k:04}.exr"))).unwrap();
+        let img = volterra_formats::exr_io::read_exr(&d.join(format!("walk_{k:04}.exr")), &Default::default()).unwrap();
         assert!(img.channel("steps").is_some());
         assert!(img.channel("A").unwrap().iter().any(|&a| a > 0.5), "frame {k} sees the ground");
     }

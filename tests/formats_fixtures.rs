@@ -129,7 +129,7 @@ fn every_fixture_matches_its_reference_library() {
                 }
             }
             "series_list" => {
-                let list = dicom::list_series(&path).unwrap();
+                let list = dicom::list_series(&path, &Default::default()).unwrap();
                 let uids: Vec<&str> = list.iter().map(|s| s.uid.as_str()).collect();
                 assert_eq!(uids, r["uids"].as_array().unwrap().iter().map(|u| u.as_str().unwrap()).collect::<Vec<_>>());
                 let err = load(&path, &opts).expect_err("two series need a choice");

@@ -79,6 +79,33 @@ fn unknown_keys_and_missing_files_are_one_line_errors_with_place() {
     assert!(e.contains(&dir.path().join("nothere.nii").display().to_string()) && e.contains("not found"), "{e}");
 }
 
+/// The memory limits are a value each scene hands its readers and preparations (not a
+/// setting of the whole process): two scenes in one process, each held to its own.
+#[test]
+fn each_scene_reads_and_renders_within_its_own_limits() {
+    use volterra_formats::Limits;
+    let dir = tempfile::tempdir().unwrap();
+    let vol = volterra::samples::angio_phantom(8); // 8³ one-byte voxels
+    volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &vol).unwrap();
+    let p = write(dir.path(), "s.toml", CUBE_SCENE);
+    // Too little for the volume: the reader refuses it, naming the file and both sizes.
+    let tight = Scene::load(&p, &[]).unwrap().with_limits(Limits::max(100));
+    let Err(e) = tight.data(0) else { panic!("a 512-byte volume read within 100 bytes") };
+    let e = format!("{e:#}");
+    assert!(e.contains("v.nii") && e.contains("volume needs 512 B but the memory limit is 100 B"), "{e}");
+    // Enough for the volume (and its preparation), not for the frames of a 512² image.
+    let big = ["image.width=512".to_string(), "image.height=512".to_string()];
+    let mid = Scene::load(&p, &big).unwrap().with_limits(Limits::max(100_000));
+    mid.data(0).expect("the volume fits");
+    let Err(e) = render::render_scene(&mid, None) else { panic!("512² frames within 100 kB") };
+    let e = format!("{e:#}");
+    assert!(e.contains("the frames needs 10.0 MiB but the memory limit is 97.7 KiB"), "{e}");
+    // An edited scene keeps its limits; a scene without limits, in the same process, renders.
+    let edited = mid.edited(mid.file.clone()).unwrap();
+    assert_eq!(edited.limits(), &Limits::max(100_000));
+    render::render_scene(&Scene::load(&p, &big).unwrap(), None).expect("no limit set: the machine's memory");
+}
+
 #[test]
 fn renderer_settings_are_checked_at_load_with_their_line_before_any_data_is_read() {
     let dir = tempfile::tempdir().unwrap();
@@ -332,7 +359,7 @@ fn walk_keeps_the_eye_above_the_ground_and_frames_pass_through_the_keyframes() {
     let dir = tempfile::tempdir().unwrap();
     volterra::samples::write_samples(dir.path()).unwrap();
     let scene = Scene::load(&dir.path().join("terrain_walk.toml"), &[]).unwrap();
-    let dem = volterra::formats::geotiff::read_geotiff(&dir.path().join("fractal_dem.tif")).unwrap();
+    let dem = volterra::formats::geotiff::read_geotiff(&dir.path().join("fractal_dem.tif"), &Default::default()).unwrap();
     // The ground by hand: bilinear between the four samples around (x, y); rows run south.
     let ground = |x: f64, y: f64| {
         let (gx, gy) = (x / dem.cell_size[0], y / dem.cell_size[1]);

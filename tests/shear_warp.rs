@@ -64,7 +64,7 @@ fn tf_ramp(lo: f64, hi: f64, a: f64) -> TransferFunction {
 
 fn render_both(v: &Volume, tf: &TransferFunction, cam: &Camera, size: usize, blend: BlendMode, s: &shear_warp::Settings) -> (Frame, Frame) {
     let rays = cam.rays(size, size);
-    let prepared = shear_warp::Prepared::new(v).unwrap();
+    let prepared = shear_warp::Prepared::new(v, &Default::default()).unwrap();
     let sw = shear_warp::render(&shear_warp::Input { prepared: &prepared, node_to_world: DMat4::IDENTITY, tf, blend }, &rays, s).unwrap();
     let rf = reference_volume::render(
         &reference_volume::VolumeInput { volume: v, node_to_world: DMat4::IDENTITY, tf, blend },
@@ -133,7 +133,7 @@ fn leaping_modes_change_speed_not_the_image() {
     let tf = tf_ramp(150.0, 255.0, 0.5); // the outer tissue is transparent: lots to leap
     let cam = camera([0.35, 0.9, 0.25], 26.0);
     let rays = cam.rays(80, 80);
-    let prepared = shear_warp::Prepared::new(&v).unwrap();
+    let prepared = shear_warp::Prepared::new(&v, &Default::default()).unwrap();
     let input = shear_warp::Input { prepared: &prepared, node_to_world: DMat4::IDENTITY, tf: &tf, blend: BlendMode::Composite };
     let mut frames = Vec::new();
     for leaping in [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped] {
@@ -229,7 +229,7 @@ fn perspective_views_are_refused_with_the_reason() {
     let v = blob([9, 9, 9]);
     let mut cam = camera([0.0, 1.0, 0.0], 5.0);
     cam.parallel_projection = false;
-    let prepared = shear_warp::Prepared::new(&v).unwrap();
+    let prepared = shear_warp::Prepared::new(&v, &Default::default()).unwrap();
     let tf = tf_ramp(0.0, 255.0, 0.5);
     let err = shear_warp::render(
         &shear_warp::Input { prepared: &prepared, node_to_world: DMat4::IDENTITY, tf: &tf, blend: BlendMode::Composite },

@@ -172,7 +172,7 @@ fn render(
     cam: &Camera,
     settings: &Settings,
 ) -> anyhow::Result<volterra::render::Frame> {
-    let input = SmokeInput { particles: set, node_to_world: DMat4::IDENTITY, medium: &medium, lights };
+    let input = SmokeInput { particles: set, node_to_world: DMat4::IDENTITY, medium: &medium, lights, limits: Default::default() };
     smoke::render(&input, &cam.rays(24, 24), settings)
 }
 

@@ -16,7 +16,7 @@ fn against_mitsuba(scene: &str, reference: &str) -> (f64, f64) {
     let sets = ["node.plume.settings.samples=32".to_string(), "node.plume.settings.photons=1000000".to_string()];
     let scene = Scene::load(&common::repo_path(scene), &sets).unwrap();
     let ours = render::render_scene(&scene, None).unwrap();
-    let mitsuba = volterra_formats::exr_io::read_exr(&common::repo_path(reference)).unwrap();
+    let mitsuba = volterra_formats::exr_io::read_exr(&common::repo_path(reference), &Default::default()).unwrap();
     let reference = mitsuba.channel("R").unwrap();
     assert_eq!(ours.rgba.len(), reference.len());
     let (mut se, mut rs, mut sum_a, mut sum_b) = (0.0, 0.0, 0.0, 0.0);

@@ -291,8 +291,9 @@ fn real_dems_fly_and_walk_agree_with_the_reference() {
         return;
     }
     let opts = volterra::formats::png_height::PngHeightOptions { vertical_scale: 0.1, cell_size: 160.0, ..Default::default() };
-    let puget = volterra::formats::png_height::read_png_heightmap(&data.join("terrain/ps_height_1k.png"), &opts).unwrap();
-    let pysheds = volterra::formats::geotiff::read_geotiff(&data.join("terrain/pysheds_dem.tif")).unwrap();
+    let puget =
+        volterra::formats::png_height::read_png_heightmap(&data.join("terrain/ps_height_1k.png"), &opts, &Default::default()).unwrap();
+    let pysheds = volterra::formats::geotiff::read_geotiff(&data.join("terrain/pysheds_dem.tif"), &Default::default()).unwrap();
     for (name, hf) in [("puget sound", &puget), ("pysheds", &pysheds)] {
         let grid = TerrainGrid::new(hf, DMat4::IDENTITY).unwrap();
         let ex = grid.cell[0] * (hf.width - 1) as f64;

@@ -31,7 +31,11 @@ fn puget_sound_depth_matches_vtk_triangle_mesh() {
         let hf = scene.heightfield(0).unwrap();
         let (w, h) = (scene.file.image.width, scene.file.image.height);
         let rays = scene.file.camera.rays(w, h);
-        let vtk = volterra_formats::exr_io::read_exr(&common::repo_path(&format!("tests/reference/data/vtk_terrain_{name}.exr"))).unwrap();
+        let vtk = volterra_formats::exr_io::read_exr(
+            &common::repo_path(&format!("tests/reference/data/vtk_terrain_{name}.exr")),
+            &Default::default(),
+        )
+        .unwrap();
         let mut vtk = depth_frame(vtk.channel("Z").unwrap().to_vec(), w, h);
 
         let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();

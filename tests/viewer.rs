@@ -138,7 +138,7 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     let cli = out.path().join("cli.exr");
     let st = Command::new(common::volterra_bin()).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
     assert!(st.success());
-    let (a, b) = (exr_io::read_exr(&exr_path).unwrap(), exr_io::read_exr(&cli).unwrap());
+    let (a, b) = (exr_io::read_exr(&exr_path, &Default::default()).unwrap(), exr_io::read_exr(&cli, &Default::default()).unwrap());
     assert_eq!((a.width, a.height), (b.width, b.height));
     for ch in ["R", "G", "B", "A", "Z"] {
         let (x, y) = (a.channel(ch).unwrap(), b.channel(ch).unwrap());
@@ -283,7 +283,7 @@ fn a_real_window_under_xvfb_shows_the_render() {
         .output()
         .unwrap();
     assert!(out.status.success(), "viewer failed: {}", String::from_utf8_lossy(&out.stderr));
-    let img = volterra::formats::image::decode_png(&shot).unwrap();
+    let img = volterra::formats::image::decode_png(&shot, &Default::default()).unwrap();
     assert!(img.width >= 1000 && img.height >= 600, "window size {}×{}", img.width, img.height);
     assert_eq!((img.channels, img.bit_depth), (4, 8));
     let px: Vec<[u8; 4]> = img.samples.chunks_exact(4).map(|p| [p[0] as u8, p[1] as u8, p[2] as u8, p[3] as u8]).collect();

@@ -23,7 +23,10 @@ fn shear_warp_is_closer_to_the_reference_than_vtk_at_every_view() {
     }
     for view in ["axis", "oblique", "switch45"] {
         let scene = Scene::load(&repo_path(&format!("tests/reference/scenes/aneurism_{view}.toml")), &[]).unwrap();
-        let vtk = rgba(&volterra_formats::exr_io::read_exr(&repo_path(&format!("tests/reference/data/vtk_aneurism_{view}.exr"))).unwrap());
+        let vtk = rgba(
+            &volterra_formats::exr_io::read_exr(&repo_path(&format!("tests/reference/data/vtk_aneurism_{view}.exr")), &Default::default())
+                .unwrap(),
+        );
         let reference = render_with(&scene, "reference");
         let ours = render_with(&scene, "shear-warp");
         let e_vtk = rel_rmse(&vtk, &reference.rgba);
@@ -108,7 +111,7 @@ scalar_opacity_unit_distance = 2.0
     let out =
         std::process::Command::new(&python).arg(repo_path("tests/reference/vtk_volume.py")).arg(dir.path()).arg(&scene).output().unwrap();
     assert!(out.status.success(), "vtk_volume.py: {}", String::from_utf8_lossy(&out.stderr));
-    let vtk = rgba(&volterra_formats::exr_io::read_exr(&dir.path().join("vtk_blob.exr")).unwrap());
+    let vtk = rgba(&volterra_formats::exr_io::read_exr(&dir.path().join("vtk_blob.exr"), &Default::default()).unwrap());
     let reference = render::render_scene(&Scene::load(&scene, &[]).unwrap(), None).unwrap();
     let e = rel_rmse(&vtk, &reference.rgba);
     let alpha = |px: &[[f32; 4]]| px.iter().map(|p| p[3] as f64).sum::<f64>();

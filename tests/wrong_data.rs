@@ -42,13 +42,13 @@ fn real_range(v: &volterra_formats::Volume) -> (f64, f64) {
 #[test]
 fn rt_dose_reads_the_same_in_every_encoding() {
     let Some(reference) = pydicom_file("rtdose.dcm") else { return };
-    let want = dicom::read_dicom(&reference, &Default::default()).unwrap();
+    let want = dicom::read_dicom(&reference, &Default::default(), &Default::default()).unwrap();
     assert_eq!(want.dims, [10, 10, 15]);
     let (lo, hi) = real_range(&want);
     assert!((lo - 0.795).abs() < 1e-9 && (hi - 1.254).abs() < 1e-9, "{lo} … {hi}");
     for name in ["rtdose_expb.dcm", "rtdose_rle.dcm"] {
         let p = pydicom_file(name).unwrap();
-        let got = dicom::read_dicom(&p, &Default::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let got = dicom::read_dicom(&p, &Default::default(), &Default::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(got.dims, want.dims, "{name}");
         assert_eq!(got.units, want.units, "{name}");
         assert_eq!(got.modality.as_deref(), Some("RTDOSE"), "{name}");
@@ -64,7 +64,7 @@ fn rt_dose_reads_the_same_in_every_encoding() {
     }
     for name in ["rtdose_expb_1frame.dcm", "rtdose_rle_1frame.dcm", "rtdose_1frame.dcm"] {
         let p = pydicom_file(name).unwrap();
-        let got = dicom::read_dicom(&p, &Default::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let got = dicom::read_dicom(&p, &Default::default(), &Default::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(got.dims, [10, 10, 1], "{name}");
         for i in 0..100 {
             assert_eq!(got.value(i), want.value(i), "{name}: voxel {i}");
@@ -81,8 +81,8 @@ fn converting_a_big_endian_dose_writes_the_right_values() {
     let out = dir.path().join("dose.nii");
     let r = volterra(&["convert", be.to_str().unwrap(), out.to_str().unwrap()]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let got = volterra_formats::nifti::read_nifti(&out, &Default::default()).unwrap();
-    let want = dicom::read_dicom(&le, &Default::default()).unwrap();
+    let got = volterra_formats::nifti::read_nifti(&out, &Default::default(), &Default::default()).unwrap();
+    let want = dicom::read_dicom(&le, &Default::default(), &Default::default()).unwrap();
     for i in 0..want.data.len() {
         // NIfTI stores scl_slope as f32: DoseGridScaling 1e-6 becomes 1e-6 to 7 digits.
         assert!((got.value(i) - want.value(i)).abs() < 1e-6 * want.value(i).abs(), "voxel {i}: {} vs {}", got.value(i), want.value(i));
@@ -98,8 +98,8 @@ fn big_endian_files_read_as_their_little_endian_twins() {
         ("SC_rgb_small_odd_big_endian.dcm", "SC_rgb_small_odd.dcm"),
     ] {
         let (Some(be), Some(le)) = (pydicom_file(be), pydicom_file(le)) else { return };
-        let a = dicom::read_dicom(&be, &Default::default()).unwrap_or_else(|e| panic!("{}: {e}", be.display()));
-        let b = dicom::read_dicom(&le, &Default::default()).unwrap();
+        let a = dicom::read_dicom(&be, &Default::default(), &Default::default()).unwrap_or_else(|e| panic!("{}: {e}", be.display()));
+        let b = dicom::read_dicom(&le, &Default::default(), &Default::default()).unwrap();
         assert_eq!(a.dims, b.dims);
         assert!((0..b.data.len()).all(|i| a.value(i) == b.value(i)), "{} differs from {}", be.display(), le.display());
     }
@@ -112,7 +112,7 @@ fn big_endian_files_read_as_their_little_endian_twins() {
 #[test]
 fn files_without_file_meta_are_read_with_a_note() {
     let Some(with_meta) = pydicom_file("MR_small.dcm") else { return };
-    let want = dicom::read_dicom(&with_meta, &Default::default()).unwrap();
+    let want = dicom::read_dicom(&with_meta, &Default::default(), &Default::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     for name in ["MR_small.dcm", "MR_small_implicit.dcm", "MR_small_bigendian.dcm"] {
         let bytes = std::fs::read(pydicom_file(name).unwrap()).unwrap();
@@ -130,13 +130,13 @@ fn files_without_file_meta_are_read_with_a_note() {
     }
     for name in ["ExplVR_LitEndNoMeta.dcm", "ExplVR_BigEndNoMeta.dcm", "no_meta.dcm"] {
         let p = pydicom_file(name).unwrap();
-        let err = dicom::read_dicom(&p, &Default::default()).unwrap_err().to_string();
+        let err = dicom::read_dicom(&p, &Default::default(), &Default::default()).unwrap_err().to_string();
         assert!(err.contains(name) && !err.contains('\n'), "{err}");
     }
     // Bytes that are no data set are still refused, with one line.
     let junk = dir.path().join("junk.dcm");
     std::fs::write(&junk, [0x08u8, 0x00, 0x10, 0x00, 0xFF, 0xFF, 0xFF, 0x7F, 1, 2, 3]).unwrap();
-    let err = dicom::read_dicom(&junk, &Default::default()).unwrap_err().to_string();
+    let err = dicom::read_dicom(&junk, &Default::default(), &Default::default()).unwrap_err().to_string();
     assert!(err.contains("junk.dcm") && !err.contains('\n'), "{err}");
 }
 
@@ -164,7 +164,7 @@ fn converting_a_4d_nifti_keeps_every_volume() {
     let h = volterra_formats::nifti::read_nifti_header(&out).unwrap();
     assert_eq!(&h.dim[..5], &[4, 17, 21, 3, 20]);
     assert_eq!(h.pixdim[4], 2.5);
-    let all = volterra_formats::nifti::read_nifti_volumes(&out).unwrap();
+    let all = volterra_formats::nifti::read_nifti_volumes(&out, &Default::default()).unwrap();
     assert_eq!(all.volumes.len(), 20);
     for (a, b) in all.volumes.iter().zip(&vols) {
         assert_eq!(a.data, b.data);
@@ -174,7 +174,7 @@ fn converting_a_4d_nifti_keeps_every_volume() {
     let one = dir.path().join("one.nii");
     let r = volterra(&["convert", src.to_str().unwrap(), one.to_str().unwrap(), "--volume", "7"]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let v = volterra_formats::nifti::read_nifti(&one, &Default::default()).unwrap();
+    let v = volterra_formats::nifti::read_nifti(&one, &Default::default(), &Default::default()).unwrap();
     assert_eq!(v.dims, [17, 21, 3]);
     assert_eq!(v.volume_count, 1);
     assert_eq!(v.data, vols[7].data);
@@ -254,8 +254,8 @@ fn a_gzip_stream_named_nii_is_read() {
     let mut enc = flate2::write::GzEncoder::new(std::fs::File::create(&gz).unwrap(), flate2::Compression::fast());
     std::io::Write::write_all(&mut enc, &std::fs::read(&plain).unwrap()).unwrap();
     enc.finish().unwrap();
-    let a = volterra_formats::nifti::read_nifti(&gz, &Default::default()).unwrap();
-    let b = volterra_formats::nifti::read_nifti(&plain, &Default::default()).unwrap();
+    let a = volterra_formats::nifti::read_nifti(&gz, &Default::default(), &Default::default()).unwrap();
+    let b = volterra_formats::nifti::read_nifti(&plain, &Default::default(), &Default::default()).unwrap();
     assert_eq!((a.dims, a.affine, &a.data), (b.dims, b.affine, &b.data));
 }
 

@@ -8,7 +8,7 @@ mod bench;
 mod progress;
 
 use volterra::{compare, info, render, scene::Scene};
-use volterra_formats::{self as formats, dicom, Dataset, LoadOptions};
+use volterra_formats::{self as formats, dicom, Dataset, Limits, LoadOptions};
 
 #[derive(Parser)]
 #[command(name = "volterra", version, about = "Medical and scientific visualization: volumes, terrain, particles")]
@@ -62,8 +62,8 @@ enum Encoding {
 }
 
 impl ReadArgs {
-    fn options(&self) -> Result<LoadOptions> {
-        let mut o = LoadOptions::default();
+    fn options(&self, limits: Limits) -> Result<LoadOptions> {
+        let mut o = LoadOptions { limits, ..LoadOptions::default() };
         o.dicom.series = self.series.clone();
         o.dicom.resample = self.resample;
         o.nifti.volume_index = self.volume.unwrap_or(0);
@@ -234,11 +234,11 @@ struct BenchCommon {
 }
 
 impl BenchCommon {
-    /// (the scripts' directory, the Python to run them with).
-    fn resolve(&self) -> Result<(PathBuf, PathBuf)> {
+    /// The benchmark's environment: the scripts' directory, the Python to run them with.
+    fn resolve(self, limits: Limits) -> Result<crate::bench::BenchEnv> {
         let scripts = crate::bench::scripts_dir(self.scripts.as_deref())?;
-        let python = self.python.clone().unwrap_or_else(|| scripts.join(".venv/bin/python"));
-        Ok((scripts, python))
+        let python = self.python.unwrap_or_else(|| scripts.join(".venv/bin/python"));
+        Ok(crate::bench::BenchEnv { work_dir: self.work_dir, python, scripts, limits })
     }
 }
 
@@ -332,17 +332,19 @@ fn main() -> ExitCode {
     default_sigpipe();
     exit_cleanly_on_signals();
     let cli = Cli::parse();
-    let budget = cli.max_memory.is_some();
     // The renderers' progress, as bars on the terminal.
-    let outcome = volterra::render::driver::observed(std::sync::Arc::new(crate::progress::TerminalProgress::default()), || run(cli));
-    if budget && outcome.is_ok() {
+    let outcome = volterra::render::driver::observed(std::sync::Arc::new(crate::progress::TerminalProgress::default()), || {
+        let limits = cli.limits()?;
+        run(cli, limits).map(|()| limits)
+    });
+    if let Ok(Limits { max_bytes: Some(limit) }) = outcome {
         // What the command held at most, against the limit it was given.
-        let (peak, limit) = (formats::memory::peak(), formats::memory::limit());
+        let peak = formats::memory::peak();
         let over = if peak > limit { " — over the limit: a bug, please report it" } else { "" };
         eprintln!("memory: peak {} of the {} limit{over}", formats::memory::human_bytes(peak), formats::memory::human_bytes(limit));
     }
     match outcome {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(_) => ExitCode::SUCCESS,
         Err(e) => {
             // One line: the chain of contexts, outermost first.
             let msg: Vec<String> = e.chain().map(|c| c.to_string()).collect();
@@ -352,15 +354,23 @@ fn main() -> ExitCode {
     }
 }
 
-fn run(cli: Cli) -> Result<()> {
-    if let Some(m) = &cli.max_memory {
-        let bytes = formats::memory::parse_size(m).ok_or_else(|| anyhow!("--max-memory {m}: expected a size such as 512M or 4G"))?;
-        formats::memory::set_limit(bytes);
+impl Cli {
+    /// The memory limits every reader and preparation of this command is handed.
+    fn limits(&self) -> Result<Limits> {
+        Ok(match &self.max_memory {
+            None => Limits::default(),
+            Some(m) => {
+                Limits::max(formats::memory::parse_size(m).ok_or_else(|| anyhow!("--max-memory {m}: expected a size such as 512M or 4G"))?)
+            }
+        })
     }
+}
+
+fn run(cli: Cli, limits: Limits) -> Result<()> {
     match cli.command {
-        Command::Info { path, json, read } => cmd_info(&path, json, &read),
-        Command::Convert { input, output, read } => cmd_convert(&input, &output, &read),
-        Command::Compare { a, b, json } => cmd_compare(&a, &b, json),
+        Command::Info { path, json, read } => cmd_info(&path, json, &read.options(limits)?),
+        Command::Convert { input, output, read } => cmd_convert(&input, &output, &read, &read.options(limits)?),
+        Command::Compare { a, b, json } => cmd_compare(&a, &b, json, &limits),
         Command::Renderers => {
             print!("{}", volterra::render::registry::markdown());
             Ok(())
@@ -382,21 +392,21 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Render { scene, output, png, sets, frames } => match frames {
-            None => cmd_render(&scene, &output, png.as_deref(), &sets),
-            Some(n) => cmd_render_frames(&scene, &output, png.as_deref(), &sets, n),
+            None => cmd_render(&scene, &output, png.as_deref(), &sets, limits),
+            Some(n) => cmd_render_frames(&scene, &output, png.as_deref(), &sets, n, limits),
         },
         Command::Samples { dir } => {
             volterra::samples::write_samples(&dir)?;
             eprintln!("wrote samples and scenes into {}", dir.display());
             Ok(())
         }
-        Command::Demo { out } => cmd_demo(&out),
-        Command::View { path, screenshot, read } => volterra_view::run(path, read.options()?, screenshot),
-        Command::Bench { bench } => cmd_bench(bench),
+        Command::Demo { out } => cmd_demo(&out, limits),
+        Command::View { path, screenshot, read } => volterra_view::run(path, read.options(limits)?, screenshot),
+        Command::Bench { bench } => cmd_bench(bench, limits),
     }
 }
 
-fn cmd_bench(bench: BenchCommand) -> Result<()> {
+fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
     use crate::bench as b;
     // The directory a plot goes into exists before the benchmark runs.
     let plot_dir = |plot: &Path| -> Result<()> {
@@ -407,18 +417,14 @@ fn cmd_bench(bench: BenchCommand) -> Result<()> {
     };
     match bench {
         BenchCommand::Formats { runs, common } => {
-            let (scripts, python) = common.resolve()?;
-            b::formats::run(&b::formats::FormatsBench { scripts, work_dir: common.work_dir, runs: runs.runs as usize, python })
+            b::formats::run(&b::formats::FormatsBench { env: common.resolve(limits)?, runs: runs.runs as usize })
         }
         BenchCommand::ShearWarp { scene, only, json, plot, runs, common } => {
             plot_dir(&plot)?;
-            let (scripts, python) = common.resolve()?;
             b::shear_warp::run(&b::shear_warp::ShearWarpBench {
-                scripts,
+                env: common.resolve(limits)?,
                 scene,
                 runs: runs.runs as usize,
-                work_dir: common.work_dir,
-                python,
                 json,
                 plot,
                 only,
@@ -426,31 +432,26 @@ fn cmd_bench(bench: BenchCommand) -> Result<()> {
         }
         BenchCommand::Terrain { sizes, image: (width, height), json, plot, runs, common } => {
             plot_dir(&plot)?;
-            let (scripts, python) = common.resolve()?;
             b::terrain::run(&b::terrain::TerrainBench {
-                scripts,
+                env: common.resolve(limits)?,
                 sizes: sizes.into_iter().map(|s| s as usize).collect(),
                 width,
                 height,
                 runs: runs.runs as usize,
-                work_dir: common.work_dir,
-                python,
                 json,
                 plot,
             })
         }
         BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
             std::fs::create_dir_all(&common.work_dir)?;
-            let (scripts, python) = common.resolve()?;
-            b::smoke::run(&b::smoke::SmokeBench { scripts, scene, width, height, photons, python, work_dir: common.work_dir, json })
+            b::smoke::run(&b::smoke::SmokeBench { env: common.resolve(limits)?, scene, width, height, photons, json })
         }
     }
 }
 
-fn cmd_info(path: &Path, json: bool, read: &ReadArgs) -> Result<()> {
-    let opts = read.options()?;
+fn cmd_info(path: &Path, json: bool, opts: &LoadOptions) -> Result<()> {
     if path.is_dir() && opts.dicom.series.is_none() {
-        let list = dicom::list_series(path)?;
+        let list = dicom::list_series(path, &opts.limits)?;
         if list.len() > 1 {
             if json {
                 println!("{}", serde_json::to_string_pretty(&info::series_json(&list))?);
@@ -464,7 +465,7 @@ fn cmd_info(path: &Path, json: bool, read: &ReadArgs) -> Result<()> {
         }
     }
     let spin = crate::progress::spinner(&format!("reading {}", path.display()));
-    let data = formats::load(path, &opts);
+    let data = formats::load(path, opts);
     spin.finish_and_clear();
     let data = data?;
     if json {
@@ -479,8 +480,7 @@ fn lower_name(p: &Path) -> String {
     p.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
 }
 
-fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
-    let opts = read.options()?;
+fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions) -> Result<()> {
     check_output_dir(output)?;
     let out = lower_name(output);
     let nifti_out = out.ends_with(".nii") || out.ends_with(".nii.gz");
@@ -490,7 +490,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
         let header = formats::nifti::read_nifti_header(input)?;
         if (4..=header.dim[0]).any(|i| header.dim[i as usize] > 1) {
             let spin = crate::progress::spinner(&format!("reading {}", input.display()));
-            let all = formats::nifti::read_nifti_volumes(input);
+            let all = formats::nifti::read_nifti_volumes(input, &opts.limits);
             spin.finish_and_clear();
             let all = all?;
             formats::nifti::write_nifti_volumes(output, &all.volumes, &all.extra_dims, all.time_step, all.time_unit)?;
@@ -499,7 +499,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
         }
     }
     let spin = crate::progress::spinner(&format!("reading {}", input.display()));
-    let data = formats::load(input, &opts);
+    let data = formats::load(input, opts);
     spin.finish_and_clear();
     let data = data?;
     match data {
@@ -524,9 +524,9 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs) -> Result<()> {
     Ok(())
 }
 
-fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
-    let ia = formats::exr_io::read_exr(a)?;
-    let ib = formats::exr_io::read_exr(b)?;
+fn cmd_compare(a: &Path, b: &Path, json: bool, limits: &Limits) -> Result<()> {
+    let ia = formats::exr_io::read_exr(a, limits)?;
+    let ib = formats::exr_io::read_exr(b, limits)?;
     let c = compare::compare(&ia, &ib).with_context(|| format!("{} vs {}", a.display(), b.display()))?;
     if json {
         println!("{}", serde_json::to_string_pretty(&c)?);
@@ -540,9 +540,9 @@ fn cmd_compare(a: &Path, b: &Path, json: bool) -> Result<()> {
     Ok(())
 }
 
-fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String]) -> Result<()> {
+fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], limits: Limits) -> Result<()> {
     check_render_outputs(output, png)?;
-    let scene = Scene::load(scene_path, sets)?;
+    let scene = Scene::load(scene_path, sets)?.with_limits(limits);
     write_frame(&scene, None, output, png, &render::RenderCache::default())
 }
 
@@ -616,12 +616,12 @@ fn numbered(path: &Path, k: usize) -> PathBuf {
     path.with_file_name(name)
 }
 
-fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], n: usize) -> Result<()> {
+fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], n: usize, limits: Limits) -> Result<()> {
     if n == 0 {
         bail!("--frames must be at least 1");
     }
     check_render_outputs(output, png)?;
-    let scene = Scene::load(scene_path, sets)?;
+    let scene = Scene::load(scene_path, sets)?.with_limits(limits);
     if scene.file.keyframes.is_empty() {
         bail!("{}: --frames needs [[keyframe]]s in the scene (a camera path)", scene_path.display());
     }
@@ -649,20 +649,20 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
     Ok(())
 }
 
-fn cmd_demo(out: &Path) -> Result<()> {
+fn cmd_demo(out: &Path, limits: Limits) -> Result<()> {
     let samples = out.join("samples");
     volterra::samples::write_samples(&samples)?;
     eprintln!("wrote built-in samples into {}", samples.display());
     println!("{:<18} {:<12} {:>9} {:>9}  result", "scene", "renderer", "size", "seconds");
     for (name, _) in volterra::samples::SCENES {
         let stem = name.trim_end_matches(".toml");
-        let scene = Scene::load(&samples.join(name), &[])?;
+        let scene = Scene::load(&samples.join(name), &[])?.with_limits(limits);
         let renderer = (0..scene.nodes().len()).filter_map(|i| scene.renderer(i)).map(|r| r.name).collect::<Vec<_>>().join("+");
         let size = format!("{}×{}", scene.file.image.width, scene.file.image.height);
         let exr = out.join(format!("{stem}.exr"));
         let png = out.join(format!("{stem}.png"));
         let t = std::time::Instant::now();
-        cmd_render(&samples.join(name), &exr, Some(&png), &[])?;
+        cmd_render(&samples.join(name), &exr, Some(&png), &[], limits)?;
         println!("{stem:<18} {renderer:<12} {size:>9} {:>9.2}  {} + {}", t.elapsed().as_secs_f64(), exr.display(), png.display());
     }
     Ok(())

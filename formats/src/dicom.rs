@@ -5,7 +5,7 @@
 //! rescale applied as DICOM says. World space is converted from LPS to RAS+.
 
 use crate::error::{ErrorKind, FormatError, Result};
-use crate::memory::check_alloc;
+use crate::memory::Limits;
 use crate::volume::{spacing_of, Affine, Rescale, ScalarType, Volume, VoxelData};
 use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry, VirtualVr};
 use dicom_core::{PrimitiveValue, VR};
@@ -186,8 +186,8 @@ fn items(obj: &Obj, seq: dicom_core::Tag) -> &[Obj] {
 }
 
 /// Opens a DICOM file; the note says how it was read where it was not as a plain Part 10 file.
-fn open(path: &Path, metadata_only: bool) -> Result<(dicom_object::DefaultDicomObject, Option<String>)> {
-    if let Some(how) = crate::dicom_scan::check_lengths(path)? {
+fn open(path: &Path, metadata_only: bool, limits: &Limits) -> Result<(dicom_object::DefaultDicomObject, Option<String>)> {
+    if let Some(how) = crate::dicom_scan::check_lengths(path, limits)? {
         return reparse(path, &how).map(|f| (f, Some(how.note)));
     }
     let opts = OpenFileOptions::new();
@@ -416,8 +416,8 @@ fn check_transfer_syntax(info: &ImageInfo) -> Result<()> {
 
 /// Decodes one file's pixel data into `frames × rows × cols` samples of the stored type,
 /// as little-endian bytes, with BitsStored masking / sign extension applied.
-fn decode_frames(info: &ImageInfo) -> Result<Vec<u8>> {
-    let (file, _) = open(&info.path, false)?;
+fn decode_frames(info: &ImageInfo, limits: &Limits) -> Result<Vec<u8>> {
+    let (file, _) = open(&info.path, false, limits)?;
     let pixels = info.rows as usize * info.columns as usize * info.frames as usize;
     let bytes_per = info.bits_allocated as usize / 8;
     let pixel_fragments = file.get(tags::PIXEL_DATA).and_then(|e| e.value().fragments());
@@ -660,12 +660,12 @@ fn dicom_files(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-fn scan(dir: &Path) -> Result<BTreeMap<String, Vec<ImageInfo>>> {
+fn scan(dir: &Path, limits: &Limits) -> Result<BTreeMap<String, Vec<ImageInfo>>> {
     let files = dicom_files(dir)?;
     let infos: Vec<Result<ImageInfo>> = files
         .par_iter()
         .map(|p| {
-            let (f, note) = open(p, true)?;
+            let (f, note) = open(p, true, limits)?;
             image_info(p, &f, note)
         })
         .collect();
@@ -685,8 +685,8 @@ fn scan(dir: &Path) -> Result<BTreeMap<String, Vec<ImageInfo>>> {
 }
 
 /// The series in a directory, for `info` and for choosing one.
-pub fn list_series(dir: &Path) -> Result<Vec<SeriesSummary>> {
-    Ok(scan(dir)?
+pub fn list_series(dir: &Path, limits: &Limits) -> Result<Vec<SeriesSummary>> {
+    Ok(scan(dir, limits)?
         .into_iter()
         .map(|(uid, v)| SeriesSummary {
             uid,
@@ -699,18 +699,18 @@ pub fn list_series(dir: &Path) -> Result<Vec<SeriesSummary>> {
         .collect())
 }
 
-pub fn read_dicom(path: &Path, opts: &DicomOptions) -> Result<Volume> {
+pub fn read_dicom(path: &Path, opts: &DicomOptions, limits: &Limits) -> Result<Volume> {
     if path.is_dir() {
-        read_series_dir(path, opts)
+        read_series_dir(path, opts, limits)
     } else {
-        let (f, note) = open(path, true)?;
+        let (f, note) = open(path, true, limits)?;
         let info = image_info(path, &f, note)?;
-        assemble(path, vec![info], opts)
+        assemble(path, vec![info], opts, limits)
     }
 }
 
-fn read_series_dir(dir: &Path, opts: &DicomOptions) -> Result<Volume> {
-    let mut series = scan(dir)?;
+fn read_series_dir(dir: &Path, opts: &DicomOptions, limits: &Limits) -> Result<Volume> {
+    let mut series = scan(dir, limits)?;
     let uid = if series.len() == 1 {
         series.keys().next().unwrap().clone()
     } else {
@@ -749,7 +749,7 @@ fn read_series_dir(dir: &Path, opts: &DicomOptions) -> Result<Volume> {
         }
     };
     let infos = series.remove(&uid).unwrap();
-    assemble(dir, infos, opts)
+    assemble(dir, infos, opts, limits)
 }
 
 /// A frame in the final volume: which file and frame it comes from, and where it lies.
@@ -759,7 +759,7 @@ struct FrameRef {
     position: Option<[f64; 3]>,
 }
 
-fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Volume> {
+fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions, limits: &Limits) -> Result<Volume> {
     let first = &infos[0];
     for info in &infos {
         check_transfer_syntax(info)?;
@@ -789,7 +789,11 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     // The whole volume against the memory guard before anything is sized by the frame count
     // (a lying NumberOfFrames of 2^31 would otherwise allocate the frame list first).
     let total_frames: u64 = infos.iter().map(|i| i.frames as u64).sum();
-    check_alloc(src, "DICOM volume", &[first.columns as u64, first.rows as u64, total_frames, (first.bits_allocated as u64).div_ceil(8)])?;
+    limits.check(
+        src,
+        "DICOM volume",
+        &[first.columns as u64, first.rows as u64, total_frames, (first.bits_allocated as u64).div_ceil(8)],
+    )?;
     if infos.len() > 1 && infos.iter().any(|i| i.frames > 1) {
         return Err(FormatError::unsupported(src, "a series of several multi-frame files is not supported"));
     }
@@ -917,7 +921,7 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     let mut rescale = slice_rescale[0];
     let out_ty = if per_slice { ScalarType::F32 } else { ty };
     let what = if per_slice { "real-valued volume (the rescale differs between slices)" } else { "DICOM volume" };
-    check_alloc(src, what, &[cols as u64, rows as u64, n as u64, out_ty.size() as u64])?;
+    limits.check(src, what, &[cols as u64, rows as u64, n as u64, out_ty.size() as u64])?;
     let mut data = VoxelData::zeroed(out_ty, plane * n);
     let out_frame_bytes = plane * out_ty.size();
 
@@ -930,7 +934,7 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     }
     let slots = std::sync::Mutex::new(data.as_bytes_mut());
     infos.par_iter().enumerate().try_for_each(|(fi, info)| -> Result<()> {
-        let file_bytes = decode_frames(info)?;
+        let file_bytes = decode_frames(info, limits)?;
         let frame = |k: usize| &file_bytes[k * frame_bytes..(k + 1) * frame_bytes];
         // Real values in native order, converted before the lock is taken.
         let real: Vec<Vec<f32>> = if per_slice {
@@ -963,7 +967,7 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions) -> Result<Vo
     }
     let mut depth = n;
     if let Some((spacing, d)) = resample_to {
-        check_alloc(src, "resampled volume", &[(cols * rows) as u64, ((d[n - 1] - d[0]) / spacing) as u64 + 1, 4])?;
+        limits.check(src, "resampled volume", &[(cols * rows) as u64, ((d[n - 1] - d[0]) / spacing) as u64 + 1, 4])?;
         let (vals, k) = resample_uniform(&data, rescale, rows * cols, &d, spacing);
         data = VoxelData::F32(vals);
         rescale = Rescale::IDENTITY;

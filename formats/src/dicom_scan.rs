@@ -8,7 +8,7 @@
 //! sequence or item) becomes a one-line error naming the element.
 
 use crate::error::{FormatError, Result};
-use crate::memory;
+use crate::memory::Limits;
 use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry, VirtualVr};
 use dicom_core::{Tag, VR};
 use dicom_dictionary_std::{uids, StandardDataDictionary};
@@ -114,7 +114,7 @@ pub struct Reparse {
 /// file stands: a bare data set (see [`bare_syntax_of`]), or one encoded in implicit VR
 /// although the meta group names an explicit VR syntax (as pydicom does, with a warning);
 /// None for a Part 10 file read as it says.
-pub fn check_lengths(path: &Path) -> Result<Option<Reparse>> {
+pub fn check_lengths(path: &Path, limits: &Limits) -> Result<Option<Reparse>> {
     let file = File::open(path).map_err(|e| FormatError::io(path, e))?;
     let len = file.metadata().map_err(|e| FormatError::io(path, e))?.len();
     let mut r = BufReader::new(file);
@@ -153,7 +153,7 @@ pub fn check_lengths(path: &Path) -> Result<Option<Reparse>> {
         // Deflated: count the inflated bytes first (bounded by the memory limit, which is
         // what dicom-rs would hold them in), then walk the inflated stream.
         let dataset_start = meta.pos;
-        let inflated = inflated_len(path, dataset_start)?;
+        let inflated = inflated_len(path, dataset_start, limits)?;
         let mut f = File::open(path).map_err(|e| FormatError::io(path, e))?;
         f.seek(std::io::SeekFrom::Start(dataset_start)).map_err(|e| FormatError::io(path, e))?;
         let src = flate2::read::DeflateDecoder::new(BufReader::new(f));
@@ -192,15 +192,15 @@ fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
     Ok(got)
 }
 
-fn inflated_len(path: &Path, start: u64) -> Result<u64> {
+fn inflated_len(path: &Path, start: u64, limits: &Limits) -> Result<u64> {
     let mut f = File::open(path).map_err(|e| FormatError::io(path, e))?;
     f.seek(std::io::SeekFrom::Start(start)).map_err(|e| FormatError::io(path, e))?;
-    let limit = memory::limit();
+    let limit = limits.bytes();
     let d = flate2::read::DeflateDecoder::new(BufReader::new(f));
     let n = std::io::copy(&mut d.take(limit + 1), &mut std::io::sink())
         .map_err(|e| FormatError::invalid(path, format!("deflated data set is corrupt: {e}")))?;
     if n > limit {
-        memory::check_alloc(path, "inflated data set", &[n])?;
+        limits.check(path, "inflated data set", &[n])?;
     }
     Ok(n)
 }
@@ -439,7 +439,7 @@ mod tests {
     #[test]
     fn the_data_set_starts_where_the_meta_group_length_says() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/dicom_file/meta_foreign_group_deflated.dcm");
-        let err = super::check_lengths(&path).expect_err("the lying length must be refused").to_string();
+        let err = super::check_lengths(&path, &Default::default()).expect_err("the lying length must be refused").to_string();
         assert!(err.contains("element (7FE0,0010) declares 4294967280 bytes but only 84 remain"), "{err}");
     }
 }

@@ -3,7 +3,7 @@
 
 use crate::atomic::write_bytes_atomically;
 use crate::error::{FormatError, Result};
-use crate::memory::check_alloc;
+use crate::memory::Limits;
 use std::path::Path;
 
 /// A float image with named channels, row-major, row 0 at the top.
@@ -43,13 +43,13 @@ pub fn write_exr(path: &Path, img: &FloatImage) -> Result<()> {
     write_bytes_atomically(path, buf.get_ref())
 }
 
-pub fn read_exr(path: &Path) -> Result<FloatImage> {
+pub fn read_exr(path: &Path, limits: &Limits) -> Result<FloatImage> {
     use exr::prelude::*;
     let meta =
         exr::meta::MetaData::read_from_file(path, false).map_err(|e| FormatError::invalid(path, format!("not a readable EXR: {e}")))?;
     let header = meta.headers.first().ok_or_else(|| FormatError::invalid(path, "EXR has no layer"))?;
     let size = header.layer_size;
-    check_alloc(path, "EXR image", &[size.0 as u64, size.1 as u64, header.channels.list.len() as u64, 4])?;
+    limits.check(path, "EXR image", &[size.0 as u64, size.1 as u64, header.channels.list.len() as u64, 4])?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

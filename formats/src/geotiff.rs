@@ -6,10 +6,10 @@
 use crate::atomic::write_bytes_atomically;
 use crate::error::{FormatError, Result};
 use crate::heightfield::{metres_per_degree, Crs, Heightfield};
-use crate::memory::check_alloc;
+use crate::memory::Limits;
 use std::io::{BufReader, Cursor};
 use std::path::Path;
-use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::decoder::{Decoder, DecodingResult};
 use tiff::tags::Tag;
 
 const KEY_MODEL_TYPE: u16 = 1024;
@@ -95,7 +95,7 @@ fn check_data_offsets<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Dec
     Ok(())
 }
 
-pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
+pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
     let mut d = Decoder::new(BufReader::new(file)).map_err(|e| tiff_err(path, e))?;
     // A GeoTIFF may carry overviews: use the first directory that is not a reduced image.
@@ -117,12 +117,13 @@ pub fn read_geotiff(path: &Path) -> Result<Heightfield> {
         return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: an elevation raster has one band")));
     }
     let bps = d.find_tag_unsigned::<u16>(Tag::BitsPerSample).map_err(|e| tiff_err(path, e))?.unwrap_or(1) as u64;
-    let bytes = check_alloc(path, "elevation raster", &[w as u64, h as u64, bps.div_ceil(8).max(1)])?;
-    let mut limits = Limits::default();
-    limits.decoding_buffer_size = bytes.max(1 << 20);
-    limits.intermediate_buffer_size = bytes.max(1 << 20);
-    limits.ifd_value_size = 64 << 20;
-    d = d.with_limits(limits);
+    let bytes = limits.check(path, "elevation raster", &[w as u64, h as u64, bps.div_ceil(8).max(1)])?;
+    // The tiff crate's own limits, sized by ours: it decodes no more than the raster needs.
+    let mut tiff_limits = tiff::decoder::Limits::default();
+    tiff_limits.decoding_buffer_size = bytes.max(1 << 20);
+    tiff_limits.intermediate_buffer_size = bytes.max(1 << 20);
+    tiff_limits.ifd_value_size = 64 << 20;
+    d = d.with_limits(tiff_limits);
     check_data_offsets(path, &mut d)?;
 
     let keys = geo_keys(path, &mut d)?;

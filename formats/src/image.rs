@@ -3,7 +3,7 @@
 
 use crate::atomic::write_bytes_atomically;
 use crate::error::{FormatError, Result};
-use crate::memory::check_alloc;
+use crate::memory::Limits;
 use std::path::Path;
 
 /// An 8-bit RGB image, row-major, row 0 at the top.
@@ -26,7 +26,7 @@ pub struct PngSamples {
     pub palette: bool,
 }
 
-pub fn decode_png(path: &Path) -> Result<PngSamples> {
+pub fn decode_png(path: &Path, limits: &Limits) -> Result<PngSamples> {
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
     let mut dec = png::Decoder::new(std::io::BufReader::new(file));
     dec.set_transformations(png::Transformations::EXPAND);
@@ -36,7 +36,7 @@ pub fn decode_png(path: &Path) -> Result<PngSamples> {
     let (ct, depth) = reader.output_color_type();
     let channels = ct.samples();
     let bytes_per = if depth == png::BitDepth::Sixteen { 2 } else { 1 };
-    let size = check_alloc(path, "PNG image", &[w, h, channels as u64, bytes_per])?;
+    let size = limits.check(path, "PNG image", &[w, h, channels as u64, bytes_per])?;
     let mut buf = vec![0u8; size.max(reader.output_buffer_size())];
     let frame = reader.next_frame(&mut buf).map_err(|e| FormatError::invalid(path, format!("PNG data is corrupt or truncated: {e}")))?;
     let buf = &buf[..frame.buffer_size()];
@@ -50,8 +50,8 @@ pub fn decode_png(path: &Path) -> Result<PngSamples> {
 
 /// Reads a colour texture (PNG) as 8-bit RGB; grey is replicated, alpha dropped,
 /// 16-bit reduced to 8.
-pub fn read_rgb_png(path: &Path) -> Result<RgbImage> {
-    let p = decode_png(path)?;
+pub fn read_rgb_png(path: &Path, limits: &Limits) -> Result<RgbImage> {
+    let p = decode_png(path, limits)?;
     let to8 = |v: u16| if p.bit_depth == 16 { (v >> 8) as u8 } else { v as u8 };
     let mut data = Vec::with_capacity(p.width * p.height * 3);
     for px in p.samples.chunks_exact(p.channels) {

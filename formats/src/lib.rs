@@ -28,6 +28,7 @@ pub mod vtk;
 pub mod vtk_xml;
 
 pub use error::{ErrorKind, FormatError, Result};
+pub use memory::Limits;
 pub use volume::{Affine, Rescale, ScalarType, Volume, VoxelData};
 
 pub use exr_io::FloatImage;

@@ -2,6 +2,7 @@
 
 use crate::dicom::{self, DicomOptions};
 use crate::error::{FormatError, Result};
+use crate::memory::Limits;
 use crate::nifti::{self, NiftiOptions};
 use crate::png_height::{self, PngHeightOptions};
 use crate::{geotiff, vtk, Heightfield, ParticleArrayNames, ParticleSet, Volume};
@@ -15,13 +16,15 @@ pub enum Dataset {
     Particles(ParticleSet),
 }
 
-/// Every reader's options in one place; each reader looks only at its own.
+/// Every reader's options in one place; each reader looks only at its own, and all are
+/// handed the same memory `limits`.
 #[derive(Debug, Clone, Default)]
 pub struct LoadOptions {
     pub nifti: NiftiOptions,
     pub dicom: DicomOptions,
     pub png: PngHeightOptions,
     pub particles: ParticleArrayNames,
+    pub limits: Limits,
 }
 
 /// The kinds of file volterra reads, decided from the name and, where that is ambiguous,
@@ -68,10 +71,10 @@ pub fn detect(path: &Path) -> Result<FileKind> {
 
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     Ok(match detect(path)? {
-        FileKind::Nifti => Dataset::Volume(nifti::read_nifti(path, &opts.nifti)?),
-        FileKind::Dicom | FileKind::DicomDir => Dataset::Volume(dicom::read_dicom(path, &opts.dicom)?),
-        FileKind::GeoTiff => Dataset::Heightfield(geotiff::read_geotiff(path)?),
-        FileKind::PngHeightmap => Dataset::Heightfield(png_height::read_png_heightmap(path, &opts.png)?),
-        FileKind::VtkLegacy | FileKind::VtkXml => Dataset::Particles(vtk::read_vtk_particles(path, &opts.particles)?),
+        FileKind::Nifti => Dataset::Volume(nifti::read_nifti(path, &opts.nifti, &opts.limits)?),
+        FileKind::Dicom | FileKind::DicomDir => Dataset::Volume(dicom::read_dicom(path, &opts.dicom, &opts.limits)?),
+        FileKind::GeoTiff => Dataset::Heightfield(geotiff::read_geotiff(path, &opts.limits)?),
+        FileKind::PngHeightmap => Dataset::Heightfield(png_height::read_png_heightmap(path, &opts.png, &opts.limits)?),
+        FileKind::VtkLegacy | FileKind::VtkXml => Dataset::Particles(vtk::read_vtk_particles(path, &opts.particles, &opts.limits)?),
     })
 }

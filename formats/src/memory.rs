@@ -1,17 +1,16 @@
-//! The memory guard: every reader computes what a header asks it to allocate and asks here
-//! first, so a lying header is refused before anything is allocated.
+//! The memory guard: a [`Limits`] value that every reader and preparation asks before its
+//! large allocations, and the counting allocator that says what the process holds.
 //!
-//! The limit covers the whole command, not one allocation: where the program installs
-//! [`CountingAllocator`] (the `volterra` binary does), every heap allocation is counted, and a
-//! request is refused when what is already in use plus the request would pass the limit. The
-//! readers, the renderers' preparations and their frames ask here before their large
-//! allocations; what is allocated in small pieces is bounded by those. [`peak`] reports the
-//! most the command held, so tests can check that it stayed within the limit.
+//! Where the program installs [`CountingAllocator`] (the `volterra` binary does), every heap
+//! allocation is counted, and a request is refused when what is already in use plus the
+//! request would pass the limit. What is allocated in small pieces is bounded by the large
+//! requests. [`peak`] reports the most the command held, so tests can check that it stayed
+//! within the limit.
 
 use crate::error::{ErrorKind, FormatError, Result};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 static IN_USE: AtomicUsize = AtomicUsize::new(0);
 static PEAK: AtomicUsize = AtomicUsize::new(0);
@@ -74,19 +73,70 @@ pub fn peak() -> u64 {
     PEAK.fetch_max(now, Ordering::Relaxed).max(now) as u64
 }
 
-/// 0 means "not set": use the memory available on this machine.
-static LIMIT_BYTES: AtomicU64 = AtomicU64::new(0);
-
-/// Sets the memory the whole command may hold (`--max-memory`).
-pub fn set_limit(bytes: u64) {
-    LIMIT_BYTES.store(bytes, Ordering::Relaxed);
+/// What one command may allocate, handed to every reader and every renderer's preparation
+/// (as image-rs hands its `Limits` to each decoder): each computes what a header or a
+/// setting asks it to allocate and asks [`Limits::check`] first, so a lying header is
+/// refused before anything is allocated.
+///
+/// The limit covers the whole command, not one allocation: with a set limit, what the
+/// process already holds (counted by [`CountingAllocator`] where it is installed) is added to
+/// each request.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Limits {
+    /// The most heap bytes the command may hold (`--max-memory`); `None`: the memory
+    /// available on this machine when each request is made.
+    pub max_bytes: Option<u64>,
 }
 
-/// The limit in force: the one set, else `MemAvailable` from /proc/meminfo, else 16 GiB.
-pub fn limit() -> u64 {
-    match LIMIT_BYTES.load(Ordering::Relaxed) {
-        0 => available_memory().unwrap_or(16 << 30),
-        n => n,
+impl Limits {
+    /// A limit of `bytes` for the whole command.
+    pub fn max(bytes: u64) -> Limits {
+        Limits { max_bytes: Some(bytes) }
+    }
+
+    /// The limit in force: the one set, else `MemAvailable` from /proc/meminfo, else 16 GiB.
+    pub fn bytes(&self) -> u64 {
+        self.max_bytes.unwrap_or_else(|| available_memory().unwrap_or(16 << 30))
+    }
+
+    /// Multiplies the factors (element counts and a byte size) with overflow checks and
+    /// refuses the total if it, with what is already in use, would pass the limit. Returns
+    /// the byte count as usize.
+    pub fn check(&self, path: &Path, what: &str, factors: &[u64]) -> Result<usize> {
+        let mut total: u64 = 1;
+        for &f in factors {
+            total = total
+                .checked_mul(f)
+                .ok_or_else(|| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: size overflows ({factors:?})")))?;
+        }
+        let limit = self.bytes();
+        if total > limit {
+            return Err(FormatError::new(
+                path,
+                ErrorKind::TooLarge,
+                format!(
+                    "{what} needs {} but the memory limit is {} (set --max-memory to raise it)",
+                    human_bytes(total),
+                    human_bytes(limit)
+                ),
+            ));
+        }
+        // The default limit is the memory still available, which already leaves out what this
+        // process holds; a set limit counts it.
+        let used = if self.max_bytes.is_some() { in_use() } else { 0 };
+        if used.saturating_add(total) > limit {
+            return Err(FormatError::new(
+                path,
+                ErrorKind::TooLarge,
+                format!(
+                    "{what} needs {} more, and with {} already in use that passes the memory limit of {} (set --max-memory to raise it)",
+                    human_bytes(total),
+                    human_bytes(used),
+                    human_bytes(limit)
+                ),
+            ));
+        }
+        usize::try_from(total).map_err(|_| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: too large for this platform")))
     }
 }
 
@@ -95,42 +145,6 @@ fn available_memory() -> Option<u64> {
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
-}
-
-/// Multiplies the factors (element counts and a byte size) with overflow checks and
-/// refuses the total if it, with what is already in use, would pass the limit. Returns the
-/// byte count as usize.
-pub fn check_alloc(path: &Path, what: &str, factors: &[u64]) -> Result<usize> {
-    let mut total: u64 = 1;
-    for &f in factors {
-        total = total
-            .checked_mul(f)
-            .ok_or_else(|| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: size overflows ({factors:?})")))?;
-    }
-    let limit = limit();
-    if total > limit {
-        return Err(FormatError::new(
-            path,
-            ErrorKind::TooLarge,
-            format!("{what} needs {} but the memory limit is {} (set --max-memory to raise it)", human_bytes(total), human_bytes(limit)),
-        ));
-    }
-    // The default limit is the memory still available, which already leaves out what this
-    // process holds; a set limit counts it.
-    let used = if LIMIT_BYTES.load(Ordering::Relaxed) != 0 { in_use() } else { 0 };
-    if used.saturating_add(total) > limit {
-        return Err(FormatError::new(
-            path,
-            ErrorKind::TooLarge,
-            format!(
-                "{what} needs {} more, and with {} already in use that passes the memory limit of {} (set --max-memory to raise it)",
-                human_bytes(total),
-                human_bytes(used),
-                human_bytes(limit)
-            ),
-        ));
-    }
-    usize::try_from(total).map_err(|_| FormatError::new(path, ErrorKind::TooLarge, format!("{what}: too large for this platform")))
 }
 
 pub fn human_bytes(n: u64) -> String {

@@ -7,7 +7,7 @@
 
 use crate::atomic::write_atomically;
 use crate::error::{FormatError, Result};
-use crate::memory::check_alloc;
+use crate::memory::Limits;
 use crate::volume::{spacing_of, Affine, Rescale, ScalarType, Volume, VoxelData};
 use flate2::read::MultiGzDecoder;
 use std::fs::File;
@@ -361,7 +361,7 @@ struct OpenedNifti {
     notes: Vec<String>,
 }
 
-fn open_nifti(path: &Path) -> Result<OpenedNifti> {
+fn open_nifti(path: &Path, limits: &Limits) -> Result<OpenedNifti> {
     let (mut r, header_gzipped) = open_maybe_gz(path)?;
     let h = read_header(path, &mut *r)?;
     let ty = scalar_type_of(path, h.datatype)?;
@@ -399,7 +399,7 @@ fn open_nifti(path: &Path) -> Result<OpenedNifti> {
             return Err(FormatError::invalid(path, format!("pixdim[{i}] = {p} is not finite")));
         }
     }
-    let vol_bytes = check_alloc(path, "volume", &[dims[0] as u64, dims[1] as u64, dims[2] as u64, ty.size() as u64])?;
+    let vol_bytes = limits.check(path, "volume", &[dims[0] as u64, dims[1] as u64, dims[2] as u64, ty.size() as u64])?;
 
     // Skip to the data: in a single file it starts at vox_offset; in a pair, at 0 of .img.
     let data_path = if h.single_file { path.to_path_buf() } else { image_path_for_header(path)? };
@@ -569,8 +569,8 @@ fn xform_code_name(code: i32) -> String {
     format!("{code} ({name})")
 }
 
-pub fn read_nifti(path: &Path, opts: &NiftiOptions) -> Result<Volume> {
-    let mut f = open_nifti(path)?;
+pub fn read_nifti(path: &Path, opts: &NiftiOptions, limits: &Limits) -> Result<Volume> {
+    let mut f = open_nifti(path, limits)?;
     if opts.volume_index as u64 >= f.volume_count {
         return Err(FormatError::invalid(
             path,
@@ -599,9 +599,9 @@ pub struct NiftiVolumes {
 
 /// Reads all volumes of a file in one pass (the whole 4-D data set is checked against the
 /// memory limit first).
-pub fn read_nifti_volumes(path: &Path) -> Result<NiftiVolumes> {
-    let mut f = open_nifti(path)?;
-    check_alloc(path, "4-D data set", &[f.vol_bytes as u64, f.volume_count])?;
+pub fn read_nifti_volumes(path: &Path, limits: &Limits) -> Result<NiftiVolumes> {
+    let mut f = open_nifti(path, limits)?;
+    limits.check(path, "4-D data set", &[f.vol_bytes as u64, f.volume_count])?;
     let mut volumes = Vec::with_capacity(f.volume_count as usize);
     for k in 0..f.volume_count as usize {
         let data = f.read_volume(path)?;

@@ -5,6 +5,7 @@
 use crate::error::{FormatError, Result};
 use crate::heightfield::{Crs, Heightfield};
 use crate::image::decode_png;
+use crate::memory::Limits;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -40,14 +41,14 @@ impl Default for PngHeightOptions {
     }
 }
 
-pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions) -> Result<Heightfield> {
+pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions, limits: &Limits) -> Result<Heightfield> {
     if !(opts.cell_size.is_finite() && opts.cell_size > 0.0) {
         return Err(FormatError::invalid(path, format!("cell_size {} must be positive", opts.cell_size)));
     }
     if !opts.vertical_scale.is_finite() || !opts.vertical_offset.is_finite() {
         return Err(FormatError::invalid(path, "vertical_scale and vertical_offset must be finite"));
     }
-    let p = decode_png(path)?;
+    let p = decode_png(path, limits)?;
     let n = p.width * p.height;
     let mut nodata = Vec::new();
     let elevations: Vec<f32> = match opts.encoding {
@@ -131,12 +132,18 @@ mod tests {
         // Terrarium: (R·256 + G + B/256) − 32768; Mapbox: −10000 + (R·65536 + G·256 + B)·0.1.
         let img = RgbImage { width: 2, height: 1, data: vec![128, 0, 0, 129, 44, 128] };
         write_png_rgb8(&p, &img).unwrap();
-        let t = read_png_heightmap(&p, &PngHeightOptions { encoding: HeightEncoding::Terrarium, ..Default::default() }).unwrap();
+        let t =
+            read_png_heightmap(&p, &PngHeightOptions { encoding: HeightEncoding::Terrarium, ..Default::default() }, &Default::default())
+                .unwrap();
         assert_eq!(t.elevations, vec![0.0, 256.0 + 44.0 + 0.5]);
-        let m = read_png_heightmap(&p, &PngHeightOptions { encoding: HeightEncoding::Mapbox, ..Default::default() }).unwrap();
+        let m = read_png_heightmap(&p, &PngHeightOptions { encoding: HeightEncoding::Mapbox, ..Default::default() }, &Default::default())
+            .unwrap();
         assert_eq!(m.elevations[0], (-10000.0 + 128.0 * 65536.0 * 0.1) as f32);
         assert_eq!(m.elevations[1], (-10000.0 + (129.0 * 65536.0 + 44.0 * 256.0 + 128.0) * 0.1) as f32);
-        assert!(read_png_heightmap(&p, &PngHeightOptions::default()).is_err(), "colour PNG read as grey must be refused");
+        assert!(
+            read_png_heightmap(&p, &PngHeightOptions::default(), &Default::default()).is_err(),
+            "colour PNG read as grey must be refused"
+        );
     }
 
     #[test]
@@ -145,7 +152,7 @@ mod tests {
         let p = dir.path().join("g.png");
         write_png_grey16(&p, 3, 2, &[0, 1, 2, 1000, 65535, 0]).unwrap();
         let opts = PngHeightOptions { vertical_scale: 0.5, vertical_offset: -10.0, cell_size: 25.0, nodata: Some(0), ..Default::default() };
-        let h = read_png_heightmap(&p, &opts).unwrap();
+        let h = read_png_heightmap(&p, &opts, &Default::default()).unwrap();
         assert_eq!((h.width, h.height), (3, 2));
         assert_eq!(h.cell_size, [25.0, 25.0]);
         assert_eq!(h.nodata, vec![true, false, false, false, false, true]);
@@ -153,7 +160,7 @@ mod tests {
         assert_eq!(h.elevations[3], 490.0);
         assert_eq!(h.elevations[4], (-10.0 + 0.5 * 65535.0) as f32);
         assert!(h.elevations[0].is_nan());
-        assert!(read_png_heightmap(&p, &PngHeightOptions { cell_size: 0.0, ..Default::default() }).is_err());
+        assert!(read_png_heightmap(&p, &PngHeightOptions { cell_size: 0.0, ..Default::default() }, &Default::default()).is_err());
     }
 
     fn write_palette_png(path: &std::path::Path, palette: &[u8], indices: &[u8]) {
@@ -172,11 +179,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let grey = dir.path().join("grey.png");
         write_palette_png(&grey, &[0, 0, 0, 100, 100, 100, 255, 255, 255], &[2, 0, 1, 1]);
-        let h = read_png_heightmap(&grey, &PngHeightOptions { vertical_scale: 2.0, ..Default::default() }).unwrap();
+        let h = read_png_heightmap(&grey, &PngHeightOptions { vertical_scale: 2.0, ..Default::default() }, &Default::default()).unwrap();
         assert_eq!(h.elevations, vec![510.0, 0.0, 200.0, 200.0]);
         let colour = dir.path().join("colour.png");
         write_palette_png(&colour, &[0, 0, 0, 200, 10, 10], &[0, 1]);
-        let err = read_png_heightmap(&colour, &PngHeightOptions::default()).unwrap_err().to_string();
+        let err = read_png_heightmap(&colour, &PngHeightOptions::default(), &Default::default()).unwrap_err().to_string();
         assert!(err.contains("colour palette") && err.contains("colour.png"), "{err}");
     }
 }

@@ -9,20 +9,20 @@
 
 use crate::atomic::write_atomically;
 use crate::error::{FormatError, Result};
-use crate::memory::check_alloc;
+use crate::memory::Limits;
 use crate::particles::{ParticleArrayNames, ParticleSet, PointArray};
 use std::io::Write;
 use std::path::Path;
 
-pub fn read_vtk_particles(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
+pub fn read_vtk_particles(path: &Path, names: &ParticleArrayNames, limits: &Limits) -> Result<ParticleSet> {
     let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     match ext.as_str() {
-        "vtp" | "vtu" => crate::vtk_xml::read_vtk_xml(path, names),
-        _ => read_legacy(path, names),
+        "vtp" | "vtu" => crate::vtk_xml::read_vtk_xml(path, names, limits),
+        _ => read_legacy(path, names, limits),
     }
 }
 
-fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
+fn read_legacy(path: &Path, names: &ParticleArrayNames, limits: &Limits) -> Result<ParticleSet> {
     use vtkio::model::{Attribute, DataSet};
     let head = {
         use std::io::Read;
@@ -37,9 +37,9 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
     // Guard before vtkio allocates: the file and the POINTS it declares must fit the memory
     // limit, and the points must be there (vtkio reports a short file as "Parse error: Digit").
     let len = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?.len();
-    check_alloc(path, "VTK file", &[len, 4])?;
+    limits.check(path, "VTK file", &[len, 4])?;
     let mut bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
-    check_legacy_points(path, &bytes)?;
+    check_legacy_points(path, &bytes, limits)?;
     // Legacy binary is big-endian by the format's definition. vtkio parses the bytes read
     // above (its reader appends nothing from an empty one): the file is read once.
     let vtk = crate::guard::third_party(path, "the legacy VTK parser", || {
@@ -100,7 +100,7 @@ fn read_legacy(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
 
 /// Checks the POINTS line of a legacy file against the memory limit and against what
 /// follows it: enough bytes (binary) or numbers (ASCII) for every point.
-fn check_legacy_points(path: &Path, bytes: &[u8]) -> Result<()> {
+fn check_legacy_points(path: &Path, bytes: &[u8], limits: &Limits) -> Result<()> {
     let mut lines = bytes.split(|&b| b == b'\n');
     let binary = lines.nth(2).is_some_and(|l| String::from_utf8_lossy(l).trim().eq_ignore_ascii_case("BINARY"));
     let Some(at) = bytes.windows(8).position(|w| w == b"\nPOINTS ") else { return Ok(()) };
@@ -110,7 +110,7 @@ fn check_legacy_points(path: &Path, bytes: &[u8]) -> Result<()> {
     let count = words.next().unwrap_or("");
     let n: u64 = count.parse().map_err(|_| FormatError::invalid(path, format!("POINTS count '{count}' is not a number")))?;
     let ty = words.next().unwrap_or("float").to_ascii_lowercase();
-    check_alloc(path, "POINTS", &[n, 3, 8])?;
+    limits.check(path, "POINTS", &[n, 3, 8])?;
     let rest = bytes.get(line_end + 1..).unwrap_or(&[]);
     if binary {
         let size = match ty.as_str() {

@@ -4,7 +4,7 @@
 //! UInt32 or UInt64 headers in either byte order.
 
 use crate::error::{FormatError, Result};
-use crate::memory::check_alloc;
+use crate::memory::Limits;
 use crate::particles::{ParticleArrayNames, ParticleSet, PointArray};
 use base64::Engine;
 use quick_xml::events::{BytesStart, Event};
@@ -47,7 +47,7 @@ fn type_size(ty: &str) -> Option<usize> {
     })
 }
 
-pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames) -> Result<ParticleSet> {
+pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames, limits: &Limits) -> Result<ParticleSet> {
     let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
     // A cut file can still parse up to where it stops (and appended raw data can still cover
     // the arrays): refuse it by its missing end.
@@ -87,11 +87,11 @@ pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames) -> Result<ParticleS
     if pos_decl.components != 3 {
         return Err(FormatError::invalid(path, format!("Points have {} components, not 3", pos_decl.components)));
     }
-    let coords = decode_array(path, &decl, &pos_decl, appended, n)?;
+    let coords = decode_array(path, &decl, &pos_decl, appended, n, limits)?;
     let positions: Vec<[f64; 3]> = coords.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let mut arrays = Vec::new();
     for a in &decl.point_arrays {
-        let values = decode_array(path, &decl, a, appended, n)?;
+        let values = decode_array(path, &decl, a, appended, n, limits)?;
         arrays.push(PointArray { name: a.name.clone(), components: a.components, values });
     }
     let notes = vec![format!(
@@ -243,10 +243,10 @@ fn store(decl: &mut FileDecl, section: &[String], a: ArrayDecl) {
 }
 
 /// Decodes one DataArray into f64 values, checking its length against `n` points.
-fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: usize) -> Result<Vec<f64>> {
+fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: usize, limits: &Limits) -> Result<Vec<f64>> {
     let size = type_size(&a.ty).unwrap();
-    let want = check_alloc(path, &format!("array '{}'", a.name), &[n as u64, a.components as u64, size as u64])?;
-    check_alloc(path, &format!("array '{}' as f64", a.name), &[n as u64, a.components as u64, 8])?;
+    let want = limits.check(path, &format!("array '{}'", a.name), &[n as u64, a.components as u64, size as u64])?;
+    limits.check(path, &format!("array '{}' as f64", a.name), &[n as u64, a.components as u64, 8])?;
     let what = if a.name.is_empty() { "Points".to_string() } else { format!("array '{}'", a.name) };
     let values = match a.format.as_str() {
         "ascii" => {

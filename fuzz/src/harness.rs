@@ -38,7 +38,7 @@ fn write(path: &Path, data: &[u8]) {
 
 /// Runs one input through the reader `target` names and checks what came back.
 pub fn run(target: &str, data: &[u8]) {
-    formats::memory::set_limit(FUZZ_MEMORY_LIMIT);
+    let limits = formats::Limits::max(FUZZ_MEMORY_LIMIT);
     let dir = scratch_dir().join(target);
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("scratch directory");
@@ -46,19 +46,19 @@ pub fn run(target: &str, data: &[u8]) {
         "dicom_file" => {
             let path = dir.join("input.dcm");
             write(&path, data);
-            check_volume(&path, formats::dicom::read_dicom(&path, &Default::default()));
+            check_volume(&path, formats::dicom::read_dicom(&path, &Default::default(), &limits));
         }
         "dicom_series" => {
             for (i, part) in split(data, SERIES_SPLIT).into_iter().take(8).enumerate() {
                 write(&dir.join(format!("{i:02}.dcm")), part);
             }
-            check_error(&dir, formats::dicom::list_series(&dir).map(|_| ()));
-            check_volume(&dir, formats::dicom::read_dicom(&dir, &Default::default()));
+            check_error(&dir, formats::dicom::list_series(&dir, &limits).map(|_| ()));
+            check_volume(&dir, formats::dicom::read_dicom(&dir, &Default::default(), &limits));
         }
         "nifti" => {
             let path = dir.join("input.nii");
             write(&path, data);
-            check_volume(&path, formats::nifti::read_nifti(&path, &Default::default()));
+            check_volume(&path, formats::nifti::read_nifti(&path, &Default::default(), &limits));
         }
         "nifti_gz" => {
             // The input is the uncompressed stream, so mutations reach the header; a broken
@@ -67,12 +67,12 @@ pub fn run(target: &str, data: &[u8]) {
             let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
             gz.write_all(data).expect("gzip");
             write(&path, &gz.finish().expect("gzip"));
-            check_volume(&path, formats::nifti::read_nifti(&path, &Default::default()));
+            check_volume(&path, formats::nifti::read_nifti(&path, &Default::default(), &limits));
         }
         "geotiff" => {
             let path = dir.join("input.tif");
             write(&path, data);
-            check_heightfield(&path, formats::geotiff::read_geotiff(&path));
+            check_heightfield(&path, formats::geotiff::read_geotiff(&path, &limits));
         }
         "png_height" => {
             let path = dir.join("input.png");
@@ -84,19 +84,19 @@ pub fn run(target: &str, data: &[u8]) {
                 _ => formats::png_height::HeightEncoding::Grey,
             };
             let opts = formats::png_height::PngHeightOptions { encoding, ..Default::default() };
-            check_heightfield(&path, formats::png_height::read_png_heightmap(&path, &opts));
+            check_heightfield(&path, formats::png_height::read_png_heightmap(&path, &opts, &limits));
         }
         "vtk_legacy" => {
             let path = dir.join("input.vtk");
             write(&path, data);
-            check_particles(&path, formats::vtk::read_vtk_particles(&path, &Default::default()));
+            check_particles(&path, formats::vtk::read_vtk_particles(&path, &Default::default(), &limits));
         }
         "vtk_xml" => {
             // .vtp and .vtu go through the same reader; the first byte picks the name.
             let name = if data.first().is_some_and(|b| b & 1 == 1) { "input.vtu" } else { "input.vtp" };
             let path = dir.join(name);
             write(&path, data);
-            check_particles(&path, formats::vtk::read_vtk_particles(&path, &Default::default()));
+            check_particles(&path, formats::vtk::read_vtk_particles(&path, &Default::default(), &limits));
         }
         other => panic!("unknown fuzz target {other}"),
     }

@@ -20,7 +20,7 @@ use registry::NodeSettings;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
-use volterra_formats::{Heightfield, RgbImage, Volume};
+use volterra_formats::{Heightfield, Limits, RgbImage, Volume};
 
 /// What renderers may keep between frames of one scene: the shear-warp preparation of each
 /// volume (quantised copy, permuted axes, min-max maps), which depends only on the volume,
@@ -44,19 +44,25 @@ type TerrainKey = (usize, usize);
 type PreparedTerrain = (Arc<Heightfield>, [u64; 16], Arc<terrain::Prepared>);
 
 impl RenderCache {
-    fn shear_warp(&self, volume: &Arc<Volume>) -> Result<Arc<shear_warp::Prepared>> {
+    fn shear_warp(&self, volume: &Arc<Volume>, limits: &Limits) -> Result<Arc<shear_warp::Prepared>> {
         let key = Arc::as_ptr(volume) as usize;
         let mut map = self.prepared.lock().unwrap();
         // Entries keep their volume alive, so an address is never reused while cached.
         if let Some((_, p)) = map.get(&key) {
             return Ok(p.clone());
         }
-        let p = Arc::new(shear_warp::Prepared::new(volume)?);
+        let p = Arc::new(shear_warp::Prepared::new(volume, limits)?);
         map.insert(key, (volume.clone(), p.clone()));
         Ok(p)
     }
 
-    fn terrain(&self, hf: &Arc<Heightfield>, texture: Option<Arc<RgbImage>>, node_to_world: glam::DMat4) -> Result<Arc<terrain::Prepared>> {
+    fn terrain(
+        &self,
+        hf: &Arc<Heightfield>,
+        texture: Option<Arc<RgbImage>>,
+        node_to_world: glam::DMat4,
+        limits: &Limits,
+    ) -> Result<Arc<terrain::Prepared>> {
         let tex = texture.as_ref().map_or(0, |t| Arc::as_ptr(t) as usize);
         let key = (Arc::as_ptr(hf) as usize, tex);
         let placement = node_to_world.to_cols_array().map(f64::to_bits);
@@ -67,7 +73,7 @@ impl RenderCache {
             }
         }
         // The prepared terrain holds the texture, so its address stays taken too.
-        let p = Arc::new(terrain::Prepared::new(hf, texture, node_to_world)?);
+        let p = Arc::new(terrain::Prepared::new(hf, texture, node_to_world, limits)?);
         map.insert(key, (hf.clone(), placement, p.clone()));
         Ok(p)
     }
@@ -117,13 +123,13 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             reference_volume::render(&input, &rays, s)?
         }
         (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
-            let prepared = timed(&mut prepare, || cache.shear_warp(&vol))?;
+            let prepared = timed(&mut prepare, || cache.shear_warp(&vol, scene.limits()))?;
             let input = shear_warp::Input { prepared: &prepared, node_to_world, tf: transfer_function()?, blend: desc.blend };
             shear_warp::render(&input, &rays, s)?
         }
         (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), NodeData::Heightfield(hf)) => {
             let prepared = timed(&mut prepare, || {
-                let p = cache.terrain(&hf, texture.clone(), node_to_world)?;
+                let p = cache.terrain(&hf, texture.clone(), node_to_world, scene.limits())?;
                 if matches!(settings, NodeSettings::Terrain(_)) {
                     p.prepare_gpu()?;
                 }
@@ -136,7 +142,13 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             }
         }
         (NodeSettings::Smoke(s), NodeData::Particles(particles)) => {
-            let input = smoke::SmokeInput { particles: &particles, node_to_world, medium: medium()?, lights: &scene.file.lights };
+            let input = smoke::SmokeInput {
+                particles: &particles,
+                node_to_world,
+                medium: medium()?,
+                lights: &scene.file.lights,
+                limits: *scene.limits(),
+            };
             smoke::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
         }
         _ => unreachable!("the scene checked that the node's data is of its kind and its renderer draws that kind"),
@@ -165,7 +177,7 @@ pub fn render_scene(scene: &Scene, frame: Option<(usize, usize)>) -> Result<Fram
 pub fn render_view(scene: &Scene, camera: &Camera, size: (usize, usize), cache: &RenderCache) -> Result<Frame> {
     // Each layer's colour and depth, and the composite, against the memory limit.
     let layers_max = scene.nodes().len() as u64 + 1;
-    volterra_formats::memory::check_alloc(&scene.source, "the frames", &[size.0 as u64, size.1 as u64, 20, layers_max])?;
+    scene.limits().check(&scene.source, "the frames", &[size.0 as u64, size.1 as u64, 20, layers_max])?;
     let mut layers = Vec::new();
     for i in 0..scene.nodes().len() {
         if let Some(f) = render_node_with(scene, i, camera, size, cache).with_context(|| scene.source.display().to_string())? {

@@ -80,7 +80,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         data_bounds(&data, DMat4::IDENTITY).ok_or_else(|| anyhow!("{}: the data has no finite extent to frame", path.display()))?;
     let camera = fit_camera(kind, bounds);
     let file = SceneFile { image, camera, walk: None, keyframes: vec![], lights, nodes: vec![node] };
-    let scene = Scene::from_file(file, dir, path.to_path_buf())?;
+    let scene = Scene::from_file(file, dir, path.to_path_buf())?.with_limits(opts.limits);
     scene.provide_data(0, data);
     Ok(scene)
 }

@@ -21,7 +21,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 use volterra_formats::png_height::PngHeightOptions;
-use volterra_formats::{Dataset, Heightfield, LoadOptions, ParticleArrayNames, ParticleSet, RgbImage, Volume};
+use volterra_formats::{Dataset, Heightfield, Limits, LoadOptions, ParticleArrayNames, ParticleSet, RgbImage, Volume};
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -260,6 +260,9 @@ pub struct Scene {
     renderers: Vec<Option<(&'static RendererDecl, NodeSettings)>>,
     data: Vec<OnceLock<Result<NodeData, SharedError>>>,
     textures: Vec<OnceLock<Result<Arc<RgbImage>, SharedError>>>,
+    /// The memory limits handed to every reader of the scene's data and to every renderer's
+    /// preparation (`--max-memory`).
+    limits: Limits,
 }
 
 /// The line (1-based) of a byte offset in `text`.
@@ -463,7 +466,18 @@ impl Scene {
             renderers,
             data: (0..n).map(|_| OnceLock::new()).collect(),
             textures: (0..n).map(|_| OnceLock::new()).collect(),
+            limits: Limits::default(),
         })
+    }
+
+    /// The scene with `limits` for everything it reads and prepares from now on.
+    pub fn with_limits(mut self, limits: Limits) -> Scene {
+        self.limits = limits;
+        self
+    }
+
+    pub fn limits(&self) -> &Limits {
+        &self.limits
     }
 
     pub fn nodes(&self) -> &[NodeDesc] {
@@ -534,7 +548,7 @@ impl Scene {
     fn read_node(&self, node: usize) -> Result<NodeData> {
         let n = &self.file.nodes[node];
         let path = self.base_dir.join(n.file.as_ref().ok_or_else(|| anyhow!("node '{}' has no file", n.name))?);
-        let mut opts = LoadOptions::default();
+        let mut opts = LoadOptions { limits: self.limits, ..LoadOptions::default() };
         opts.dicom.series = n.series.clone();
         opts.dicom.resample = n.resample;
         opts.nifti.volume_index = n.volume_index;
@@ -575,7 +589,9 @@ impl Scene {
         let Some(t) = &self.file.nodes[node].texture else { return Ok(None) };
         let path = self.base_dir.join(t);
         let r = self.textures[node]
-            .get_or_init(|| volterra_formats::image::read_rgb_png(&path).map(Arc::new).map_err(|e| SharedError::new(e.into())))
+            .get_or_init(|| {
+                volterra_formats::image::read_rgb_png(&path, &self.limits).map(Arc::new).map_err(|e| SharedError::new(e.into()))
+            })
             .clone();
         r.map(Some).map_err(anyhow::Error::new)
     }
@@ -584,7 +600,7 @@ impl Scene {
     /// source), keeping the data already read for every node whose data-reading keys
     /// did not change: editing a transfer function or the camera reads nothing again.
     pub fn edited(&self, file: SceneFile) -> Result<Scene> {
-        let next = Scene::from_file(file, self.base_dir.clone(), self.source.clone())?;
+        let next = Scene::from_file(file, self.base_dir.clone(), self.source.clone())?.with_limits(self.limits);
         for (i, n) in next.file.nodes.iter().enumerate() {
             let Some(j) = self.node_index(&n.name) else { continue };
             let o = &self.file.nodes[j];

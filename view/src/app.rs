@@ -50,7 +50,7 @@ struct Opened {
 /// Reads a scene file or a data file, and everything the viewer derives from the data.
 fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
     let is_scene = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    let scene = if is_scene { Scene::load(path, &[])? } else { scene_for_file(path, load)? };
+    let scene = if is_scene { Scene::load(path, &[])?.with_limits(load.limits) } else { scene_for_file(path, load)? };
     let mut stats = vec![None; scene.nodes().len()];
     for (i, n) in scene.nodes().iter().enumerate() {
         if n.kind == NodeKind::Volume {

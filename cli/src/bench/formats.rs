@@ -8,12 +8,8 @@ use std::time::Instant;
 use volterra_formats::{dicom, nifti, Rescale, Volume, VoxelData};
 
 pub struct FormatsBench {
-    pub work_dir: PathBuf,
+    pub env: super::BenchEnv,
     pub runs: usize,
-    /// Python with pydicom, nibabel and numpy (tests/reference/.venv by default).
-    pub python: PathBuf,
-    /// The reference scripts (tests/reference).
-    pub scripts: PathBuf,
 }
 
 /// A 512-slice CT-like series (256×256, i16) and a 256³ i16 gzipped NIfTI, made from the
@@ -73,10 +69,14 @@ fn time_runs(runs: usize, f: impl Fn() -> Result<()>) -> Result<Vec<f64>> {
 /// Times volterra and the reference readers on one DICOM series and one gzipped NIfTI.
 fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path) -> Result<()> {
     let opts = dicom::DicomOptions::default();
-    let mut ours_dicom = time_runs(b.runs, || dicom::read_dicom(series, &opts).map(|_| ()).map_err(Into::into))?;
-    let mut ours_nifti = time_runs(b.runs, || nifti::read_nifti(nii, &Default::default()).map(|_| ()).map_err(Into::into))?;
-    let py =
-        std::process::Command::new(&b.python).arg(b.scripts.join("bench_readers.py")).arg(series).arg(nii).arg(b.runs.to_string()).output();
+    let mut ours_dicom = time_runs(b.runs, || dicom::read_dicom(series, &opts, &b.env.limits).map(|_| ()).map_err(Into::into))?;
+    let mut ours_nifti = time_runs(b.runs, || nifti::read_nifti(nii, &Default::default(), &b.env.limits).map(|_| ()).map_err(Into::into))?;
+    let py = std::process::Command::new(&b.env.python)
+        .arg(b.env.scripts.join("bench_readers.py"))
+        .arg(series)
+        .arg(nii)
+        .arg(b.runs.to_string())
+        .output();
     let theirs: Option<serde_json::Value> = match py {
         Ok(o) if o.status.success() => serde_json::from_slice(&o.stdout).ok(),
         Ok(o) => {
@@ -84,7 +84,7 @@ fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path) -> Res
             None
         }
         Err(e) => {
-            eprintln!("reference timing skipped: cannot run {}: {e} (run `python3 tests/setup_venv.py`)", b.python.display());
+            eprintln!("reference timing skipped: cannot run {}: {e} (run `python3 tests/setup_venv.py`)", b.env.python.display());
             None
         }
     };
@@ -114,12 +114,12 @@ pub fn run(b: &FormatsBench) -> Result<()> {
     if b.runs == 0 {
         bail!("--runs must be at least 1");
     }
-    let (series, nii) = prepare(&b.work_dir)?;
+    let (series, nii) = prepare(&b.env.work_dir)?;
     println!("load time in seconds, median of {} runs, {} threads; ratio = reference / volterra", b.runs, rayon::current_num_threads());
     println!("{:<50} {:>10} {:>18} {:>7}", "input", "volterra", "reference", "ratio");
     compare_pair(b, "synthetic 512×256² i16", &series, &nii)?;
     // The real aneurism scan in ../shared/data, where present.
-    let shared = b.scripts.join("../../../shared/data/volumes/aneurism");
+    let shared = b.env.scripts.join("../../../shared/data/volumes/aneurism");
     if shared.join("dicom_ct").is_dir() {
         compare_pair(b, "aneurism 256³", &shared.join("dicom_ct"), &shared.join("aneurism.nii.gz"))?;
     }

@@ -8,6 +8,19 @@ pub mod terrain;
 
 use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
+use volterra_formats::Limits;
+
+/// What every benchmark runs with, whichever it is.
+pub struct BenchEnv {
+    /// Where the benchmark inputs are written (reused between runs).
+    pub work_dir: PathBuf,
+    /// Python with the reference packages (pydicom, nibabel, VTK, Mitsuba, matplotlib).
+    pub python: PathBuf,
+    /// The reference scripts (tests/reference).
+    pub scripts: PathBuf,
+    /// The memory limits for what the benchmark reads and prepares (`--max-memory`).
+    pub limits: Limits,
+}
 
 /// The reference scripts the benchmarks run (tests/reference in a checkout): `given`, else
 /// found beside the executable (target/{debug,release}/volterra in a checkout) or under

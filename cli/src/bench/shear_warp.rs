@@ -15,11 +15,8 @@ use volterra::scene::{BlendMode, Camera, Scene, TransferFunction};
 pub struct ShearWarpBench {
     /// A scene with one volume node and a parallel camera (its view is the first of four).
     pub scene: PathBuf,
+    pub env: super::BenchEnv,
     pub runs: usize,
-    pub work_dir: PathBuf,
-    pub python: PathBuf,
-    /// The reference scripts (tests/reference).
-    pub scripts: PathBuf,
     pub json: bool,
     pub plot: PathBuf,
     /// Time only the configurations whose name contains this (None: all).
@@ -57,7 +54,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     if b.runs == 0 {
         bail!("--runs must be at least 1");
     }
-    let scene = Scene::load(&b.scene, &[])?;
+    let scene = Scene::load(&b.scene, &[])?.with_limits(b.env.limits);
     let node =
         scene.nodes().iter().position(|n| n.kind == volterra::scene::NodeKind::Volume).context("the bench scene needs a volume node")?;
     let desc = &scene.nodes()[node];
@@ -69,8 +66,8 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     let to_world = scene.world_transform(node);
     let (w, h) = (scene.file.image.width, scene.file.image.height);
     let cams = views(&scene.file.camera);
-    std::fs::create_dir_all(&b.work_dir)?;
-    let prepared = shear_warp::Prepared::new(&volume)?;
+    std::fs::create_dir_all(&b.env.work_dir)?;
+    let prepared = shear_warp::Prepared::new(&volume, &b.env.limits)?;
 
     // Reference images, cached by scene and view.
     let key = format!("{:x}", fxhash(&(std::fs::read_to_string(&b.scene)?, w, h)));
@@ -78,8 +75,8 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     let mut refs_mip = Vec::new();
     for (v, cam) in cams.iter().enumerate() {
         for (blend, list) in [(BlendMode::Composite, &mut refs), (BlendMode::Mip, &mut refs_mip)] {
-            let path = b.work_dir.join(format!("ref_{key}_{v}_{blend:?}.exr"));
-            let img = match volterra_formats::exr_io::read_exr(&path) {
+            let path = b.env.work_dir.join(format!("ref_{key}_{v}_{blend:?}.exr"));
+            let img = match volterra_formats::exr_io::read_exr(&path, &b.env.limits) {
                 Ok(img) => img,
                 Err(_) => {
                     eprintln!("rendering the reference for view {v} ({blend:?}), cached in {}", path.display());
@@ -174,10 +171,10 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
     }
 
-    let rows_path = b.work_dir.join("shear_warp_rows.json");
+    let rows_path = b.env.work_dir.join("shear_warp_rows.json");
     std::fs::write(&rows_path, serde_json::to_string_pretty(&rows)?)?;
     if b.only.is_none() {
-        super::plot(&b.python, &b.scripts, "plot_bench.py", &rows_path, &b.plot, "plot");
+        super::plot(&b.env.python, &b.env.scripts, "plot_bench.py", &rows_path, &b.plot, "plot");
     }
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -201,17 +198,17 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Resu
     let spec_views: Vec<serde_json::Value> = cams
         .iter()
         .enumerate()
-        .map(|(v, c)| serde_json::json!({"position": c.position, "image": b.work_dir.join(format!("vtk_{v}.exr"))}))
+        .map(|(v, c)| serde_json::json!({"position": c.position, "image": b.env.work_dir.join(format!("vtk_{v}.exr"))}))
         .collect();
     let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs});
-    let spec_path = b.work_dir.join("vtk_spec.json");
+    let spec_path = b.env.work_dir.join("vtk_spec.json");
     std::fs::write(&spec_path, spec.to_string())?;
-    let out = std::process::Command::new(&b.python)
-        .arg(b.scripts.join("vtk_volume.py"))
+    let out = std::process::Command::new(&b.env.python)
+        .arg(b.env.scripts.join("vtk_volume.py"))
         .arg("--bench")
         .arg(&spec_path)
         .output()
-        .with_context(|| format!("cannot run {}", b.python.display()))?;
+        .with_context(|| format!("cannot run {}", b.env.python.display()))?;
     if !out.status.success() {
         bail!("vtk_volume.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
     }
@@ -225,7 +222,7 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Resu
         .collect();
     let (mut err, mut psnr) = (Vec::new(), Vec::new());
     for (i, r) in refs.iter().enumerate() {
-        let img = volterra_formats::exr_io::read_exr(&b.work_dir.join(format!("vtk_{i}.exr")))?;
+        let img = volterra_formats::exr_io::read_exr(&b.env.work_dir.join(format!("vtk_{i}.exr")), &b.env.limits)?;
         err.push(rel_rmse(&rgba_of(&img), r));
         psnr.push(rgba_psnr(&rgba_of(&img), r));
     }

@@ -21,10 +21,7 @@ pub struct SmokeBench {
     pub width: usize,
     pub height: usize,
     pub photons: usize,
-    pub python: PathBuf,
-    /// The reference scripts (tests/reference).
-    pub scripts: PathBuf,
-    pub work_dir: PathBuf,
+    pub env: super::BenchEnv,
     pub json: bool,
 }
 
@@ -50,12 +47,18 @@ fn render(scene: &Scene, node: usize, sets: &Settings, size: (usize, usize)) -> 
     let desc = &scene.nodes()[node];
     let particles = scene.particles(node)?;
     let medium = desc.medium.as_ref().context("the particle node needs a medium")?;
-    let input = SmokeInput { particles: &particles, node_to_world: scene.world_transform(node), medium, lights: &scene.file.lights };
+    let input = SmokeInput {
+        particles: &particles,
+        node_to_world: scene.world_transform(node),
+        medium,
+        lights: &scene.file.lights,
+        limits: *scene.limits(),
+    };
     smoke::render(&input, &scene.file.camera.rays(size.0, size.1), sets)
 }
 
 pub fn run(b: &SmokeBench) -> Result<()> {
-    let scene = Scene::load(&b.scene, &[])?;
+    let scene = Scene::load(&b.scene, &[])?.with_limits(b.env.limits);
     let node = scene.nodes().iter().position(|n| n.kind == NodeKind::Particles).context("the bench scene needs a particle node")?;
     let reference_path = b
         .scene
@@ -63,7 +66,7 @@ pub fn run(b: &SmokeBench) -> Result<()> {
         .and_then(|d| d.parent())
         .map(|d| d.join("data").join(format!("mitsuba_{}.exr", b.scene.file_stem().unwrap_or_default().to_string_lossy())));
     let reference = match reference_path.as_ref().filter(|p| p.exists()) {
-        Some(p) => volterra_formats::exr_io::read_exr(p)?,
+        Some(p) => volterra_formats::exr_io::read_exr(p, &b.env.limits)?,
         None => bail!("no Mitsuba reference beside {} (expected ../data/mitsuba_NAME.exr)", b.scene.display()),
     };
     let reference = rgba_pixels(&reference).iter().map(|p| [p[0], p[1], p[2], 0.0]).collect::<Vec<_>>();
@@ -159,14 +162,14 @@ pub fn run(b: &SmokeBench) -> Result<()> {
 fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) -> Result<Vec<Row>> {
     let mut rows = Vec::new();
     for spp in [16, 64, 256, 1024] {
-        let out_dir = b.work_dir.join(format!("mitsuba_{spp}"));
-        let out = std::process::Command::new(&b.python)
-            .arg(b.scripts.join("mitsuba_smoke.py"))
+        let out_dir = b.env.work_dir.join(format!("mitsuba_{spp}"));
+        let out = std::process::Command::new(&b.env.python)
+            .arg(b.env.scripts.join("mitsuba_smoke.py"))
             .arg(&out_dir)
             .arg(spp.to_string())
             .arg(&b.scene)
             .output()
-            .with_context(|| format!("cannot run {}", b.python.display()))?;
+            .with_context(|| format!("cannot run {}", b.env.python.display()))?;
         if !out.status.success() {
             bail!("mitsuba_smoke.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
         }
@@ -181,7 +184,7 @@ fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) ->
             })
             .context("no timing from mitsuba_smoke.py")?;
         let stem = b.scene.file_stem().unwrap_or_default().to_string_lossy().to_string();
-        let img = volterra_formats::exr_io::read_exr(&out_dir.join(format!("mitsuba_{stem}.exr")))?;
+        let img = volterra_formats::exr_io::read_exr(&out_dir.join(format!("mitsuba_{stem}.exr")), &b.env.limits)?;
         let rgb: Vec<[f32; 4]> = rgba_pixels(&img).iter().map(|p| [p[0], p[1], p[2], 0.0]).collect();
         if rgb.len() != size.0 * size.1 {
             bail!("Mitsuba image size differs");

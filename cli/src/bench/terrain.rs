@@ -20,11 +20,8 @@ pub struct TerrainBench {
     pub sizes: Vec<usize>,
     pub width: usize,
     pub height: usize,
+    pub env: super::BenchEnv,
     pub runs: usize,
-    pub work_dir: PathBuf,
-    pub python: PathBuf,
-    /// The reference scripts (tests/reference).
-    pub scripts: PathBuf,
     pub json: bool,
     pub plot: PathBuf,
 }
@@ -111,7 +108,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
     }
     let gpu = gpu::gpu()?;
     eprintln!("GPU: {} ({:?}, {:?})", gpu.info.name, gpu.info.backend, gpu.info.device_type);
-    std::fs::create_dir_all(&b.work_dir)?;
+    std::fs::create_dir_all(&b.env.work_dir)?;
     let shading = Shading { lights: sun_lights(&[])?, ambient: 0.25, shadows: false };
     // The reference is f64 and cell by cell: its image is kept small.
     let (rw, rh) = (192usize, (192 * b.height / b.width).max(1));
@@ -122,11 +119,11 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         let hf = bench_dem(size);
         let grid = TerrainGrid::new(&hf, DMat4::IDENTITY)?;
         // The same DEM and cameras for VTK.
-        write_npy(&b.work_dir.join(format!("dem_{size}.npy")), size, size, &hf.elevations)?;
+        write_npy(&b.env.work_dir.join(format!("dem_{size}.npy")), size, size, &hf.elevations)?;
         let cameras = bench_cameras(&grid, &hf);
         let cams: serde_json::Map<String, serde_json::Value> =
             cameras.iter().map(|(n, c)| (n.to_string(), serde_json::to_value(c).unwrap())).collect();
-        std::fs::write(b.work_dir.join(format!("cams_{size}.json")), serde_json::to_string(&cams)?)?;
+        std::fs::write(b.env.work_dir.join(format!("cams_{size}.json")), serde_json::to_string(&cams)?)?;
         let mut builds = Vec::new();
         let mut terrain = None;
         for _ in 0..b.runs.min(3) {
@@ -178,9 +175,9 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         Err(e) => eprintln!("VTK rows skipped: {e:#}"),
     }
 
-    let steps_path = b.work_dir.join("terrain_steps.json");
+    let steps_path = b.env.work_dir.join("terrain_steps.json");
     std::fs::write(&steps_path, serde_json::to_string(&histograms)?)?;
-    super::plot(&b.python, &b.scripts, "plot_terrain_steps.py", &steps_path, &b.plot, "step histogram");
+    super::plot(&b.env.python, &b.env.scripts, "plot_terrain_steps.py", &steps_path, &b.plot, "step histogram");
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
         return Ok(());
@@ -219,12 +216,12 @@ pub fn run(b: &TerrainBench) -> Result<()> {
 fn vtk_rows(b: &TerrainBench) -> Result<Vec<Row>> {
     use anyhow::Context;
     let sizes: Vec<String> = b.sizes.iter().map(|s| s.to_string()).collect();
-    let out = std::process::Command::new(&b.python)
-        .arg(b.scripts.join("vtk_terrain.py"))
+    let out = std::process::Command::new(&b.env.python)
+        .arg(b.env.scripts.join("vtk_terrain.py"))
         .args(["--bench", &sizes.join(","), &b.width.to_string(), &b.height.to_string(), &b.runs.to_string()])
-        .arg(&b.work_dir)
+        .arg(&b.env.work_dir)
         .output()
-        .with_context(|| format!("cannot run {}", b.python.display()))?;
+        .with_context(|| format!("cannot run {}", b.env.python.display()))?;
     if !out.status.success() {
         bail!("vtk_terrain.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
     }

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex, OnceLock};
-use volterra_formats::Volume;
+use volterra_formats::{Limits, Volume};
 
 /// The volume resampled for one principal axis: permuted so that axis is z, x fastest,
 /// values as u16 quanta of the volume's value range; with its min-max maps, built on
@@ -59,12 +59,14 @@ pub struct Prepared {
     quanta: Vec<u16>,
     axes: [OnceLock<Axis>; 3],
     pub(super) affine: DMat4,
+    /// Checked before each permuted copy is made.
+    limits: Limits,
 }
 
 impl Prepared {
-    /// Quantises `volume`, within the memory limit (`--max-memory`).
-    pub fn new(volume: &Volume) -> Result<Prepared> {
-        volterra_formats::memory::check_alloc(Path::new("shear-warp"), "the quantised volume", &[volume.voxel_count() as u64, 2])?;
+    /// Quantises `volume`, within `limits` (`--max-memory`).
+    pub fn new(volume: &Volume, limits: &Limits) -> Result<Prepared> {
+        limits.check(Path::new("shear-warp"), "the quantised volume", &[volume.voxel_count() as u64, 2])?;
         let (lo, hi) = volume.value_range().unwrap_or((0.0, 1.0));
         let hi = if hi > lo { hi } else { lo + 1.0 };
         let scale = 65535.0 / (hi - lo);
@@ -79,6 +81,7 @@ impl Prepared {
             quanta,
             axes: [OnceLock::new(), OnceLock::new(), OnceLock::new()],
             affine: crate::render::geometry::affine_matrix(&volume.affine),
+            limits: *limits,
         })
     }
 
@@ -86,11 +89,7 @@ impl Prepared {
     /// the first time).
     pub(super) fn axis(&self, perm: [usize; 3]) -> Result<&Axis> {
         if self.axes[perm[2]].get().is_none() {
-            volterra_formats::memory::check_alloc(
-                Path::new("shear-warp"),
-                "the slices along the viewing axis",
-                &[self.quanta.len() as u64, 2],
-            )?;
+            self.limits.check(Path::new("shear-warp"), "the slices along the viewing axis", &[self.quanta.len() as u64, 2])?;
         }
         Ok(self.axes[perm[2]].get_or_init(|| {
             let d = self.dims;
@@ -136,7 +135,7 @@ mod tests {
     fn values_are_quantised_over_their_real_range_and_slices_permuted_per_axis() {
         let dims = [4, 3, 2];
         let v = volume(dims, (0..24).map(|i| i as i16 * 3).collect());
-        let p = Prepared::new(&v).unwrap();
+        let p = Prepared::new(&v, &Default::default()).unwrap();
         // Real values 2·stored − 10: −10 … 128.
         assert_eq!((p.lo, p.hi), (-10.0, 128.0));
         assert_eq!((p.quanta[0], p.quanta[23]), (0, 65535));
@@ -155,7 +154,7 @@ mod tests {
 
     #[test]
     fn a_constant_volume_gets_a_unit_range() {
-        let p = Prepared::new(&volume([2, 2, 2], vec![7; 8])).unwrap();
+        let p = Prepared::new(&volume([2, 2, 2], vec![7; 8]), &Default::default()).unwrap();
         assert_eq!((p.lo, p.hi), (4.0, 5.0));
         assert!(p.quanta.iter().all(|&q| q == 0));
     }

@@ -33,7 +33,7 @@ use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3};
 use medium::{Kernel, SphMedium};
 use std::time::Instant;
-use volterra_formats::ParticleSet;
+use volterra_formats::{Limits, ParticleSet};
 
 crate::setting_choice! {
     /// Where multiply-scattered light comes from.
@@ -121,6 +121,8 @@ pub struct SmokeInput<'a> {
     pub node_to_world: DMat4,
     pub medium: &'a MediumParams,
     pub lights: &'a [Light],
+    /// The memory limits the photon map is checked against.
+    pub limits: Limits,
 }
 
 /// Checks the medium's parameters.
@@ -191,7 +193,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         key.f64(c_ext).f64(albedo).f64(g).f64(step).u64(s.photons as u64).u64(s.seed).u64(s.max_bounces as u64);
         let key = key.finish();
         // At least one 72-byte record per traced photon (more where a photon collides often).
-        volterra_formats::memory::check_alloc(std::path::Path::new("smoke"), "the photon records", &[s.photons as u64, 72])?;
+        input.limits.check(std::path::Path::new("smoke"), "the photon records", &[s.photons as u64, 72])?;
         let cached = if s.cache { cache::load(key) } else { None };
         if let Some(traced) = cached {
             cache_hit = true;

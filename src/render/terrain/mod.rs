@@ -20,7 +20,7 @@ use crate::scene::Light;
 use crate::scene::NodeKind;
 use anyhow::Result;
 use glam::DMat4;
-use volterra_formats::{Heightfield, RgbImage};
+use volterra_formats::{Heightfield, Limits, RgbImage};
 
 crate::setting_choice! {
     /// How the GPU walks the pyramid. The last two are the baselines the benchmark
@@ -118,11 +118,16 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    pub fn new(heightfield: &Heightfield, texture: Option<std::sync::Arc<RgbImage>>, node_to_world: DMat4) -> Result<Prepared> {
+    pub fn new(
+        heightfield: &Heightfield,
+        texture: Option<std::sync::Arc<RgbImage>>,
+        node_to_world: DMat4,
+        limits: &Limits,
+    ) -> Result<Prepared> {
         // The grid's heights and their upload copy, against the memory limit (on lavapipe the
         // GPU textures live in host memory too, allocated by Mesa outside this count).
         let samples = (heightfield.width * heightfield.height) as u64;
-        volterra_formats::memory::check_alloc(std::path::Path::new("terrain"), "the height grid and its upload", &[samples, 8])?;
+        limits.check(std::path::Path::new("terrain"), "the height grid and its upload", &[samples, 8])?;
         let grid = grid::TerrainGrid::new(heightfield, node_to_world)?;
         Ok(Prepared { grid, texture, gpu: std::sync::OnceLock::new() })
     }
@@ -169,8 +174,10 @@ impl Prepared {
 }
 
 impl TerrainInput<'_> {
+    /// A one-off preparation, within the memory available on this machine (a scene hands
+    /// its own limits to [`Prepared::new`]).
     fn prepare(&self) -> Result<Prepared> {
-        Prepared::new(self.heightfield, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world)
+        Prepared::new(self.heightfield, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world, &Limits::default())
     }
 }
 
