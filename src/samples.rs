@@ -8,7 +8,7 @@
 use anyhow::{Context, Result};
 use std::path::Path;
 use volterra_formats::heightfield::{Crs, Heightfield};
-use volterra_formats::{image, ParticleArrayNames, ParticleSet, PointArray, Rescale, RgbImage, Volume, VoxelData};
+use volterra_formats::{image, ParticleArrayNames, ParticleSet, PointArray, RgbImage, Volume, VoxelData};
 
 pub use volterra_formats::rng::SplitMix64;
 
@@ -126,21 +126,7 @@ pub fn angio_phantom(n: usize) -> Volume {
         let d = ((p[0] - bulge_at[0]).powi(2) + (p[1] - bulge_at[1]).powi(2) + (p[2] - bulge_at[2]).powi(2)).sqrt();
         250.0 * (0.5 - (d - bulge_r) / 1.5).clamp(0.0, 1.0)
     });
-    let s = 0.6;
-    let c = -0.5 * (nf - 1.0) * s;
-    Volume {
-        dims: [n, n, n],
-        spacing: [s; 3],
-        affine: [[s, 0.0, 0.0, c], [0.0, s, 0.0, c], [0.0, 0.0, s, c], [0.0, 0.0, 0.0, 1.0]],
-        data: VoxelData::U8(data),
-        rescale: Rescale::IDENTITY,
-        modality: None,
-        units: None,
-        volume_count: 1,
-        volume_index: 0,
-        notes: vec!["volterra angiography phantom".into()],
-        attributes: Vec::new(),
-    }
+    Volume { notes: vec!["volterra angiography phantom".into()], ..Volume::centred([n, n, n], [0.6; 3], VoxelData::U8(data)) }
 }
 
 /// A (2^levels + 1)² fractal DEM by the diamond-square algorithm, with `cell` metres per

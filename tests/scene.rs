@@ -7,7 +7,7 @@ use common::repo_path;
 use std::path::Path;
 use volterra::render::{self, reference_volume};
 use volterra::scene::{BlendMode, Camera, Scene, TransferFunction};
-use volterra_formats::{Rescale, Volume, VoxelData};
+use volterra_formats::{Volume, VoxelData};
 
 fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
     let p = dir.join(name);
@@ -217,20 +217,7 @@ fn input<'a>(
 }
 
 fn constant_volume(n: usize, spacing: f64, value: u8) -> Volume {
-    let c = -0.5 * (n - 1) as f64 * spacing;
-    Volume {
-        dims: [n, n, n],
-        spacing: [spacing; 3],
-        affine: [[spacing, 0.0, 0.0, c], [0.0, spacing, 0.0, c], [0.0, 0.0, spacing, c], [0.0, 0.0, 0.0, 1.0]],
-        data: VoxelData::U8(vec![value; n * n * n]),
-        rescale: Rescale::IDENTITY,
-        modality: None,
-        units: None,
-        volume_count: 1,
-        volume_index: 0,
-        notes: vec![],
-        attributes: Vec::new(),
-    }
+    Volume::centred([n, n, n], [spacing; 3], VoxelData::U8(vec![value; n * n * n]))
 }
 
 /// A homogeneous cube seen face-on: opacity 1 − (1 − α)^(L / unit), colour = TF colour ·

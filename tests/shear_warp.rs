@@ -9,20 +9,7 @@ use volterra::scene::{BlendMode, Camera, TransferFunction};
 use volterra_formats::{Rescale, Volume, VoxelData};
 
 fn volume(dims: [usize; 3], spacing: [f64; 3], data: VoxelData, rescale: Rescale) -> Volume {
-    let c = |a: usize| -0.5 * (dims[a] - 1) as f64 * spacing[a];
-    Volume {
-        dims,
-        spacing,
-        affine: [[spacing[0], 0.0, 0.0, c(0)], [0.0, spacing[1], 0.0, c(1)], [0.0, 0.0, spacing[2], c(2)], [0.0, 0.0, 0.0, 1.0]],
-        data,
-        rescale,
-        modality: None,
-        units: None,
-        volume_count: 1,
-        volume_index: 0,
-        notes: vec![],
-        attributes: Vec::new(),
-    }
+    Volume { rescale, ..Volume::centred(dims, spacing, data) }
 }
 
 /// A smooth blob with a shell: values 0..255 (u8), non-power-of-two dims.

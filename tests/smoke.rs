@@ -104,7 +104,7 @@ fn with_albedo_one_every_emitted_watt_leaves_the_medium() {
         step: 0.01,
         max_bounces: 100_000,
     };
-    let t = trace(&sphere, &emitters, &s(1.0));
+    let t = trace(&sphere, &emitters, &s(1.0)).unwrap();
     assert_eq!(t.capped, 0);
     for c in 0..3 {
         assert!((t.escaped[c] - t.emitted[c]).abs() <= 1e-9 * t.emitted[c], "escaped {:?} emitted {:?}", t.escaped, t.emitted);
@@ -113,8 +113,37 @@ fn with_albedo_one_every_emitted_watt_leaves_the_medium() {
     let expected = 2.0 * std::f64::consts::PI * 3.0;
     assert!((t.emitted[0] - expected).abs() < 1e-9 * expected, "{} vs {expected}", t.emitted[0]);
     // With absorption, less leaves.
-    let t = trace(&sphere, &emitters, &s(0.5));
+    let t = trace(&sphere, &emitters, &s(0.5)).unwrap();
     assert!(t.escaped[0] < 0.95 * t.emitted[0]);
+}
+
+/// The viewer cancels a stale smoke frame: photon tracing stops between chunks.
+#[test]
+fn photon_tracing_stops_when_its_caller_cancels() {
+    use volterra::render::driver::{observed, Cancelled, Progress};
+    struct Stale;
+    impl Progress for Stale {
+        fn begin(&self, _: &str, _: u64) {}
+        fn update(&self, _: u64) {}
+        fn end(&self) {}
+        fn cancelled(&self) -> bool {
+            true
+        }
+    }
+    let sphere = Homogeneous::new(1.0, Shape::Sphere { centre: DVec3::ZERO, radius: 1.0 });
+    let emitters = Emitter::from_scene(&[sun([0.0, 0.0, -1.0], 2.0)], DVec3::splat(-1.0), DVec3::splat(1.0)).unwrap();
+    let s = TraceSettings {
+        count: 1 << 20,
+        seed: 3,
+        c_ext: 3.0,
+        albedo: 0.9,
+        g: 0.5,
+        free_flight: FreeFlight::Delta,
+        step: 0.01,
+        max_bounces: 1000,
+    };
+    let r = observed(std::sync::Arc::new(Stale), || trace(&sphere, &emitters, &s));
+    assert!(matches!(r, Err(Cancelled)));
 }
 
 #[test]

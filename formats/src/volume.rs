@@ -247,6 +247,33 @@ pub struct Volume {
 }
 
 impl Volume {
+    /// A volume of `data` on the grid `affine` gives (spacing from its columns), its
+    /// stored values taken as real-world values and nothing else said about it: set the
+    /// other fields with struct-update syntax (`Volume { rescale, ..Volume::new(…) }`).
+    pub fn new(dims: [usize; 3], affine: Affine, data: VoxelData) -> Volume {
+        assert_eq!(data.len(), dims[0] * dims[1] * dims[2], "voxel data does not fill {dims:?}");
+        Volume {
+            dims,
+            spacing: spacing_of(&affine),
+            affine,
+            data,
+            rescale: Rescale::IDENTITY,
+            modality: None,
+            units: None,
+            volume_count: 1,
+            volume_index: 0,
+            notes: Vec::new(),
+            attributes: Vec::new(),
+        }
+    }
+
+    /// As [`Volume::new`], axis-aligned with `spacing` (mm) and centred on the world origin.
+    pub fn centred(dims: [usize; 3], spacing: [f64; 3], data: VoxelData) -> Volume {
+        let c = |a: usize| -0.5 * (dims[a] as f64 - 1.0) * spacing[a];
+        let affine = [[spacing[0], 0.0, 0.0, c(0)], [0.0, spacing[1], 0.0, c(1)], [0.0, 0.0, spacing[2], c(2)], [0.0, 0.0, 0.0, 1.0]];
+        Volume::new(dims, affine, data)
+    }
+
     pub fn voxel_count(&self) -> usize {
         self.dims[0] * self.dims[1] * self.dims[2]
     }

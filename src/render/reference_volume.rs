@@ -51,21 +51,7 @@ impl Field {
     /// Trilinear interpolation at continuous index coordinates inside [0, dims−1].
     #[inline]
     pub fn sample(&self, p: DVec3) -> f64 {
-        let [nx, ny, nz] = self.dims;
-        let fx = p.x.clamp(0.0, (nx - 1) as f64);
-        let fy = p.y.clamp(0.0, (ny - 1) as f64);
-        let fz = p.z.clamp(0.0, (nz - 1) as f64);
-        let (x0, y0, z0) = (fx.floor() as usize, fy.floor() as usize, fz.floor() as usize);
-        let (x1, y1, z1) = ((x0 + 1).min(nx - 1), (y0 + 1).min(ny - 1), (z0 + 1).min(nz - 1));
-        let (tx, ty, tz) = (fx - x0 as f64, fy - y0 as f64, fz - z0 as f64);
-        let at = |x: usize, y: usize, z: usize| self.values[x + nx * (y + ny * z)] as f64;
-        let c00 = at(x0, y0, z0) * (1.0 - tx) + at(x1, y0, z0) * tx;
-        let c10 = at(x0, y1, z0) * (1.0 - tx) + at(x1, y1, z0) * tx;
-        let c01 = at(x0, y0, z1) * (1.0 - tx) + at(x1, y0, z1) * tx;
-        let c11 = at(x0, y1, z1) * (1.0 - tx) + at(x1, y1, z1) * tx;
-        let c0 = c00 * (1.0 - ty) + c10 * ty;
-        let c1 = c01 * (1.0 - ty) + c11 * ty;
-        c0 * (1.0 - tz) + c1 * tz
+        super::geometry::trilinear(self.dims, p, |i| self.values[i] as f64)
     }
 }
 

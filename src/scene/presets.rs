@@ -166,23 +166,11 @@ fn monotone(pts: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use volterra_formats::volume::{identity_affine, Rescale, VoxelData};
+    use volterra_formats::volume::{identity_affine, VoxelData};
 
     fn volume(values: Vec<i16>, modality: Option<&str>) -> Volume {
         let n = values.len();
-        Volume {
-            dims: [n, 1, 1],
-            spacing: [1.0; 3],
-            affine: identity_affine(),
-            data: VoxelData::I16(values),
-            rescale: Rescale::IDENTITY,
-            modality: modality.map(str::to_string),
-            units: None,
-            volume_count: 1,
-            volume_index: 0,
-            notes: vec![],
-            attributes: Vec::new(),
-        }
+        Volume { modality: modality.map(str::to_string), ..Volume::new([n, 1, 1], identity_affine(), VoxelData::I16(values)) }
     }
 
     #[test]

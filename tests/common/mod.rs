@@ -26,19 +26,7 @@ pub fn volume(
     data: volterra_formats::VoxelData,
     rescale: volterra_formats::Rescale,
 ) -> volterra_formats::Volume {
-    volterra_formats::Volume {
-        dims,
-        spacing: volterra_formats::volume::spacing_of(&affine),
-        affine,
-        data,
-        rescale,
-        modality: None,
-        units: None,
-        volume_count: 1,
-        volume_index: 0,
-        notes: vec![],
-        attributes: Vec::new(),
-    }
+    volterra_formats::Volume { rescale, ..volterra_formats::Volume::new(dims, affine, data) }
 }
 
 pub fn repo_path(rel: &str) -> PathBuf {

@@ -112,32 +112,9 @@ impl SliceSource {
     pub fn value_at(&self, p: DVec3) -> Option<f64> {
         let q = self.world_to_index.transform_point3(p);
         let d = self.volume.dims;
-        let mut i0 = [0usize; 3];
-        let mut f = [0.0; 3];
-        for a in 0..3 {
-            let max = d[a] as f64 - 1.0;
-            if !(q[a] >= -1e-9 && q[a] <= max + 1e-9) {
-                return None;
-            }
-            let c = q[a].clamp(0.0, max);
-            let i = (c.floor() as usize).min(d[a].saturating_sub(2));
-            i0[a] = i;
-            f[a] = if d[a] > 1 { c - i as f64 } else { 0.0 };
-        }
-        let mut acc = 0.0;
-        for corner in 0..8 {
-            let mut w = 1.0;
-            let mut idx = [0usize; 3];
-            for a in 0..3 {
-                let up = corner >> a & 1 == 1;
-                w *= if up { f[a] } else { 1.0 - f[a] };
-                idx[a] = (i0[a] + up as usize).min(d[a] - 1);
-            }
-            if w > 0.0 {
-                acc += w * self.volume.value(self.volume.index(idx[0], idx[1], idx[2]));
-            }
-        }
-        Some(acc)
+        // Inside the box of voxel centres (within rounding), else nothing is drawn there.
+        let inside = (0..3).all(|a| q[a] >= -1e-9 && q[a] <= d[a] as f64 - 1.0 + 1e-9);
+        inside.then(|| volterra::render::geometry::trilinear(d, q, |i| self.volume.value(i)))
     }
 
     /// The slice through `cross` in `plane`, grey = (value − (level − window/2)) / window.
@@ -171,7 +148,7 @@ impl SliceSource {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use volterra_formats::volume::{identity_affine, Rescale, VoxelData};
+    use volterra_formats::volume::{identity_affine, VoxelData};
 
     /// 4×3×2 volume with value = 100·k + 10·j + i, 1 mm voxels at the origin.
     fn ramp() -> Arc<Volume> {
@@ -183,19 +160,7 @@ mod tests {
                 }
             }
         }
-        Arc::new(Volume {
-            dims: [4, 3, 2],
-            spacing: [1.0; 3],
-            affine: identity_affine(),
-            data: VoxelData::I16(v),
-            rescale: Rescale::IDENTITY,
-            modality: None,
-            units: None,
-            volume_count: 1,
-            volume_index: 0,
-            notes: vec![],
-            attributes: Vec::new(),
-        })
+        Arc::new(Volume::new([4, 3, 2], identity_affine(), VoxelData::I16(v)))
     }
 
     #[test]

@@ -5,7 +5,7 @@ use super::median;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use volterra_formats::{dicom, nifti, Rescale, Volume, VoxelData};
+use volterra_formats::{dicom, nifti, Volume, VoxelData};
 
 pub struct FormatsBench {
     pub env: super::BenchEnv,
@@ -34,19 +34,8 @@ fn prepare(dir: &Path) -> Result<(PathBuf, PathBuf)> {
         let src = k / 2;
         slices.extend((0..n * n).map(|p| hu(src * n * n + p)));
     }
-    let mut vol = Volume {
-        dims: [n, n, 512],
-        spacing: [0.6, 0.6, 0.3],
-        affine: [[-0.6, 0.0, 0.0, 76.5], [0.0, -0.6, 0.0, 76.5], [0.0, 0.0, 0.3, -76.5], [0.0, 0.0, 0.0, 1.0]],
-        data: VoxelData::I16(slices),
-        rescale: Rescale::IDENTITY,
-        modality: Some("CT".into()),
-        units: None,
-        volume_count: 1,
-        volume_index: 0,
-        notes: vec![],
-        attributes: Vec::new(),
-    };
+    let affine = [[-0.6, 0.0, 0.0, 76.5], [0.0, -0.6, 0.0, 76.5], [0.0, 0.0, 0.3, -76.5], [0.0, 0.0, 0.0, 1.0]];
+    let mut vol = Volume { modality: Some("CT".into()), ..Volume::new([n, n, 512], affine, VoxelData::I16(slices)) };
     eprintln!("writing 512 DICOM files into {}", series.display());
     volterra_formats::dicom_write::write_series(&series, &vol, "1.2.826.0.1.3680043.10.1234.512", Some(42))?;
     vol.dims = [n, n, 256];

@@ -116,19 +116,7 @@ mod tests {
 
     fn volume(dims: [usize; 3], values: Vec<i16>) -> Volume {
         let affine = volterra_formats::volume::identity_affine();
-        Volume {
-            dims,
-            spacing: [1.0; 3],
-            affine,
-            data: VoxelData::I16(values),
-            rescale: Rescale { slope: 2.0, intercept: -10.0 },
-            modality: None,
-            units: None,
-            volume_count: 1,
-            volume_index: 0,
-            notes: vec![],
-            attributes: vec![],
-        }
+        Volume { rescale: Rescale { slope: 2.0, intercept: -10.0 }, ..Volume::new(dims, affine, VoxelData::I16(values)) }
     }
 
     #[test]

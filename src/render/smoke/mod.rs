@@ -210,7 +210,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
                 step,
                 max_bounces: s.max_bounces,
             };
-            let traced = photons::trace(&medium, &emitters, &ts);
+            let traced = photons::trace(&medium, &emitters, &ts)?;
             if s.cache {
                 if let Err(e) = cache::store(key, &traced) {
                     notes.push(format!("photon cache not written: {e}"));

@@ -51,19 +51,24 @@ pub struct TraceSettings {
     pub max_bounces: usize,
 }
 
-pub fn trace(medium: &dyn Medium, emitters: &[Emitter], s: &TraceSettings) -> Traced {
+/// Traces the photons in parallel chunks; [`Cancelled`](crate::render::driver::Cancelled)
+/// when the caller cancels between chunks.
+pub fn trace(medium: &dyn Medium, emitters: &[Emitter], s: &TraceSettings) -> Result<Traced, crate::render::driver::Cancelled> {
     let total: f64 = emitters.iter().map(|e| e.power_weight()).sum();
     let mut out = Traced { photons: Vec::new(), emitted: [0.0; 3], escaped: [0.0; 3], capped: 0 };
     if s.count == 0 || total <= 0.0 {
-        return out;
+        return Ok(out);
     }
     const CHUNK: usize = 4096;
     // Per chunk: stored photons, power emitted, power escaped, paths capped.
     type Chunk = (Vec<Photon>, [f64; 3], [f64; 3], usize);
     let progress = crate::render::driver::Task::begin("photons", s.count as u64);
-    let chunks: Vec<Chunk> = (0..s.count.div_ceil(CHUNK))
+    let chunks: Option<Vec<Chunk>> = (0..s.count.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
+            if progress.cancelled() {
+                return None;
+            }
             let mut stored = Vec::new();
             let (mut emitted, mut escaped, mut capped) = ([0.0; 3], [0.0; 3], 0usize);
             for k in c * CHUNK..((c + 1) * CHUNK).min(s.count) {
@@ -113,11 +118,11 @@ pub fn trace(medium: &dyn Medium, emitters: &[Emitter], s: &TraceSettings) -> Tr
                 }
             }
             progress.advance((((c + 1) * CHUNK).min(s.count) - c * CHUNK) as u64);
-            (stored, emitted, escaped, capped)
+            Some((stored, emitted, escaped, capped))
         })
         .collect();
     drop(progress);
-    for (stored, emitted, escaped, capped) in chunks {
+    for (stored, emitted, escaped, capped) in chunks.ok_or(crate::render::driver::Cancelled)? {
         out.photons.extend(stored);
         for ch in 0..3 {
             out.emitted[ch] += emitted[ch];
@@ -125,5 +130,5 @@ pub fn trace(medium: &dyn Medium, emitters: &[Emitter], s: &TraceSettings) -> Tr
         }
         out.capped += capped;
     }
-    out
+    Ok(out)
 }
