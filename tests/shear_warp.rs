@@ -54,7 +54,7 @@ fn render_both(v: &Volume, tf: &TransferFunction, cam: &Camera, size: usize, ble
     let prepared = shear_warp::Prepared::new(v, &Default::default()).unwrap();
     let sw = shear_warp::render(&shear_warp::Input { prepared: &prepared, node_to_world: DMat4::IDENTITY, tf, blend }, &rays, s).unwrap();
     let rf = reference_volume::render(
-        &reference_volume::VolumeInput { volume: v, node_to_world: DMat4::IDENTITY, tf, blend },
+        &reference_volume::VolumeInput { volume: v, node_to_world: DMat4::IDENTITY, tf, blend, shading: None, lights: &[] },
         &rays,
         &Default::default(),
     )

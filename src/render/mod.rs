@@ -11,6 +11,7 @@ pub mod settings;
 pub mod shear_warp;
 pub mod smoke;
 pub mod terrain;
+pub mod volume_shading;
 
 pub use frame::{Frame, FrameStats, NodeTime};
 
@@ -119,7 +120,14 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     let t = Instant::now();
     let mut frame = match (settings, data) {
         (NodeSettings::Reference(s), NodeData::Volume(vol)) => {
-            let input = reference_volume::VolumeInput { volume: &vol, node_to_world, tf: transfer_function()?, blend: desc.blend };
+            let input = reference_volume::VolumeInput {
+                volume: &vol,
+                node_to_world,
+                tf: transfer_function()?,
+                blend: desc.blend,
+                shading: desc.shading.as_ref(),
+                lights: &scene.file.lights,
+            };
             reference_volume::render(&input, &rays, s)?
         }
         (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {

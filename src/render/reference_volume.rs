@@ -8,7 +8,7 @@ use super::frame::{Frame, FrameStats};
 use super::registry::{NodeSettings, RendererDecl};
 use super::settings::{Bounds, Control, Preview, Widget};
 use crate::scene::NodeKind;
-use crate::scene::{BlendMode, RayGenerator, TransferFunction};
+use crate::scene::{BlendMode, Light, RayGenerator, TransferFunction, VolumeShading};
 use anyhow::{anyhow, Result};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
@@ -32,6 +32,7 @@ pub const RENDERER: RendererDecl = RendererDecl {
           no pre-integration, no empty-space skipping. Slow; the truth `shear-warp` and VTK \
           are measured against. Draws parallel and perspective cameras.",
     reference: true,
+    shades: true,
     settings: Settings::DECLS,
     parse: |t| Settings::from_table(t).map(NodeSettings::Reference),
 };
@@ -61,10 +62,14 @@ pub struct VolumeInput<'a> {
     pub node_to_world: DMat4,
     pub tf: &'a TransferFunction,
     pub blend: BlendMode,
+    /// Gradient shading (None or `shade = false`: none; MIP is never shaded).
+    pub shading: Option<&'a VolumeShading>,
+    /// The scene's lights for shading (none: a headlight).
+    pub lights: &'a [Light],
 }
 
 pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-    let VolumeInput { volume, node_to_world, tf, blend } = *input;
+    let VolumeInput { volume, node_to_world, tf, blend, shading, lights } = *input;
     let (width, height) = rays.size();
     settings.validate().map_err(|e| anyhow!("{}: {e}", RENDERER.name))?;
     let start = std::time::Instant::now();
@@ -73,6 +78,7 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
     let min_spacing = (0..3).map(|c| index_to_world.col(c).truncate().length()).fold(f64::INFINITY, f64::min);
     let dt = settings.step * min_spacing;
     let field = Field::new(volume);
+    let shader = super::volume_shading::Shader::new(shading, lights, index_to_world)?;
     let hi = DVec3::new((volume.dims[0] - 1) as f64, (volume.dims[1] - 1) as f64, (volume.dims[2] - 1) as f64);
     // A single-slice axis has zero thickness: give it half a voxel either side.
     let pad = DVec3::new(
@@ -115,7 +121,11 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
                         BlendMode::Composite => {
                             let alpha = tf.opacity_for_step(v, len);
                             if alpha > 0.0 {
-                                let col = tf.color(v);
+                                let mut col = tf.color(v);
+                                if let Some(sh) = &shader {
+                                    let g = sh.gradient(volume.dims, o + d * t, |q| field.sample(q));
+                                    col = sh.shade(col, g, ray.origin + ray.dir * t, ray.dir);
+                                }
                                 let w = (1.0 - a) * alpha;
                                 for k in 0..3 {
                                     c[k] += w * col[k];

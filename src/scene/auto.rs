@@ -30,6 +30,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         volume_index: opts.nifti.volume_index,
         resample: opts.dicom.resample,
         transfer_function: None,
+        shading: None,
         blend: Default::default(),
         png: None,
         texture: None,

@@ -10,7 +10,7 @@ pub mod presets;
 pub mod transfer;
 
 pub use camera::{Camera, Ray, RayGenerator};
-pub use transfer::TransferFunction;
+pub use transfer::{TransferFunction, VolumeShading};
 
 use crate::render::registry::{self, NodeSettings, RendererDecl};
 use crate::shared_error::SharedError;
@@ -131,6 +131,8 @@ pub struct NodeDesc {
     #[serde(default)]
     pub resample: bool,
     pub transfer_function: Option<TransferFunction>,
+    /// Gradient shading of a volume (vtkVolumeProperty's `shade`, `ambient`, …).
+    pub shading: Option<VolumeShading>,
     #[serde(default)]
     pub blend: BlendMode,
     // --- heightfields
@@ -409,6 +411,12 @@ impl Scene {
             if let Some(tf) = &n.transfer_function {
                 tf.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
             }
+            if let Some(s) = &n.shading {
+                if n.kind != NodeKind::Volume {
+                    bail!("{src}: node '{}': shading applies to volume nodes only", n.name);
+                }
+                s.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
+            }
         }
         // Each node's renderer and settings, checked before any data file is read.
         let mut renderers = Vec::with_capacity(file.nodes.len());
@@ -422,6 +430,19 @@ impl Scene {
                         .map_err(|e| anyhow!("{src}:{}: node '{}': {} {e}", lines.at(&n.name, Some(&e.key)), n.name, d.name))?,
                 )),
             });
+            // Shading asked of a renderer that cannot shade is refused, not ignored.
+            if let (Some(d), Some(true)) = (decl, n.shading.map(|s| s.shade)) {
+                if !d.shades {
+                    let shading: Vec<&str> = registry::RENDERERS.iter().filter(|r| r.shades).map(|r| r.name).collect();
+                    bail!(
+                        "{src}:{}: node '{}': renderer '{}' does not shade volumes yet (shade = true needs one of: {})",
+                        lines.at(&n.name, None),
+                        n.name,
+                        d.name,
+                        shading.join(", ")
+                    );
+                }
+            }
         }
         if let Some(w) = &file.walk {
             let node = index.get(w.node.as_str()).ok_or_else(|| anyhow!("{src}: walk: no node named '{}'", w.node))?;

@@ -116,3 +116,60 @@ mod tests {
         assert!((tf.opacity_for_step(20.0, 2.0) - 0.5).abs() < 1e-15);
     }
 }
+
+/// How a volume node is shaded: `vtkVolumeProperty`'s lighting coefficients, with VTK's
+/// defaults. Off unless `shade = true` (VTK's default).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeShading {
+    #[serde(default)]
+    pub shade: bool,
+    #[serde(default = "default_ambient")]
+    pub ambient: f64,
+    #[serde(default = "default_diffuse")]
+    pub diffuse: f64,
+    #[serde(default = "default_specular")]
+    pub specular: f64,
+    #[serde(default = "default_specular_power")]
+    pub specular_power: f64,
+}
+
+fn default_ambient() -> f64 {
+    0.1
+}
+fn default_diffuse() -> f64 {
+    0.7
+}
+fn default_specular() -> f64 {
+    0.2
+}
+fn default_specular_power() -> f64 {
+    10.0
+}
+
+impl Default for VolumeShading {
+    fn default() -> VolumeShading {
+        VolumeShading {
+            shade: false,
+            ambient: default_ambient(),
+            diffuse: default_diffuse(),
+            specular: default_specular(),
+            specular_power: default_specular_power(),
+        }
+    }
+}
+
+impl VolumeShading {
+    /// The ranges VTK clamps to, refused here instead.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        for (name, v) in [("ambient", self.ambient), ("diffuse", self.diffuse), ("specular", self.specular)] {
+            if !(0.0..=1.0).contains(&v) {
+                anyhow::bail!("shading.{name} = {v} must lie in [0, 1]");
+            }
+        }
+        if !(0.0..=128.0).contains(&self.specular_power) {
+            anyhow::bail!("shading.specular_power = {} must lie in [0, 128]", self.specular_power);
+        }
+        Ok(())
+    }
+}

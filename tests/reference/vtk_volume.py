@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Renders volume scenes (tests/reference/scenes/*.toml) with VTK's
 vtkFixedPointVolumeRayCastMapper — parallel projection, the scene's camera, transfer
-function and unit distance (mm), linear interpolation, no shading, one sample per voxel — and
+function and unit distance (mm), linear interpolation, shading as the scene's [node.shading] says (off by default), one sample per voxel — and
 writes each image as a float RGBA OpenEXR (colour over black, alpha = accumulated opacity).
 
 Usage: vtk_volume.py OUT_DIR SCENE.toml...
@@ -64,7 +64,17 @@ def render(scene_path, out_path, views=None, runs=0):
     prop.SetColor(color)
     prop.SetScalarOpacityUnitDistance(tf.get("scalar_opacity_unit_distance", 1.0))
     prop.SetInterpolationTypeToLinear()
-    prop.ShadeOff()
+    # Gradient shading as the scene's [node.shading] asks (VTK's defaults where it is
+    # silent), under a headlight as ours without scene lights.
+    shading = node.get("shading", {})
+    if shading.get("shade", False):
+        prop.ShadeOn()
+        prop.SetAmbient(shading.get("ambient", 0.1))
+        prop.SetDiffuse(shading.get("diffuse", 0.7))
+        prop.SetSpecular(shading.get("specular", 0.2))
+        prop.SetSpecularPower(shading.get("specular_power", 10.0))
+    else:
+        prop.ShadeOff()
     mapper = vtk.vtkFixedPointVolumeRayCastMapper()
     mapper.SetInputData(image)
     mapper.SetAutoAdjustSampleDistances(0)
@@ -79,6 +89,14 @@ def render(scene_path, out_path, views=None, runs=0):
     ren.SetBackground(0, 0, 0)
     ren.SetBackgroundAlpha(0.0)
     ren.AddVolume(volume)
+    if shading.get("shade", False):
+        # VTK's own headlight has a black ambient colour, so its fixed-point mapper would drop
+        # the ambient term (its GPU mapper, as Slicer's, keeps it): a white-ambient headlight
+        # makes the model ours, C·(ambient + diffuse·|n·l|) + specular·(n·h)^power.
+        light = vtk.vtkLight()
+        light.SetLightTypeToHeadlight()
+        light.SetAmbientColor(1.0, 1.0, 1.0)
+        ren.AddLight(light)
     cam = ren.GetActiveCamera()
     c = scene["camera"]
     cam.SetPosition(*c["position"])

@@ -80,7 +80,8 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
                 Ok(img) => img,
                 Err(_) => {
                     eprintln!("rendering the reference for view {v} ({blend:?}), cached in {}", path.display());
-                    let input = reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend };
+                    let input =
+                        reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend, shading: None, lights: &[] };
                     let f = reference_volume::render(&input, &cam.rays(w, h), &Default::default())?;
                     let img = f.to_image([0.0; 3]);
                     volterra_formats::exr_io::write_exr(&path, &img)?;

@@ -89,6 +89,7 @@ pub const RENDERER: RendererDecl = RendererDecl {
           warp. **Parallel projection only**: a perspective camera is refused with an error \
           (use `reference`).",
     reference: false,
+    shades: false,
     settings: Settings::DECLS,
     parse: |t| Settings::from_table(t).map(NodeSettings::ShearWarp),
 };
