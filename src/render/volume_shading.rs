@@ -19,7 +19,7 @@
 //! inverse transpose of the voxel-index-to-world matrix.
 
 use crate::scene::{Light, LightKind, VolumeShading};
-use anyhow::{bail, Result};
+use anyhow::Result;
 use glam::{DMat3, DMat4, DVec3};
 
 /// One light as the volume shader uses it.
@@ -52,18 +52,10 @@ impl Shader {
                 .map(|l| {
                     let colour = l.color.map(|c| c * l.intensity);
                     let source = match l.kind {
-                        LightKind::Directional => {
-                            let d = DVec3::from(l.direction.unwrap_or([0.0, 0.0, -1.0]));
-                            if !(d.length() > 0.0 && d.is_finite()) {
-                                bail!("a directional light needs a non-zero direction");
-                            }
-                            Source::Directional(-d.normalize())
-                        }
+                        LightKind::Directional => Source::Directional(-l.travel_direction()?),
                         // A spot lights the volume as a point light at its position: the
                         // cone is not applied to volume shading (as VTK's volume mappers).
-                        LightKind::Point | LightKind::Spot => {
-                            Source::Point(DVec3::from(l.position.ok_or_else(|| anyhow::anyhow!("a {:?} light needs a position", l.kind))?))
-                        }
+                        LightKind::Point | LightKind::Spot => Source::Point(l.location()?),
                     };
                     Ok((source, colour))
                 })

@@ -173,6 +173,32 @@ pub struct Light {
     pub cone_angle: Option<f64>,
 }
 
+impl Light {
+    /// The unit direction the light travels (directional and spot lights; straight down
+    /// when the scene gives none).
+    pub fn travel_direction(&self) -> Result<DVec3> {
+        let d = DVec3::from(self.direction.unwrap_or([0.0, 0.0, -1.0]));
+        if !(d.length() > 0.0 && d.is_finite()) {
+            bail!("a {} light needs a non-zero direction", self.kind_name());
+        }
+        Ok(d.normalize())
+    }
+
+    /// Where the light is (point and spot lights).
+    pub fn location(&self) -> Result<DVec3> {
+        let p = self.position.map(DVec3::from).filter(|p| p.is_finite());
+        p.ok_or_else(|| anyhow!("a {} light needs a position", self.kind_name()))
+    }
+
+    fn kind_name(&self) -> &'static str {
+        match self.kind {
+            LightKind::Directional => "directional",
+            LightKind::Point => "point",
+            LightKind::Spot => "spot",
+        }
+    }
+}
+
 fn white() -> [f64; 3] {
     [1.0; 3]
 }

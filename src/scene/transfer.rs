@@ -115,47 +115,32 @@ mod tests {
         assert!((1.0 - (1.0 - half).powi(2) - tf.opacity_for_step(20.0, 2.0)).abs() < 1e-15);
         assert!((tf.opacity_for_step(20.0, 2.0) - 0.5).abs() < 1e-15);
     }
+
+    #[test]
+    fn shading_keys_left_out_are_vtks_defaults() {
+        let s: VolumeShading = toml::from_str("shade = true\nspecular = 0.5").unwrap();
+        assert_eq!(s, VolumeShading { shade: true, ambient: 0.1, diffuse: 0.7, specular: 0.5, specular_power: 10.0 });
+        let off: VolumeShading = toml::from_str("").unwrap();
+        assert!(!off.shade);
+    }
 }
 
 /// How a volume node is shaded: `vtkVolumeProperty`'s lighting coefficients, with VTK's
 /// defaults. Off unless `shade = true` (VTK's default).
+/// Keys a table leaves out take the `Default` values.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct VolumeShading {
-    #[serde(default)]
     pub shade: bool,
-    #[serde(default = "default_ambient")]
     pub ambient: f64,
-    #[serde(default = "default_diffuse")]
     pub diffuse: f64,
-    #[serde(default = "default_specular")]
     pub specular: f64,
-    #[serde(default = "default_specular_power")]
     pub specular_power: f64,
-}
-
-fn default_ambient() -> f64 {
-    0.1
-}
-fn default_diffuse() -> f64 {
-    0.7
-}
-fn default_specular() -> f64 {
-    0.2
-}
-fn default_specular_power() -> f64 {
-    10.0
 }
 
 impl Default for VolumeShading {
     fn default() -> VolumeShading {
-        VolumeShading {
-            shade: false,
-            ambient: default_ambient(),
-            diffuse: default_diffuse(),
-            specular: default_specular(),
-            specular_power: default_specular_power(),
-        }
+        VolumeShading { shade: false, ambient: 0.1, diffuse: 0.7, specular: 0.2, specular_power: 10.0 }
     }
 }
 

@@ -47,26 +47,22 @@ impl Emitter {
                 if rgb.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
                     bail!("light colour × intensity must be non-negative numbers, not {rgb:?}");
                 }
-                let dir = || -> Result<DVec3> {
-                    let d = DVec3::from(l.direction.unwrap_or([0.0, 0.0, -1.0]));
-                    if !(d.length() > 0.0 && d.is_finite()) {
-                        bail!("a {:?} light needs a non-zero direction", l.kind);
-                    }
-                    Ok(d.normalize())
-                };
-                let position = || -> Result<DVec3> {
-                    let p = l.position.map(DVec3::from).filter(|p| p.is_finite());
-                    p.ok_or_else(|| anyhow::anyhow!("a {:?} light needs a position", l.kind))
-                };
                 Ok(match l.kind {
-                    LightKind::Directional => Emitter::Directional { dir: dir()?, irradiance: rgb, centre, radius, footprint: None },
-                    LightKind::Point => Emitter::Point { position: position()?, intensity: rgb },
+                    LightKind::Directional => {
+                        Emitter::Directional { dir: l.travel_direction()?, irradiance: rgb, centre, radius, footprint: None }
+                    }
+                    LightKind::Point => Emitter::Point { position: l.location()?, intensity: rgb },
                     LightKind::Spot => {
                         let angle = l.cone_angle.unwrap_or(30.0);
                         if !(angle > 0.0 && angle <= 180.0) {
                             bail!("spot cone_angle {angle} must be in (0, 180] degrees");
                         }
-                        Emitter::Spot { position: position()?, dir: dir()?, cos_cone: angle.to_radians().cos(), intensity: rgb }
+                        Emitter::Spot {
+                            position: l.location()?,
+                            dir: l.travel_direction()?,
+                            cos_cone: angle.to_radians().cos(),
+                            intensity: rgb,
+                        }
                     }
                 })
             })

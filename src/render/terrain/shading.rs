@@ -35,11 +35,7 @@ pub fn sun_lights(lights: &[Light]) -> Result<Vec<SunLight>> {
             if l.kind != LightKind::Directional {
                 bail!("the terrain renderer lights with directional lights (suns) only, not {:?} lights", l.kind);
             }
-            let dir = DVec3::from(l.direction.unwrap_or([0.0, 0.0, -1.0]));
-            if !(dir.length() > 0.0 && dir.is_finite()) {
-                bail!("a directional light needs a non-zero direction");
-            }
-            Ok(SunLight { to_light: -dir.normalize(), radiance: l.color.map(|c| c * l.intensity) })
+            Ok(SunLight { to_light: -l.travel_direction()?, radiance: l.color.map(|c| c * l.intensity) })
         })
         .collect()
 }
