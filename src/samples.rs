@@ -18,6 +18,7 @@ pub const SCENES: &[(&str, &str)] = &[
     ("angio.toml", include_str!("../samples/angio.toml")),
     ("angio_mip.toml", include_str!("../samples/angio_mip.toml")),
     ("angio_shear_warp.toml", include_str!("../samples/angio_shear_warp.toml")),
+    ("angio_shaded.toml", include_str!("../samples/angio_shaded.toml")),
     ("terrain.toml", include_str!("../samples/terrain.toml")),
     ("terrain_png.toml", include_str!("../samples/terrain_png.toml")),
     ("terrain_walk.toml", include_str!("../samples/terrain_walk.toml")),

@@ -147,6 +147,58 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     }
 }
 
+/// Shading switched on in the viewer: the node's `[shading]` says so, the picture darkens
+/// away from the headlight, a specular change re-renders, and the saved scene renders to
+/// the same image from the CLI.
+#[test]
+fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
+    let dir = samples();
+    let mut viewer = Viewer::new(LoadOptions::default());
+    viewer.open(&dir.path().join("angio_shear_warp.toml")).unwrap();
+    let mut h = harness(viewer);
+    settle(&mut h);
+    let plain = mean_rgba(h.state().current_full_frame().unwrap());
+    // Below the transfer function editor: scrolled into view, then clicked.
+    h.get_by_label("Shading").scroll_to_me();
+    h.run_steps(3);
+    h.get_by_label("Shading").click();
+    h.run_steps(3);
+    settle(&mut h);
+    let shading = h.state().scene().unwrap().nodes()[0].shading.expect("the node has [shading]");
+    assert!(shading.shade);
+    assert_eq!(shading, volterra::scene::VolumeShading { shade: true, ..Default::default() }, "VTK's coefficients");
+    let shaded = mean_rgba(h.state().current_full_frame().unwrap());
+    assert!((shaded[3] - plain[3]).abs() < 1e-6, "shading leaves opacity alone: {plain:?} → {shaded:?}");
+    assert!(shaded[0] < 0.95 * plain[0], "diffuse 0.7 + ambient 0.1 darken the picture: {plain:?} → {shaded:?}");
+    // The specular slider, set through AccessKit.
+    h.get_by_role_and_label(egui::accesskit::Role::Slider, "Specular").scroll_to_me();
+    h.run_steps(3);
+    h.get_by_role_and_label(egui::accesskit::Role::Slider, "Specular").set_value_accesskit(0.8);
+    h.run_steps(3);
+    settle(&mut h);
+    assert_eq!(h.state().scene().unwrap().nodes()[0].shading.unwrap().specular, 0.8);
+    let glossy = h.state().current_full_frame().unwrap().clone();
+    assert!(mean_rgba(&glossy)[0] > shaded[0], "more specular, brighter");
+
+    let out = tempfile::tempdir().unwrap();
+    let scene_path = out.path().join("shaded.toml");
+    h.get_by_label("Save as").focus();
+    h.run_steps(1);
+    h.get_by_label("Save as").set_text_value_accesskit(&scene_path.display().to_string());
+    h.run_steps(1);
+    h.get_by_label("Save").click();
+    h.run_steps(2);
+    let text = std::fs::read_to_string(&scene_path).unwrap();
+    assert!(text.contains("shade = true") && text.contains("specular = 0.8"), "{text}");
+    let cli = out.path().join("cli.exr");
+    let st = Command::new(common::volterra_bin()).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
+    assert!(st.success());
+    let b = exr_io::read_exr(&cli, &Default::default()).unwrap();
+    let r = b.channel("R").unwrap();
+    let diff = glossy.rgba.iter().zip(r).map(|(p, q)| (p[0] - q).abs()).fold(0.0f32, f32::max);
+    assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
+}
+
 #[test]
 fn opening_a_data_file_frames_it_and_measures_the_error() {
     let dir = samples();

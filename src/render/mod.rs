@@ -132,7 +132,14 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         }
         (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
             let prepared = timed(&mut prepare, || cache.shear_warp(&vol, scene.limits()))?;
-            let input = shear_warp::Input { prepared: &prepared, node_to_world, tf: transfer_function()?, blend: desc.blend };
+            let input = shear_warp::Input {
+                prepared: &prepared,
+                node_to_world,
+                tf: transfer_function()?,
+                blend: desc.blend,
+                shading: desc.shading.as_ref(),
+                lights: &scene.file.lights,
+            };
             shear_warp::render(&input, &rays, s)?
         }
         (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), NodeData::Heightfield(hf)) => {

@@ -32,7 +32,6 @@ pub const RENDERER: RendererDecl = RendererDecl {
           no pre-integration, no empty-space skipping. Slow; the truth `shear-warp` and VTK \
           are measured against. Draws parallel and perspective cameras.",
     reference: true,
-    shades: true,
     settings: Settings::DECLS,
     parse: |t| Settings::from_table(t).map(NodeSettings::Reference),
 };

@@ -16,8 +16,6 @@ pub struct RendererDecl {
     pub doc: &'static str,
     /// The brute-force reference its kind's other renderers are measured against.
     pub reference: bool,
-    /// Whether it honours a volume node's `shading` (gradient shading).
-    pub shades: bool,
     pub settings: &'static [SettingDecl],
     /// A node's settings table to the renderer's typed settings.
     pub parse: fn(&toml::Table) -> Result<NodeSettings, SettingError>,

@@ -20,7 +20,7 @@
 
 use crate::scene::{Light, LightKind, VolumeShading};
 use anyhow::Result;
-use glam::{DMat3, DMat4, DVec3};
+use glam::{DMat3, DMat4, DVec3, Mat3, Vec3};
 
 /// One light as the volume shader uses it.
 #[derive(Debug, Clone, Copy)]
@@ -86,6 +86,13 @@ impl Shader {
     /// The shaded colour of a sample of colour `colour` at world point `at` with world
     /// gradient `gradient`, seen along the unit ray direction `dir`.
     pub fn shade(&self, colour: [f64; 3], gradient: DVec3, at: DVec3, dir: DVec3) -> [f64; 3] {
+        let l = self.lighting(gradient, at, dir);
+        [0, 1, 2].map(|k| colour[k] * l.diffuse[k] + l.specular[k])
+    }
+
+    /// The two factors of the shading formula at one sample: what multiplies its colour
+    /// (ambient and diffuse) and what adds to it (specular).
+    pub fn lighting(&self, gradient: DVec3, at: DVec3, dir: DVec3) -> Lighting {
         let VolumeShading { ambient, diffuse, specular, specular_power, .. } = self.coeffs;
         let len = gradient.length();
         let normal = (len > 0.0 && len.is_finite()).then(|| gradient / len);
@@ -111,6 +118,114 @@ impl Shader {
                 s[k] += specular * highlight * light[k];
             }
         }
-        [0, 1, 2].map(|k| colour[k] * d[k] + s[k])
+        Lighting { diffuse: d, specular: s }
     }
+}
+
+/// The same formula in f32 for a renderer whose rays all run along one direction (a
+/// parallel view): each directional light's (and the headlight's) L and half vector H are
+/// computed once per frame, an integer specular power is a product, not a `powf`, and
+/// gradients go from the renderer's index space to world by one f32 matrix. Shear-warp's
+/// per-segment shading; the reference keeps the f64 `Shader::lighting` it is measured by.
+pub struct ParallelLighting {
+    ambient: f32,
+    diffuse: f32,
+    specular: f32,
+    power: f32,
+    /// `power` when it is a small whole number.
+    power_int: Option<i32>,
+    /// Directional lights and the headlight: (L, H, colour).
+    fixed: Vec<(Vec3, Vec3, Vec3)>,
+    /// Point lights: (position, colour).
+    points: Vec<(DVec3, Vec3)>,
+    to_eye: Vec3,
+    /// Index-space gradient (times `value_scale`) → world-space gradient.
+    gradient_to_world: Mat3,
+}
+
+impl ParallelLighting {
+    /// For rays along the unit world direction `dir`; gradients given in index units
+    /// times `value_scale` (for example u16 quanta → real values).
+    pub fn new(shader: &Shader, dir: DVec3, value_scale: f64) -> ParallelLighting {
+        let VolumeShading { ambient, diffuse, specular, specular_power, .. } = shader.coeffs;
+        let to_eye = -dir;
+        let (mut fixed, mut points) = (Vec::new(), Vec::new());
+        for &(source, light) in &shader.lights {
+            let colour = Vec3::from(light.map(|c| c as f32));
+            let to_light = match source {
+                Source::Directional(l) => l,
+                Source::Head => to_eye,
+                Source::Point(q) => {
+                    points.push((q, colour));
+                    continue;
+                }
+            };
+            fixed.push((to_light.as_vec3(), (to_light + to_eye).normalize_or_zero().as_vec3(), colour));
+        }
+        let power_int = (specular_power.fract() == 0.0 && specular_power <= 128.0).then_some(specular_power as i32);
+        ParallelLighting {
+            ambient: ambient as f32,
+            diffuse: diffuse as f32,
+            specular: specular as f32,
+            power: specular_power as f32,
+            power_int,
+            fixed,
+            points,
+            to_eye: to_eye.as_vec3(),
+            gradient_to_world: (shader.gradient_to_world * value_scale).as_mat3(),
+        }
+    }
+
+    /// Whether `lighting` uses its sample position (a point light).
+    pub fn needs_position(&self) -> bool {
+        !self.points.is_empty()
+    }
+
+    /// (ambient + diffuse, specular) per channel for index-space gradient `g` at world
+    /// point `at` (read only when `needs_position`), as `Shader::lighting`.
+    #[inline]
+    pub fn lighting(&self, g: Vec3, at: DVec3) -> (Vec3, Vec3) {
+        let g = self.gradient_to_world * g;
+        let len = g.length();
+        let normal = (len > 0.0 && len.is_finite()).then(|| g / len);
+        let (mut d, mut s) = (Vec3::splat(self.ambient), Vec3::ZERO);
+        let mut add = |to_light: Vec3, h: Vec3, colour: Vec3| {
+            let (lambert, highlight) = match normal {
+                None => (1.0, 0.0),
+                Some(n) => {
+                    // Two-sided: the side of the surface that faces the light.
+                    let n = if n.dot(to_light) < 0.0 { -n } else { n };
+                    let nh = n.dot(h).max(0.0);
+                    (n.dot(to_light), if self.specular > 0.0 { self.pow(nh) } else { 0.0 })
+                }
+            };
+            d += colour * (self.diffuse * lambert);
+            s += colour * (self.specular * highlight);
+        };
+        for &(l, h, colour) in &self.fixed {
+            add(l, h, colour);
+        }
+        for &(q, colour) in &self.points {
+            let l = (q - at).normalize_or_zero().as_vec3();
+            add(l, (l + self.to_eye).normalize_or_zero(), colour);
+        }
+        (d, s)
+    }
+
+    #[inline]
+    fn pow(&self, x: f32) -> f32 {
+        match self.power_int {
+            Some(p) => x.powi(p),
+            None => x.powf(self.power),
+        }
+    }
+}
+
+/// The shading of one sample: shaded colour = colour · diffuse + specular, per channel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lighting {
+    /// Ambient plus diffuse: multiplies the sample's colour.
+    pub diffuse: [f64; 3],
+    /// The highlight: added to the shaded colour.
+    pub specular: [f64; 3],
 }

@@ -456,19 +456,6 @@ impl Scene {
                         .map_err(|e| anyhow!("{src}:{}: node '{}': {} {e}", lines.at(&n.name, Some(&e.key)), n.name, d.name))?,
                 )),
             });
-            // Shading asked of a renderer that cannot shade is refused, not ignored.
-            if let (Some(d), Some(true)) = (decl, n.shading.map(|s| s.shade)) {
-                if !d.shades {
-                    let shading: Vec<&str> = registry::RENDERERS.iter().filter(|r| r.shades).map(|r| r.name).collect();
-                    bail!(
-                        "{src}:{}: node '{}': renderer '{}' does not shade volumes yet (shade = true needs one of: {})",
-                        lines.at(&n.name, None),
-                        n.name,
-                        d.name,
-                        shading.join(", ")
-                    );
-                }
-            }
         }
         if let Some(w) = &file.walk {
             let node = index.get(w.node.as_str()).ok_or_else(|| anyhow!("{src}: walk: no node named '{}'", w.node))?;

@@ -22,7 +22,7 @@ import vtk
 from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 
 
-def render(scene_path, out_path, views=None, runs=0):
+def render(scene_path, out_path, views=None, runs=0, shading=None):
     with open(scene_path, "rb") as f:
         scene = tomllib.load(f)
     node = scene["node"][0]
@@ -66,7 +66,10 @@ def render(scene_path, out_path, views=None, runs=0):
     prop.SetInterpolationTypeToLinear()
     # Gradient shading as the scene's [node.shading] asks (VTK's defaults where it is
     # silent), under a headlight as ours without scene lights.
-    shading = node.get("shading", {})
+    # (`shading` given: these keys instead of the scene's, for the bench's shaded and
+    # unshaded rows.)
+    if shading is None:
+        shading = node.get("shading", {})
     if shading.get("shade", False):
         prop.ShadeOn()
         prop.SetAmbient(shading.get("ambient", 0.1))
@@ -138,7 +141,8 @@ def main():
     if sys.argv[1] == "--bench":
         with open(sys.argv[2]) as f:
             spec = json.load(f)
-        ms = render(spec["scene"], None, [(v["position"], v["image"]) for v in spec["views"]], spec["runs"])
+        views = [(v["position"], v["image"]) for v in spec["views"]]
+        ms = render(spec["scene"], None, views, spec["runs"], spec.get("shading"))
         print(json.dumps({"ms": ms, "vtk": vtk.vtkVersion.GetVTKVersion()}))
         return
     out = sys.argv[1]

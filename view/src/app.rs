@@ -21,7 +21,7 @@ use volterra::render::registry;
 use volterra::render::Frame;
 use volterra::scene::auto::{data_bounds, fit_camera, relative_path, scene_for_file};
 use volterra::scene::presets::ValueStats;
-use volterra::scene::{BlendMode, Camera, NodeData, NodeKind, Scene};
+use volterra::scene::{BlendMode, Camera, NodeData, NodeKind, Scene, VolumeShading};
 use volterra_formats::LoadOptions;
 
 /// How long the view must stay unchanged before the full-resolution frame is requested.
@@ -737,6 +737,39 @@ impl Viewer {
             let moving = ui.input(|inp| inp.pointer.any_down());
             self.edit(moving, |f| f.nodes[i].transfer_function = Some(tf));
         }
+        ui.separator();
+        self.shading_controls(ui, i, n.shading.unwrap_or_default(), mip);
+    }
+
+    /// Gradient shading of a volume node, with vtkVolumeProperty's coefficients (MIP is
+    /// never shaded). Turning it off keeps the coefficients, as `shade = false`.
+    fn shading_controls(&mut self, ui: &mut egui::Ui, i: usize, mut shading: VolumeShading, mip: bool) {
+        ui.add_enabled_ui(!mip, |ui| {
+            let mut changed = ui
+                .checkbox(&mut shading.shade, "Shading")
+                .on_hover_text("Gradient shading as VTK's ShadeOn, lit by the scene's lights or a headlight")
+                .changed();
+            let mut moving = false;
+            if shading.shade {
+                let VolumeShading { ambient, diffuse, specular, specular_power, .. } = &mut shading;
+                for (label, value, hi) in [
+                    ("Ambient", ambient, 1.0),
+                    ("Diffuse", diffuse, 1.0),
+                    ("Specular", specular, 1.0),
+                    ("Specular power", specular_power, 128.0),
+                ] {
+                    ui.horizontal(|ui| {
+                        let lbl = ui.label(label);
+                        let r = ui.add(egui::Slider::new(value, 0.0..=hi)).labelled_by(lbl.id);
+                        changed |= r.changed();
+                        moving |= r.dragged();
+                    });
+                }
+            }
+            if changed {
+                self.edit(moving, |f| f.nodes[i].shading = Some(shading));
+            }
+        });
     }
 
     fn terrain_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {

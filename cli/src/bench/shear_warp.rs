@@ -1,7 +1,8 @@
 //! `volterra bench shear-warp`: speed against error, in one process. Our renderer with
-//! each leaping mode and supersampling ratio, MIP, and VTK's fixed-point ray caster
-//! (through Python in the same command), each as the median ms per frame over several
-//! views and the relative RMSE from the reference ray caster (cached per view).
+//! each leaping mode and supersampling ratio, MIP, gradient shading, and VTK's
+//! fixed-point ray caster (through Python in the same command, unshaded and with
+//! `ShadeOn`), each as the median ms per frame over several views and the relative RMSE
+//! from the reference ray caster (cached per view, blend mode and shading).
 
 use super::median;
 use anyhow::{bail, Context, Result};
@@ -10,7 +11,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 use volterra::compare::{rgba_pixels as rgba_of, rgba_psnr, rgba_rel_rmse as rel_rmse};
 use volterra::render::{reference_volume, shear_warp, Frame};
-use volterra::scene::{BlendMode, Camera, Scene, TransferFunction};
+use volterra::scene::{BlendMode, Camera, Scene, TransferFunction, VolumeShading};
 
 pub struct ShearWarpBench {
     /// A scene with one volume node and a parallel camera (its view is the first of four).
@@ -69,19 +70,30 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     std::fs::create_dir_all(&b.env.work_dir)?;
     let prepared = shear_warp::Prepared::new(&volume, &b.env.limits)?;
 
-    // Reference images, cached by scene and view.
+    // The shaded rows use the node's shading coefficients, or VTK's defaults, with shading on.
+    let shading = VolumeShading { shade: true, ..desc.shading.unwrap_or_default() };
+    let lights = &scene.file.lights;
+    if !lights.is_empty() {
+        bail!("{}: the bench compares with VTK under its headlight; remove the scene's lights", b.scene.display());
+    }
+
+    // Reference images, cached by scene, view, blend mode and shading.
     let key = format!("{:x}", fxhash(&(std::fs::read_to_string(&b.scene)?, w, h)));
-    let mut refs = Vec::new();
-    let mut refs_mip = Vec::new();
+    let (mut refs, mut refs_mip, mut refs_shaded) = (Vec::new(), Vec::new(), Vec::new());
     for (v, cam) in cams.iter().enumerate() {
-        for (blend, list) in [(BlendMode::Composite, &mut refs), (BlendMode::Mip, &mut refs_mip)] {
-            let path = b.env.work_dir.join(format!("ref_{key}_{v}_{blend:?}.exr"));
+        for (blend, shade, list) in [
+            (BlendMode::Composite, false, &mut refs),
+            (BlendMode::Mip, false, &mut refs_mip),
+            (BlendMode::Composite, true, &mut refs_shaded),
+        ] {
+            let tag = if shade { "_shaded" } else { "" };
+            let path = b.env.work_dir.join(format!("ref_{key}_{v}_{blend:?}{tag}.exr"));
             let img = match volterra_formats::exr_io::read_exr(&path, &b.env.limits) {
                 Ok(img) => img,
                 Err(_) => {
-                    eprintln!("rendering the reference for view {v} ({blend:?}), cached in {}", path.display());
-                    let input =
-                        reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend, shading: None, lights: &[] };
+                    eprintln!("rendering the reference for view {v} ({blend:?}{tag}), cached in {}", path.display());
+                    let shading = shade.then_some(&shading);
+                    let input = reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend, shading, lights };
                     let f = reference_volume::render(&input, &cam.rays(w, h), &Default::default())?;
                     let img = f.to_image([0.0; 3]);
                     volterra_formats::exr_io::write_exr(&path, &img)?;
@@ -94,16 +106,21 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
 
     let mut rows = Vec::new();
     let wanted = |name: &str| b.only.as_deref().is_none_or(|o| name.contains(o));
-    let time_config = |name: String, blend: BlendMode, s: shear_warp::Settings| -> Result<Option<Row>> {
+    let time_shaded = |name: String, blend: BlendMode, s: shear_warp::Settings, shade: bool| -> Result<Option<Row>> {
         if !wanted(&name) {
             return Ok(None);
         }
-        let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend };
+        let shading = shade.then_some(&shading);
+        let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend, shading, lights };
         let (mut ms, mut err, mut psnr, mut mpix) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (v, cam) in cams.iter().enumerate() {
             let rays = cam.rays(w, h);
             let warm: Frame = shear_warp::render(&input, &rays, &s)?; // builds the axis copy and maps once
-            let reference = if blend == BlendMode::Mip { &refs_mip[v] } else { &refs[v] };
+            let reference = match (blend, shade) {
+                (BlendMode::Mip, _) => &refs_mip[v],
+                (_, true) => &refs_shaded[v],
+                _ => &refs[v],
+            };
             err.push(rel_rmse(&warm.rgba, reference));
             psnr.push(rgba_psnr(&warm.rgba, reference));
             let fac_pixels = intermediate_pixels(&warm);
@@ -128,6 +145,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         Ok(Some(row))
     };
+    let time_config = |name: String, blend: BlendMode, s: shear_warp::Settings| time_shaded(name, blend, s, false);
     // The paper's renderer (one sample per slab) with each leaping mode at its ratios.
     for leaping in [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped] {
         for ratio in [1.0, 1.13, 2.26] {
@@ -164,11 +182,25 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         shear_warp::Settings { supersampling: 2.26, leaping: shear_warp::Leaping::None, ..Default::default() },
     )?);
 
-    // VTK's fixed-point mapper through Python, same views, same reference.
-    if wanted("vtk fixed-point") {
-        match vtk_rows(b, &cams, &refs) {
-            Ok(r) => rows.extend(r),
-            Err(e) => eprintln!("VTK rows skipped: {e:#}"),
+    // Gradient shading (the node's coefficients, or VTK's defaults), against the shaded
+    // reference.
+    for ratio in [1.5, 2.0, 3.0] {
+        rows.extend(time_shaded(
+            format!("shaded shear-warp ×{ratio} 2/slab"),
+            BlendMode::Composite,
+            shear_warp::Settings { supersampling: ratio, ..Default::default() },
+            true,
+        )?);
+    }
+    rows.extend(time_shaded("shaded shear-warp auto (default)".into(), BlendMode::Composite, Default::default(), true)?);
+
+    // VTK's fixed-point mapper through Python, same views, same references.
+    for (shade, name, refs) in [(false, "vtk fixed-point", &refs), (true, "shaded vtk fixed-point", &refs_shaded)] {
+        if wanted(name) {
+            match vtk_rows(b, &cams, refs, shade.then_some(&shading)) {
+                Ok(r) => rows.extend(r),
+                Err(e) => eprintln!("VTK rows ({name}) skipped: {e:#}"),
+            }
         }
     }
 
@@ -195,13 +227,15 @@ fn intermediate_pixels(f: &Frame) -> f64 {
     f.stats.counters.iter().find(|c| c.0 == "intermediate_pixels").map(|c| c.1).unwrap_or(1.0)
 }
 
-fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Result<Vec<Row>> {
-    let spec_views: Vec<serde_json::Value> = cams
-        .iter()
-        .enumerate()
-        .map(|(v, c)| serde_json::json!({"position": c.position, "image": b.env.work_dir.join(format!("vtk_{v}.exr"))}))
-        .collect();
-    let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs});
+/// VTK's row, with `ShadeOn` and these coefficients when `shading` is given (shading off
+/// otherwise, whatever the scene says).
+fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>], shading: Option<&VolumeShading>) -> Result<Vec<Row>> {
+    let tag = if shading.is_some() { "_shaded" } else { "" };
+    let image = |v: usize| b.env.work_dir.join(format!("vtk_{v}{tag}.exr"));
+    let spec_views: Vec<serde_json::Value> =
+        cams.iter().enumerate().map(|(v, c)| serde_json::json!({"position": c.position, "image": image(v)})).collect();
+    let shading = serde_json::to_value(shading.copied().unwrap_or_default())?;
+    let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs, "shading": shading});
     let spec_path = b.env.work_dir.join("vtk_spec.json");
     std::fs::write(&spec_path, spec.to_string())?;
     let out = std::process::Command::new(&b.env.python)
@@ -223,12 +257,12 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>]) -> Resu
         .collect();
     let (mut err, mut psnr) = (Vec::new(), Vec::new());
     for (i, r) in refs.iter().enumerate() {
-        let img = volterra_formats::exr_io::read_exr(&b.env.work_dir.join(format!("vtk_{i}.exr")), &b.env.limits)?;
+        let img = volterra_formats::exr_io::read_exr(&image(i), &b.env.limits)?;
         err.push(rel_rmse(&rgba_of(&img), r));
         psnr.push(rgba_psnr(&rgba_of(&img), r));
     }
     let row = Row {
-        config: format!("vtk fixed-point {}", v["vtk"].as_str().unwrap_or("")),
+        config: format!("{}vtk fixed-point {}", if tag.is_empty() { "" } else { "shaded " }, v["vtk"].as_str().unwrap_or("")),
         median_ms: median(&mut ms),
         rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
         psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,

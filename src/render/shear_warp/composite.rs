@@ -6,8 +6,40 @@
 use super::factor::Factorization;
 use super::preint::PreintTable;
 use super::prepare::Axis;
-use super::scanline::{next_live, rows, SliceRows};
+use super::scanline::{next_live, rows, Gradients, SliceRows};
+use super::shading::{FrameShading, SliceGradient};
 use super::MAX_SLAB_SAMPLES;
+use glam::{DVec3, Vec3};
+use std::cell::OnceCell;
+
+/// The gradients one slab's shading reads: at the back slice's samples and, where the
+/// previous slab did not leave them, at the front slice's. Their slice rows are looked up
+/// on first use: most slabs of most rows have nothing visible to shade.
+pub(super) struct SlabShading<'a> {
+    pub(super) frame: &'a FrameShading<'a>,
+    pub(super) axis: &'a Axis,
+    /// The back slice and its row.
+    pub(super) back_at: (usize, f64),
+    /// The front slice and its row; None where that row lies outside the volume.
+    pub(super) front_at: Option<(usize, f64)>,
+    pub(super) back: OnceCell<SliceGradient<'a>>,
+    pub(super) front: OnceCell<SliceGradient<'a>>,
+}
+
+impl<'a> SlabShading<'a> {
+    pub(super) fn new(frame: &'a FrameShading<'a>, axis: &'a Axis, back_at: (usize, f64), front_at: Option<(usize, f64)>) -> Self {
+        SlabShading { frame, axis, back_at, front_at, back: OnceCell::new(), front: OnceCell::new() }
+    }
+
+    fn back(&self) -> &SliceGradient<'a> {
+        self.back.get_or_init(|| SliceGradient::new(self.axis, self.back_at.0, self.back_at.1))
+    }
+
+    fn front(&self) -> Option<&SliceGradient<'a>> {
+        let (z, y) = self.front_at?;
+        Some(self.front.get_or_init(|| SliceGradient::new(self.axis, z, y)))
+    }
+}
 
 /// One slab (the front slice zp to the back slice z) of one intermediate row: what
 /// compositing its runs needs.
@@ -25,6 +57,7 @@ pub(super) struct Slab<'a> {
     /// x of the front slice's sample relative to the back slice's.
     pub(super) dxo: f64,
     pub(super) x_range: (f64, f64),
+    pub(super) y_range: (f64, f64),
     /// Compositing-order index of the back slice.
     pub(super) zi: u32,
     pub(super) z: usize,
@@ -35,6 +68,8 @@ pub(super) struct Slab<'a> {
     pub(super) q_to_level: f32,
     pub(super) termination: f32,
     pub(super) fac: &'a Factorization,
+    /// None: unshaded.
+    pub(super) shading: Option<SlabShading<'a>>,
 }
 
 impl Slab<'_> {
@@ -49,6 +84,7 @@ impl Slab<'_> {
         links: &mut [u32],
         prev: &mut [f32],
         stamp: &mut [u32],
+        grads: &mut Gradients,
         row: &mut [[f32; 4]],
         depth: &mut [f32],
         u: usize,
@@ -86,9 +122,12 @@ impl Slab<'_> {
             };
             prev[uu] = back;
             stamp[uu] = self.zi;
+            let mut g_back = None;
             if let Some(front) = front {
                 // K segments, front to back, through the trilinear values between the
-                // slices; stop once the pixel is opaque.
+                // slices; stop once the pixel is opaque. The gradients at the slab's ends
+                // are computed at the first visible segment (shading only).
+                let mut g_front = None;
                 let mut f = front;
                 for j in 0..K {
                     let b = if j + 1 == K {
@@ -104,20 +143,21 @@ impl Slab<'_> {
                     if f.max(b) >= table.clear_below {
                         let e = table.lookup(f, b);
                         if e.a > 0.0 {
-                            let p = &mut row[uu];
-                            let t = 1.0 - p[3];
-                            let before = p[3];
-                            p[0] += t * e.c[0];
-                            p[1] += t * e.c[1];
-                            p[2] += t * e.c[2];
-                            p[3] += t * e.a;
-                            if before < 0.5 && p[3] >= 0.5 {
-                                // Where inside the segment opacity passed 0.5 (uniform extinction).
-                                let f = if e.a < 1.0 { ((0.5 / (1.0 - before)).ln() / (1.0 - e.a).ln()).clamp(0.0, 1.0) } else { 0.0 };
-                                let zf = self.zp as f64 + (j as f64 + f as f64) / K as f64 * (self.z as f64 - self.zp as f64);
-                                depth[uu] = self.fac.depth(uu as f64, self.vf, zf) as f32;
-                            }
-                            if p[3] >= self.termination {
+                            let c = match &self.shading {
+                                None => e.c,
+                                Some(sh) => {
+                                    let gb = *g_back.get_or_insert_with(|| sh.back().at(xb));
+                                    let gf = *g_front.get_or_insert_with(|| match sh.front() {
+                                        _ if grads.stamp[uu] == self.zi - 1 => grads.value[uu],
+                                        Some(front) => front.at(xb + self.dxo),
+                                        None => gb,
+                                    });
+                                    let w = (j as f32 + 0.5) / K as f32;
+                                    self.shade(sh, e.c, e.a, gf + (gb - gf) * w, xb, w as f64)
+                                }
+                            };
+                            let seg = (j as f64 / K as f64, (j + 1) as f64 / K as f64);
+                            if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, e.a, seg) {
                                 links[uu] = uu as u32 + 1; // early ray termination
                                 break;
                             }
@@ -125,9 +165,173 @@ impl Slab<'_> {
                     }
                     f = b;
                 }
+            } else if let Some((w0, _)) = self.inside(xb) {
+                // The ray entered the volume between these slices, through a side face:
+                // the piece from there to the back sample.
+                let g = self.shading.as_ref().map(|sh| *g_back.get_or_insert_with(|| sh.back().at(xb)));
+                let f0 = self.value_at(xb, w0);
+                *n_samples += 2;
+                if self.composite_piece(K, row, depth, uu, xb, (w0, f0), (1.0, back), g) {
+                    links[uu] = uu as u32 + 1;
+                }
+            }
+            if let Some(g) = g_back {
+                grads.value[uu] = g;
+                grads.stamp[uu] = self.zi;
             }
             uu = next_live(links, uu + 1);
         }
         uu
+    }
+
+    /// Composites the pixels of `span` (pixels on this row whose ray meets the slab)
+    /// that `composite_run` does not: those whose back sample lies outside the volume,
+    /// where the ray leaves it (or only grazes it) between these slices through a side
+    /// face. `back_span`: the pixels whose back sample is inside, if the back row is.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn composite_exits(
+        &self,
+        k: usize,
+        links: &mut [u32],
+        prev: &[f32],
+        stamp: &[u32],
+        grads: &Gradients,
+        row: &mut [[f32; 4]],
+        depth: &mut [f32],
+        span: (usize, usize),
+        back_span: Option<(usize, usize)>,
+        n_samples: &mut u64,
+    ) {
+        let mut uu = next_live(links, span.0);
+        while uu <= span.1 {
+            if back_span.is_some_and(|(a, b)| (a..=b).contains(&uu)) {
+                uu = next_live(links, back_span.unwrap().1 + 1);
+                continue;
+            }
+            let xb = self.u_over_ratio[uu] + self.iz;
+            if let Some((w0, w1)) = self.inside(xb).filter(|&(_, w1)| w1 < 1.0) {
+                let xf = xb + self.dxo;
+                let front_inside = w0 == 0.0 && self.front.is_some();
+                let f0 = match &self.front {
+                    _ if front_inside && stamp[uu] == self.zi - 1 => prev[uu],
+                    Some(front) if front_inside => front.at(xf) * self.q_to_level,
+                    _ => self.value_at(xb, w0),
+                };
+                let f1 = self.value_at(xb, w1);
+                *n_samples += 3;
+                let g = self.shading.as_ref().map(|sh| match sh.front() {
+                    _ if grads.stamp[uu] == self.zi - 1 => grads.value[uu],
+                    Some(front) => front.at(xf),
+                    None => sh.back().at(xb),
+                });
+                if self.composite_piece(k, row, depth, uu, xb, (w0, f0), (w1, f1), g) {
+                    links[uu] = uu as u32 + 1;
+                }
+            }
+            uu = next_live(links, uu + 1);
+        }
+    }
+
+    /// The part of pixel u's ray (back sample at x = xb) inside the volume's box within
+    /// this slab, as fractions [w0, w1] from the front sample (0) to the back one (1).
+    fn inside(&self, xb: f64) -> Option<(f64, f64)> {
+        let (mut w0, mut w1) = (0.0f64, 1.0f64);
+        // At fraction w the ray is at x = xb + dxo·(1 − w), y = y + dyo·(1 − w).
+        for (back, d, (lo, hi)) in [(xb, self.dxo, self.x_range), (self.y, self.dyo, self.y_range)] {
+            let at_front = back + d;
+            if d == 0.0 {
+                if at_front < lo || at_front > hi {
+                    return None;
+                }
+                continue;
+            }
+            let (t0, t1) = ((at_front - lo) / d, (at_front - hi) / d);
+            w0 = w0.max(t0.min(t1));
+            w1 = w1.min(t0.max(t1));
+        }
+        (w0 < w1).then_some((w0, w1))
+    }
+
+    /// The trilinear value (in table levels) on pixel u's ray at fraction w of the slab.
+    fn value_at(&self, xb: f64, w: f64) -> f32 {
+        let t = 1.0 - w;
+        let (x, y) = (xb + self.dxo * t, self.y + self.dyo * t);
+        let (r0, r1, rw) = rows(y, self.axis.dims[1]);
+        let (a, b) = (SliceRows::new(self.axis, self.zp, r0, r1, rw).at(x), SliceRows::new(self.axis, self.z, r0, r1, rw).at(x));
+        (a + w as f32 * (b - a)) * self.q_to_level
+    }
+
+    /// Composites the piece [w0, w1] of the slab (values f0, f1 at its ends) for pixel
+    /// uu: the parts of the k segments it overlaps, each pre-integrated over its own
+    /// length (the table's opacity scaled to the shorter length, exact for a constant
+    /// value), shaded with gradient `g` throughout. True once the pixel is opaque.
+    #[allow(clippy::too_many_arguments)]
+    fn composite_piece(
+        &self,
+        k: usize,
+        row: &mut [[f32; 4]],
+        depth: &mut [f32],
+        uu: usize,
+        xb: f64,
+        (w0, f0): (f64, f32),
+        (w1, f1): (f64, f32),
+        g: Option<Vec3>,
+    ) -> bool {
+        let mut f = f0;
+        for j in 0..k {
+            let (sa, sb) = ((j as f64 / k as f64).max(w0), ((j + 1) as f64 / k as f64).min(w1));
+            if sb <= sa {
+                continue;
+            }
+            let b = if sb >= w1 { f1 } else { self.value_at(xb, sb) };
+            if f.max(b) >= self.table.clear_below {
+                let e = self.table.lookup(f, b);
+                if e.a > 0.0 {
+                    // The table is for a whole segment, 1/k of the slab: this one is r of it.
+                    let r = ((sb - sa) * k as f64) as f32;
+                    let a = if r < 1.0 { 1.0 - (1.0 - e.a).powf(r) } else { e.a };
+                    let scale = a / e.a;
+                    let c = e.c.map(|c| c * scale);
+                    let c = match (&self.shading, g) {
+                        (Some(sh), Some(g)) => self.shade(sh, c, a, g, xb, 0.5 * (sa + sb)),
+                        _ => c,
+                    };
+                    if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, a, (sa, sb)) {
+                        return true;
+                    }
+                }
+            }
+            f = b;
+        }
+        false
+    }
+
+    /// The shaded colour of a segment (premultiplied colour c, opacity a, gradient g)
+    /// whose middle lies at fraction w of the slab on the ray whose back sample is at xb.
+    #[inline]
+    fn shade(&self, sh: &SlabShading, c: [f32; 3], a: f32, g: Vec3, xb: f64, w: f64) -> [f32; 3] {
+        let t = 1.0 - w;
+        let mid = DVec3::new(xb + self.dxo * t, self.y + self.dyo * t, self.z as f64 + (self.zp as f64 - self.z as f64) * t);
+        sh.frame.shade(c, a, g, mid)
+    }
+
+    /// Composites one segment (premultiplied colour c, opacity a) spanning fractions
+    /// `seg` of the slab under pixel uu, recording where its opacity passes 0.5; true
+    /// once the pixel is opaque enough to stop.
+    #[inline(always)]
+    fn accumulate(&self, p: &mut [f32; 4], depth: &mut f32, uu: usize, c: [f32; 3], a: f32, seg: (f64, f64)) -> bool {
+        let t = 1.0 - p[3];
+        let before = p[3];
+        p[0] += t * c[0];
+        p[1] += t * c[1];
+        p[2] += t * c[2];
+        p[3] += t * a;
+        if before < 0.5 && p[3] >= 0.5 {
+            // Where inside the segment opacity passed 0.5 (uniform extinction).
+            let f = if a < 1.0 { ((0.5 / (1.0 - before)).ln() / (1.0 - a).ln()).clamp(0.0, 1.0) } else { 0.0 };
+            let zf = self.zp as f64 + (seg.0 + f as f64 * (seg.1 - seg.0)) * (self.z as f64 - self.zp as f64);
+            *depth = self.fac.depth(uu as f64, self.vf, zf) as f32;
+        }
+        p[3] >= self.termination
     }
 }

@@ -2,7 +2,10 @@
 //! projection: rendering along intermediate-image scanlines at any real supersampling
 //! ratio, post-classification through a pre-integrated table, early ray termination with
 //! links over opaque pixels, empty-space leaping with the overlapped min-max map (or the
-//! paper's two baselines), maximum intensity projection, and a bilinear 2-D warp.
+//! paper's two baselines), maximum intensity projection, gradient shading (`shading`),
+//! and a bilinear 2-D warp. Rays are composited over the whole box of voxel centres,
+//! including the pieces that enter or leave it through a side face between two slices
+//! (`Slab::composite_exits` and the entry case of `composite_run`).
 //!
 //! Perspective views are refused with an error naming the limitation: perspective
 //! shear-warp (Lacroute 1995; Schulze et al. 2001) is not implemented; the `reference`
@@ -14,9 +17,10 @@ pub mod minmax;
 pub mod preint;
 mod prepare;
 mod scanline;
+mod shading;
 mod warp;
 
-use composite::Slab;
+use composite::{Slab, SlabShading};
 pub use prepare::Prepared;
 use scanline::{next_live, rows, RowState, SliceRows, SliceRuns};
 use warp::warp;
@@ -25,13 +29,14 @@ use super::frame::{Frame, FrameStats};
 use super::registry::{NodeSettings, RendererDecl};
 use super::settings::{Bounds, Control, Preview, Widget};
 use crate::scene::NodeKind;
-use crate::scene::{BlendMode, RayGenerator, TransferFunction};
+use crate::scene::{BlendMode, Light, RayGenerator, TransferFunction, VolumeShading};
 use anyhow::{bail, Result};
 use factor::Factorization;
 use glam::DMat4;
 use minmax::next_unclear;
 use preint::PreintTable;
 use rayon::prelude::*;
+use shading::{FrameShading, SliceGradient};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 crate::setting_choice! {
@@ -86,10 +91,9 @@ pub const RENDERER: RendererDecl = RendererDecl {
     doc: "Shear-warp on the CPU (Kye & Kim, after Lacroute & Levoy): intermediate-image \
           supersampling at any real ratio, pre-integrated classification, early ray \
           termination, empty-space leaping with the overlapped min-max map, MIP, a bilinear \
-          warp. **Parallel projection only**: a perspective camera is refused with an error \
-          (use `reference`).",
+          warp, gradient shading. **Parallel projection only**: a perspective camera is \
+          refused with an error (use `reference`).",
     reference: false,
-    shades: false,
     settings: Settings::DECLS,
     parse: |t| Settings::from_table(t).map(NodeSettings::ShearWarp),
 };
@@ -100,6 +104,10 @@ pub struct Input<'a> {
     pub node_to_world: DMat4,
     pub tf: &'a TransferFunction,
     pub blend: BlendMode,
+    /// Gradient shading (None or `shade = false`: none; MIP is never shaded).
+    pub shading: Option<&'a VolumeShading>,
+    /// The scene's lights for shading (none: a headlight).
+    pub lights: &'a [Light],
 }
 
 /// The intermediate image.
@@ -132,6 +140,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let q_to_level = (n_levels - 1) as f32 / 65535.0;
     let level_to_value = |l: f32| prep.lo + (prep.hi - prep.lo) * l as f64 / (n_levels - 1) as f64;
     let mip = input.blend == BlendMode::Mip;
+    let shading = if mip { None } else { FrameShading::new(input.shading, input.lights, &fac, (prep.lo, prep.hi))? };
     let leaping = if mip && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
     let n = settings.block;
     let clear = table.clear_quanta(q_to_level);
@@ -205,7 +214,12 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         max_level[u] = s;
                     } else {
                         let e = table.lookup(s, s);
-                        row[u] = [e.c[0], e.c[1], e.c[2], e.a];
+                        let x = x_of(u, iz);
+                        let c = match &shading {
+                            Some(sh) if e.a > 0.0 => sh.shade(e.c, e.a, SliceGradient::new(axis, 0, y).at(x), glam::DVec3::new(x, y, 0.0)),
+                            _ => e.c,
+                        };
+                        row[u] = [c[0], c[1], c[2], e.a];
                         if e.a >= 0.5 {
                             depth[u] = fac.depth(u as f64, vf, 0.0) as f32;
                         }
@@ -218,14 +232,21 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             for r in (0..band_rows).filter(|&r| live(r)) {
                 let vf = (v_first + r) as f64;
                 let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
-                let RowState { links, prev, stamp, max_level, max_z } = &mut states[r];
+                let RowState { links, prev, stamp, max_level, max_z, grads } = &mut states[r];
                 let z = slice_at(zi);
                 let y = y_at(vf, z);
-                if nz == 1 || y < y_lo || y > y_hi {
+                if nz == 1 {
                     continue;
                 }
                 let runs = &slice_runs[z];
-                let Some((ua, ub)) = runs.span else { continue };
+                // The pixels whose sample on this slice lies inside it. Where there are
+                // none, a ray may still leave the volume through a side face between the
+                // previous slice and this one (composite only).
+                let back_span = runs.span.filter(|_| y >= y_lo && y <= y_hi);
+                if back_span.is_none() && (mip || zi == 0) {
+                    continue;
+                }
+                let (ua, ub) = back_span.unwrap_or((1, 0));
                 let (y0, y1, wy) = rows(y, ny);
                 let iz = runs.iz;
                 let back_slice = SliceRows::new(axis, z, y0, y1, wy);
@@ -304,10 +325,15 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 let dz = zp as f64 - z as f64; // the front slice relative to this one
                 let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
                 let yp = y + dyo;
+                if back_span.is_none() && !(y_lo..=y_hi).contains(&yp) {
+                    continue;
+                }
                 let front_slice = (yp >= y_lo && yp <= y_hi).then(|| {
                     let (f0, f1, fw) = rows(yp, ny);
                     SliceRows::new(axis, zp, f0, f1, fw)
                 });
+                let slab_shading =
+                    shading.as_ref().map(|frame| SlabShading::new(frame, axis, (z, y), front_slice.is_some().then_some((zp, yp))));
                 let slab = Slab {
                     back: back_slice,
                     front: front_slice,
@@ -318,6 +344,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     u_over_ratio: &u_over_ratio,
                     dxo,
                     x_range: (x_lo, x_hi),
+                    y_range: (y_lo, y_hi),
                     zi: zi as u32,
                     z,
                     zp,
@@ -326,6 +353,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     q_to_level,
                     termination,
                     fac: &fac,
+                    shading: slab_shading,
                 };
                 let variant = usize::from(dxo < 0.0);
                 let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
@@ -365,11 +393,16 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         continue;
                     }
                     u = match k {
-                        1 => slab.composite_run::<1>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
-                        2 => slab.composite_run::<2>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
-                        3 => slab.composite_run::<3>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
-                        _ => slab.composite_run::<4>(links, prev, stamp, row, depth, u, run_end, &mut n_samples),
+                        1 => slab.composite_run::<1>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
+                        2 => slab.composite_run::<2>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
+                        3 => slab.composite_run::<3>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
+                        _ => slab.composite_run::<4>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
                     };
+                }
+                // The rays that leave the volume through a side face between the slices.
+                let spans = [runs.span, slice_runs[zp].span].into_iter().flatten();
+                if let Some(span) = spans.reduce(|a, b| (a.0.min(b.0), a.1.max(b.1))).filter(|_| !table.all_clear()) {
+                    slab.composite_exits(k, links, prev, stamp, grads, row, depth, span, back_span, &mut n_samples);
                 }
             }
         }

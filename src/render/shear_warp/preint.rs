@@ -194,6 +194,11 @@ impl PreintTable {
         PreintTable { n, lo, hi, entries, next_opaque, clear_below }
     }
 
+    /// Whether every segment is transparent (the transfer function has no opacity).
+    pub fn all_clear(&self) -> bool {
+        self.clear_below >= (self.n - 1) as f32
+    }
+
     /// Table level (fractional) of a real-world value.
     #[inline]
     pub fn level(&self, v: f64) -> f32 {

@@ -4,6 +4,7 @@
 
 use super::factor::Factorization;
 use super::prepare::Axis;
+use glam::Vec3;
 
 /// Two neighbouring rows of one permuted slice and the weight between them, looked up once
 /// per intermediate row and slice; `at` is then a bilinear sample at continuous x (clamped
@@ -55,6 +56,15 @@ pub(super) struct RowState {
     pub(super) stamp: Vec<u32>,
     pub(super) max_level: Vec<f32>,
     pub(super) max_z: Vec<f32>,
+    pub(super) grads: Gradients,
+}
+
+/// Per intermediate row, for shading: each pixel's gradient at its last slice sample
+/// where one was computed, so the next slab reuses it as its front.
+pub(super) struct Gradients {
+    pub(super) value: Vec<Vec3>,
+    /// The slice index (in compositing order) `value` comes from.
+    pub(super) stamp: Vec<u32>,
 }
 
 impl RowState {
@@ -65,6 +75,7 @@ impl RowState {
             stamp: vec![u32::MAX; iw],
             max_level: vec![f32::NEG_INFINITY; iw],
             max_z: vec![0.0; iw],
+            grads: Gradients { value: vec![Vec3::ZERO; iw], stamp: vec![u32::MAX; iw] },
         }
     }
 }

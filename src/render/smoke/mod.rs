@@ -111,7 +111,6 @@ pub const RENDERER: RendererDecl = RendererDecl {
           traced once and deposited on the particles (or a classic photon map), an irradiance \
           map, ray marching with exact single scattering. Needs `medium` and at least one light.",
     reference: false,
-    shades: false,
     settings: Settings::DECLS,
     parse: |t| Settings::from_table(t).map(NodeSettings::Smoke),
 };

@@ -73,7 +73,6 @@ pub const RENDERER: RendererDecl = RendererDecl {
     doc: "The GPU ray-caster (Park, Oh & Cho; wgpu, any Vulkan/Metal/DX12 adapter, lavapipe \
           without a GPU): a max-quadtree with a lid map, exact bilinear patches.",
     reference: false,
-    shades: false,
     settings: Settings::DECLS,
     parse: |t| Settings::from_table(t).map(NodeSettings::Terrain),
 };
@@ -84,7 +83,6 @@ pub const REFERENCE_RENDERER: RendererDecl = RendererDecl {
     doc: "The CPU reference in f64: every cell a ray crosses, the exact patch intersection. \
           Slow; the truth `terrain` is measured against.",
     reference: true,
-    shades: false,
     settings: ReferenceSettings::DECLS,
     parse: |t| ReferenceSettings::from_table(t).map(NodeSettings::TerrainReference),
 };
