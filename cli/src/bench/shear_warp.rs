@@ -29,6 +29,8 @@ pub struct Row {
     pub config: String,
     pub median_ms: f64,
     pub rel_rmse: f64,
+    /// Relative RMSE at each view, in the order of `views`.
+    pub rel_rmse_views: Vec<f64>,
     /// Mean PSNR over the views, dB (peak 1).
     pub psnr_db: f64,
     /// Median ms per million intermediate pixels (shear-warp only).
@@ -137,6 +139,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
             config: name,
             median_ms: median(&mut ms),
             rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+            rel_rmse_views: err.clone(),
             psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
             ms_per_mpixel: Some(median(&mut mpix)),
         };
@@ -213,10 +216,19 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {
         println!("{w}×{h}, {} views, median of {} runs per view, {} threads", cams.len(), b.runs, rayon::current_num_threads());
-        println!("{:<38} {:>10} {:>10} {:>9} {:>12}", "config", "median ms", "rel. RMSE", "PSNR dB", "ms/Mpixel");
+        println!("{:<38} {:>10} {:>10} {:>9} {:>12}  rel. RMSE per view", "config", "median ms", "rel. RMSE", "PSNR dB", "ms/Mpixel");
         for r in &rows {
             let mp = r.ms_per_mpixel.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
-            println!("{:<38} {:>10.1} {:>9.2}% {:>9.2} {:>12}", r.config, r.median_ms, 100.0 * r.rel_rmse, r.psnr_db, mp);
+            let views: Vec<String> = r.rel_rmse_views.iter().map(|e| format!("{:.2}", 100.0 * e)).collect();
+            println!(
+                "{:<38} {:>10.1} {:>9.2}% {:>9.2} {:>12}  {}",
+                r.config,
+                r.median_ms,
+                100.0 * r.rel_rmse,
+                r.psnr_db,
+                mp,
+                views.join(" ")
+            );
         }
     }
     Ok(())
@@ -265,6 +277,7 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>], shading
         config: format!("{}vtk fixed-point {}", if tag.is_empty() { "" } else { "shaded " }, v["vtk"].as_str().unwrap_or("")),
         median_ms: median(&mut ms),
         rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+        rel_rmse_views: err.clone(),
         psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
         ms_per_mpixel: None,
     };
