@@ -59,6 +59,7 @@ parallel_scale = 10.0
 name = "vol"
 kind = "volume"
 file = "v.nii"
+renderer = "reference"
 settings = { step = 0.05 }
 
 [node.transfer_function]
@@ -117,35 +118,35 @@ fn renderer_settings_are_checked_at_load_with_their_line_before_any_data_is_read
         (
             "settings = { step = 0.05 }",
             "settings = { stp = 0.05 }",
-            "line 17: node 'vol': reference setting 'stp': unknown (known: step, termination)",
+            "line 18: node 'vol': reference setting 'stp': unknown (known: step, termination)",
         ),
         (
             "settings = { step = 0.05 }",
             "settings = { step = \"fine\" }",
-            "line 17: node 'vol': reference setting 'step': expected number, found string",
+            "line 18: node 'vol': reference setting 'step': expected number, found string",
         ),
         (
             "settings = { step = 0.05 }",
             "settings = { step = 2.0 }",
-            "line 17: node 'vol': reference setting 'step': 2 is out of range: must be (0, 1]",
+            "line 18: node 'vol': reference setting 'step': 2 is out of range: must be (0, 1]",
         ),
         (
-            "settings = { step = 0.05 }",
+            "renderer = \"reference\"\nsettings = { step = 0.05 }",
             "renderer = \"shear-warp\"\nsettings = { leaping = \"fast\" }",
             "line 18: node 'vol': shear-warp setting 'leaping': \"fast\" is not one of \"overlapped\" | \"multi-scanline\" | \"none\"",
         ),
         (
-            "settings = { step = 0.05 }",
+            "renderer = \"reference\"\nsettings = { step = 0.05 }",
             "renderer = \"shear-warp\"\nsettings = { block = -1 }",
             "block': -1 is out of range: must be [1, 256]",
         ),
         (
-            "settings = { step = 0.05 }",
+            "renderer = \"reference\"\nsettings = { step = 0.05 }",
             "renderer = \"sheer-warp\"",
-            "line 17: node 'vol': unknown renderer 'sheer-warp' (known: reference, shear-warp,",
+            "line 17: node 'vol': unknown renderer 'sheer-warp' (known: shear-warp, reference,",
         ),
         (
-            "settings = { step = 0.05 }",
+            "renderer = \"reference\"\nsettings = { step = 0.05 }",
             "renderer = \"terrain\"",
             "line 17: node 'vol': renderer 'terrain' draws Heightfield nodes, not Volume",
         ),

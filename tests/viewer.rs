@@ -207,7 +207,8 @@ fn opening_a_data_file_frames_it_and_measures_the_error() {
     // No DICOM modality and no negative values: the percentile-based preset.
     let scene = viewer.scene().unwrap();
     assert_eq!(scene.nodes()[0].renderer.as_deref(), Some("shear-warp"));
-    assert!(viewer.camera().parallel_projection);
+    // Volumes open in perspective, as in 3D Slicer (parallel is a toggle).
+    assert!(!viewer.camera().parallel_projection);
     let mut h = harness(viewer);
     // Node metadata is listed as `volterra info` gives it.
     h.get_by_label("dims");
@@ -411,14 +412,17 @@ fn files_open_from_the_dialog_and_by_drag_and_drop_without_blocking() {
 }
 
 /// `volterra view SCENE --screenshot W.png` hung for ever when the first frame failed (a
-/// perspective camera on a shear-warp node): it prints the error and exits 1, no PNG.
+/// camera shear-warp cannot draw from: inside the volume): it prints the error and exits
+/// 1, no PNG.
 #[test]
 fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
     let Some(xvfb) = xvfb_run() else { return };
     let dir = samples();
     let text = std::fs::read_to_string(dir.path().join("angio_shear_warp.toml")).unwrap();
     let scene = dir.path().join("perspective.toml");
-    std::fs::write(&scene, text.replace("parallel_projection = true", "parallel_projection = false")).unwrap();
+    let inside =
+        text.replace("parallel_projection = true", "parallel_projection = false").replace("[180.0, 200.0, 60.0]", "[2.0, 3.0, 1.0]");
+    std::fs::write(&scene, inside).unwrap();
     let shot = dir.path().join("never.png");
     let runtime = tempfile::tempdir().unwrap();
     let mut child = Command::new(xvfb)
@@ -446,6 +450,6 @@ fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
     let mut err = String::new();
     std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
     assert_eq!(status.code(), Some(1), "{err}");
-    assert!(err.contains("perspective") || err.contains("parallel"), "the error names the cause: {err}");
+    assert!(err.contains("inside the volume"), "the error names the cause: {err}");
     assert!(!shot.exists());
 }

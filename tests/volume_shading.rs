@@ -147,6 +147,16 @@ fn check_sphere(renderer: Renderer) {
         assert!(n > 800, "{n} pixels checked");
         assert!(max < max_bound && mean < mean_bound, "from {from:?}: max {max}, mean {mean}");
     }
+    // In perspective each ray has its own direction and the headlight lies along it:
+    // brightness |n · d| with d the pixel's own ray (which `errors` uses).
+    for from in [[0.0, 0.0, 30.0], [-20.0, 15.0, 18.0]] {
+        let cam = Camera { parallel_projection: false, view_angle: 45.0, ..camera_from(from) };
+        let shaded = render(Some(&diffuse_only()), &[], &cam);
+        let (max, mean, n) = errors(&shaded, &cam, size, |n, d| n.dot(d).abs());
+        eprintln!("{renderer:?}, perspective headlight from {from:?}: {n} pixels, max |error| {max:.4}, mean {mean:.5}");
+        assert!(n > 700, "{n} pixels checked");
+        assert!(max < max_bound && mean < mean_bound, "perspective from {from:?}: max {max}, mean {mean}");
+    }
     let cam = camera();
     // Unshaded, the same pixels are white: the check above is not passed by accident.
     let flat = render(None, &[], &cam);
@@ -303,20 +313,23 @@ fn shaded_shear_warp_matches_the_shaded_reference() {
         cone_angle: None,
     };
     let size = 64;
-    for (from, lights) in [
-        ([0.0, 0.0, 100.0], &[][..]),
-        ([0.0, -100.0, 0.0], &[][..]),
-        ([100.0, 0.0, 0.0], std::slice::from_ref(&sun)),
-        ([55.0, 45.0, 70.0], &[][..]),
-        ([70.7, 70.7, 20.0], std::slice::from_ref(&sun)),
+    for (from, lights, parallel) in [
+        ([0.0, 0.0, 100.0], &[][..], true),
+        ([0.0, -100.0, 0.0], &[][..], true),
+        ([100.0, 0.0, 0.0], std::slice::from_ref(&sun), true),
+        ([55.0, 45.0, 70.0], &[][..], true),
+        ([70.7, 70.7, 20.0], std::slice::from_ref(&sun), true),
+        // Perspective, near enough that the rays fan out by ±20°.
+        ([0.0, -60.0, 10.0], &[][..], false),
+        ([40.0, 38.0, 25.0], std::slice::from_ref(&sun), false),
     ] {
-        let cam = Camera { parallel_scale: 20.0, ..camera_from(from) };
+        let cam = Camera { parallel_scale: 20.0, parallel_projection: parallel, view_angle: 40.0, ..camera_from(from) };
         let rf = render(Reference, &v, &tf, Some(&shading), lights, &cam, size);
         let sw = render(ShearWarp, &v, &tf, Some(&shading), lights, &cam, size);
         let plain =
             relative_rmse(&render(ShearWarp, &v, &tf, None, lights, &cam, size), &render(Reference, &v, &tf, None, lights, &cam, size));
         let shaded = relative_rmse(&sw, &rf);
-        eprintln!("from {from:?}, {} lights: shaded relative RMSE {shaded:.4}, unshaded {plain:.4}", lights.len());
+        eprintln!("from {from:?} (parallel: {parallel}), {} lights: shaded relative RMSE {shaded:.4}, unshaded {plain:.4}", lights.len());
         assert!(shaded < 0.035 && shaded < plain + 0.01, "from {from:?}: shaded {shaded}, unshaded {plain}");
         // Shading changed the picture (the comparison is not of two unshaded images).
         let unshaded_ref = render(Reference, &v, &tf, None, lights, &cam, size);

@@ -261,7 +261,8 @@ enum BenchCommand {
     /// Shear-warp's configurations and VTK's fixed-point mapper against their error from
     /// the reference ray caster.
     ShearWarp {
-        /// One volume node and a parallel camera.
+        /// One volume node; its camera's view is drawn in parallel projection and in
+        /// perspective (30°).
         #[arg(long, default_value = "samples/aneurysm.toml")]
         scene: PathBuf,
         /// Time only the configurations whose name contains this text (e.g.

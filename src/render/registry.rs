@@ -34,7 +34,7 @@ pub enum NodeSettings {
 /// Every renderer. For each node kind the first listed is the one a node that names no
 /// renderer gets.
 pub const RENDERERS: &[RendererDecl] =
-    &[reference_volume::RENDERER, shear_warp::RENDERER, terrain::RENDERER, terrain::REFERENCE_RENDERER, smoke::RENDERER];
+    &[shear_warp::RENDERER, reference_volume::RENDERER, terrain::RENDERER, terrain::REFERENCE_RENDERER, smoke::RENDERER];
 
 pub fn find(name: &str) -> Option<&'static RendererDecl> {
     RENDERERS.iter().find(|r| r.name == name)

@@ -134,8 +134,8 @@ pub struct ParallelLighting {
     power: f32,
     /// `power` when it is a small whole number.
     power_int: Option<i32>,
-    /// Directional lights and the headlight: (L, H, colour).
-    fixed: Vec<(Vec3, Vec3, Vec3)>,
+    /// Directional lights and the headlight: (L, H, colour, whether it is the headlight).
+    fixed: Vec<(Vec3, Vec3, Vec3, bool)>,
     /// Point lights: (position, colour).
     points: Vec<(DVec3, Vec3)>,
     to_eye: Vec3,
@@ -160,7 +160,8 @@ impl ParallelLighting {
                     continue;
                 }
             };
-            fixed.push((to_light.as_vec3(), (to_light + to_eye).normalize_or_zero().as_vec3(), colour));
+            let head = matches!(source, Source::Head);
+            fixed.push((to_light.as_vec3(), (to_light + to_eye).normalize_or_zero().as_vec3(), colour, head));
         }
         let power_int = (specular_power.fract() == 0.0 && specular_power <= 128.0).then_some(specular_power as i32);
         ParallelLighting {
@@ -185,6 +186,18 @@ impl ParallelLighting {
     /// point `at` (read only when `needs_position`), as `Shader::lighting`.
     #[inline]
     pub fn lighting(&self, g: Vec3, at: DVec3) -> (Vec3, Vec3) {
+        self.lighting_along(g, at, None)
+    }
+
+    /// As `lighting`, for a sample whose own ray reaches the eye along the unit vector
+    /// `to_eye` (a perspective view): the half vectors, and the headlight, follow it.
+    #[inline]
+    pub fn lighting_seen_from(&self, g: Vec3, at: DVec3, to_eye: Vec3) -> (Vec3, Vec3) {
+        self.lighting_along(g, at, Some(to_eye))
+    }
+
+    #[inline]
+    fn lighting_along(&self, g: Vec3, at: DVec3, ray_to_eye: Option<Vec3>) -> (Vec3, Vec3) {
         let g = self.gradient_to_world * g;
         let len = g.length();
         let normal = (len > 0.0 && len.is_finite()).then(|| g / len);
@@ -202,12 +215,17 @@ impl ParallelLighting {
             d += colour * (self.diffuse * lambert);
             s += colour * (self.specular * highlight);
         };
-        for &(l, h, colour) in &self.fixed {
-            add(l, h, colour);
+        let to_eye = ray_to_eye.unwrap_or(self.to_eye);
+        for &(l, h, colour, head) in &self.fixed {
+            match ray_to_eye {
+                None => add(l, h, colour),
+                Some(v) if head => add(v, v, colour),
+                Some(v) => add(l, (l + v).normalize_or_zero(), colour),
+            }
         }
         for &(q, colour) in &self.points {
             let l = (q - at).normalize_or_zero().as_vec3();
-            add(l, (l + self.to_eye).normalize_or_zero(), colour);
+            add(l, (l + to_eye).normalize_or_zero(), colour);
         }
         (d, s)
     }

@@ -134,21 +134,27 @@ pub fn data_bounds(data: &NodeData, node_to_world: DMat4) -> Option<(DVec3, DVec
 }
 
 /// A camera that shows the box whole: volumes from the patient's front (anterior, head
-/// up) in parallel projection, as the shear-warp renderer needs; terrain from above its
+/// up) in perspective at 30° (3D Slicer's default view); terrain from above its
 /// south-west corner; particles from the south.
 pub fn fit_camera(kind: NodeKind, (lo, hi): (DVec3, DVec3)) -> Camera {
     let centre = 0.5 * (lo + hi);
     let radius = (0.5 * (hi - lo).length()).max(1e-6);
     let up = [0.0, 0.0, 1.0];
     match kind {
-        NodeKind::Volume | NodeKind::Group => Camera {
-            position: (centre + DVec3::Y * 4.0 * radius).to_array(),
-            focal_point: centre.to_array(),
-            view_up: up,
-            view_angle: 30.0,
-            parallel_projection: true,
-            parallel_scale: 1.02 * radius,
-        },
+        NodeKind::Volume | NodeKind::Group => {
+            // The bounding sphere fills the view's height (2 % margin); parallel_scale frames
+            // the same height at the focal point when the viewer toggles to parallel.
+            let angle: f64 = 30.0;
+            let dist = 1.02 * radius / (0.5 * angle.to_radians()).sin();
+            Camera {
+                position: (centre + DVec3::Y * dist).to_array(),
+                focal_point: centre.to_array(),
+                view_up: up,
+                view_angle: angle,
+                parallel_projection: false,
+                parallel_scale: dist * (0.5 * angle.to_radians()).tan(),
+            }
+        }
         NodeKind::Heightfield => {
             let ext = (hi - lo).truncate().max_element().max(1e-6);
             Camera {

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Renders volume scenes (tests/reference/scenes/*.toml) with VTK's
-vtkFixedPointVolumeRayCastMapper — parallel projection, the scene's camera, transfer
+vtkFixedPointVolumeRayCastMapper — the scene's camera (parallel or perspective), transfer
 function and unit distance (mm), linear interpolation, shading as the scene's [node.shading] says (off by default), one sample per voxel — and
 writes each image as a float RGBA OpenEXR (colour over black, alpha = accumulated opacity).
 
@@ -105,8 +105,10 @@ def render(scene_path, out_path, views=None, runs=0, shading=None):
     cam.SetPosition(*c["position"])
     cam.SetFocalPoint(*c["focal_point"])
     cam.SetViewUp(*c.get("view_up", [0, 0, 1]))
-    cam.SetParallelProjection(1)
-    cam.SetParallelScale(c["parallel_scale"])
+    # As our Camera: perspective unless parallel_projection is set, view angle 30° by default.
+    cam.SetParallelProjection(1 if c.get("parallel_projection", False) else 0)
+    cam.SetParallelScale(c.get("parallel_scale", 1.0))
+    cam.SetViewAngle(c.get("view_angle", 30.0))
     ren.ResetCameraClippingRange()
     w, h = scene["image"]["width"], scene["image"]["height"]
     win = vtk.vtkRenderWindow()
@@ -116,10 +118,18 @@ def render(scene_path, out_path, views=None, runs=0, shading=None):
     win.AddRenderer(ren)
     win.SetSize(w, h)
     if views is None:
-        views = [(c["position"], out_path)]
+        views = [{"position": c["position"], "image": out_path}]
     timings = []
-    for position, path in views:
-        cam.SetPosition(*position)
+    for view in views:
+        path = view["image"]
+        cam.SetPosition(*view["position"])
+        # A bench view may change the projection (its perspective rows).
+        if "parallel" in view:
+            cam.SetParallelProjection(1 if view["parallel"] else 0)
+        if "view_angle" in view:
+            cam.SetViewAngle(view["view_angle"])
+        if "parallel_scale" in view:
+            cam.SetParallelScale(view["parallel_scale"])
         ren.ResetCameraClippingRange()
         win.Render()  # warm-up: the first render also builds VTK's tables
         ms = []
@@ -141,8 +151,7 @@ def main():
     if sys.argv[1] == "--bench":
         with open(sys.argv[2]) as f:
             spec = json.load(f)
-        views = [(v["position"], v["image"]) for v in spec["views"]]
-        ms = render(spec["scene"], None, views, spec["runs"], spec.get("shading"))
+        ms = render(spec["scene"], None, spec["views"], spec["runs"], spec.get("shading"))
         print(json.dumps({"ms": ms, "vtk": vtk.vtkVersion.GetVTKVersion()}))
         return
     out = sys.argv[1]

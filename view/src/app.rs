@@ -161,7 +161,7 @@ impl Viewer {
                 focal_point: [0.0; 3],
                 view_up: [0.0, 0.0, 1.0],
                 view_angle: 30.0,
-                parallel_projection: true,
+                parallel_projection: false,
                 parallel_scale: 1.0,
             },
             version: 0,
@@ -565,7 +565,7 @@ impl Viewer {
             let mut parallel = self.camera.parallel_projection;
             if ui
                 .add_enabled(has_doc, egui::Checkbox::new(&mut parallel, "Parallel"))
-                .on_hover_text("Parallel projection (shear-warp draws only these)")
+                .on_hover_text("Parallel projection (off: perspective, as 3D Slicer draws volumes)")
                 .changed()
             {
                 navigate::set_parallel(&mut self.camera, parallel);

@@ -1,8 +1,9 @@
 //! `volterra bench shear-warp`: speed against error, in one process. Our renderer with
-//! each leaping mode and supersampling ratio, MIP, gradient shading, and VTK's
-//! fixed-point ray caster (through Python in the same command, unshaded and with
-//! `ShadeOn`), each as the median ms per frame over several views and the relative RMSE
-//! from the reference ray caster (cached per view, blend mode and shading).
+//! each leaping mode and supersampling ratio, MIP, gradient shading, perspective, and
+//! VTK's fixed-point ray caster (through Python in the same command, unshaded and with
+//! `ShadeOn`, parallel and perspective), each as the median ms per frame over several
+//! views and the relative RMSE from the reference ray caster (cached per view, projection,
+//! blend mode and shading).
 
 use super::median;
 use anyhow::{bail, Context, Result};
@@ -14,7 +15,9 @@ use volterra::render::{reference_volume, shear_warp, Frame};
 use volterra::scene::{BlendMode, Camera, Scene, TransferFunction, VolumeShading};
 
 pub struct ShearWarpBench {
-    /// A scene with one volume node and a parallel camera (its view is the first of four).
+    /// A scene with one volume node; its view is the first of five, drawn in parallel
+    /// projection, and again in perspective (30°, framing the same height at the focal
+    /// point).
     pub scene: PathBuf,
     pub env: super::BenchEnv,
     pub runs: usize,
@@ -53,6 +56,35 @@ fn views(cam: &Camera) -> Vec<Camera> {
     out
 }
 
+/// The perspective view angle of the perspective rows (3D Slicer's default).
+const PERSPECTIVE_ANGLE: f64 = 30.0;
+
+/// `cam` in parallel projection, showing at its focal point the height it shows there now.
+fn as_parallel(cam: &Camera) -> Camera {
+    let dist = (glam::DVec3::from(cam.position) - glam::DVec3::from(cam.focal_point)).length();
+    let scale = if cam.parallel_projection { cam.parallel_scale } else { dist * (0.5 * cam.view_angle.to_radians()).tan() };
+    Camera { parallel_projection: true, parallel_scale: scale, ..cam.clone() }
+}
+
+/// `cam` (parallel) in perspective at `PERSPECTIVE_ANGLE`, moved along its view direction
+/// so the focal point's plane shows the same height.
+fn as_perspective(cam: &Camera) -> Camera {
+    let (eye, fp) = (glam::DVec3::from(cam.position), glam::DVec3::from(cam.focal_point));
+    let dist = cam.parallel_scale / (0.5 * PERSPECTIVE_ANGLE.to_radians()).tan();
+    let position = (fp + (eye - fp).normalize() * dist).to_array();
+    Camera { position, parallel_projection: false, view_angle: PERSPECTIVE_ANGLE, ..cam.clone() }
+}
+
+/// A set of views and their reference images (MIP only for the parallel set).
+struct ViewSet {
+    /// "" or "perspective ", before each row's name.
+    prefix: &'static str,
+    cams: Vec<Camera>,
+    refs: Vec<Vec<[f32; 4]>>,
+    refs_mip: Vec<Vec<[f32; 4]>>,
+    refs_shaded: Vec<Vec<[f32; 4]>>,
+}
+
 pub fn run(b: &ShearWarpBench) -> Result<()> {
     if b.runs == 0 {
         bail!("--runs must be at least 1");
@@ -62,13 +94,10 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         scene.nodes().iter().position(|n| n.kind == volterra::scene::NodeKind::Volume).context("the bench scene needs a volume node")?;
     let desc = &scene.nodes()[node];
     let tf: &TransferFunction = desc.transfer_function.as_ref().context("the volume node needs a transfer_function")?;
-    if !scene.file.camera.parallel_projection {
-        bail!("{}: the bench needs a parallel camera (shear-warp is parallel-only)", b.scene.display());
-    }
     let volume = scene.volume(node)?;
     let to_world = scene.world_transform(node);
     let (w, h) = (scene.file.image.width, scene.file.image.height);
-    let cams = views(&scene.file.camera);
+    let cams = views(&as_parallel(&scene.file.camera));
     std::fs::create_dir_all(&b.env.work_dir)?;
     let prepared = shear_warp::Prepared::new(&volume, &b.env.limits)?;
 
@@ -79,39 +108,50 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         bail!("{}: the bench compares with VTK under its headlight; remove the scene's lights", b.scene.display());
     }
 
-    // Reference images, cached by scene, view, blend mode and shading.
+    // Reference images, cached by scene, view, projection, blend mode and shading.
     let key = format!("{:x}", fxhash(&(std::fs::read_to_string(&b.scene)?, w, h)));
-    let (mut refs, mut refs_mip, mut refs_shaded) = (Vec::new(), Vec::new(), Vec::new());
-    for (v, cam) in cams.iter().enumerate() {
-        for (blend, shade, list) in [
-            (BlendMode::Composite, false, &mut refs),
-            (BlendMode::Mip, false, &mut refs_mip),
-            (BlendMode::Composite, true, &mut refs_shaded),
-        ] {
-            let tag = if shade { "_shaded" } else { "" };
-            let path = b.env.work_dir.join(format!("ref_{key}_{v}_{blend:?}{tag}.exr"));
-            let img = match volterra_formats::exr_io::read_exr(&path, &b.env.limits) {
-                Ok(img) => img,
-                Err(_) => {
-                    eprintln!("rendering the reference for view {v} ({blend:?}{tag}), cached in {}", path.display());
-                    let shading = shade.then_some(&shading);
-                    let input = reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend, shading, lights };
-                    let f = reference_volume::render(&input, &cam.rays(w, h), &Default::default())?;
-                    let img = f.to_image([0.0; 3]);
-                    volterra_formats::exr_io::write_exr(&path, &img)?;
-                    img
+    let mut sets = Vec::new();
+    for (prefix, cams) in [("", cams.clone()), ("perspective ", cams.iter().map(as_perspective).collect())] {
+        let mut set = ViewSet { prefix, cams, refs: Vec::new(), refs_mip: Vec::new(), refs_shaded: Vec::new() };
+        let tag0 = if prefix.is_empty() { "" } else { "_perspective" };
+        for (v, cam) in set.cams.iter().enumerate() {
+            for (blend, shade, list) in [
+                (BlendMode::Composite, false, &mut set.refs),
+                (BlendMode::Mip, false, &mut set.refs_mip),
+                (BlendMode::Composite, true, &mut set.refs_shaded),
+            ] {
+                if blend == BlendMode::Mip && !prefix.is_empty() {
+                    continue;
                 }
-            };
-            list.push(rgba_of(&img));
+                let tag = format!("{tag0}{}", if shade { "_shaded" } else { "" });
+                let path = b.env.work_dir.join(format!("ref_{key}_{v}_{blend:?}{tag}.exr"));
+                let img = match volterra_formats::exr_io::read_exr(&path, &b.env.limits) {
+                    Ok(img) => img,
+                    Err(_) => {
+                        eprintln!("rendering the reference for view {v} ({blend:?}{tag}), cached in {}", path.display());
+                        let shading = shade.then_some(&shading);
+                        let input = reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend, shading, lights };
+                        let f = reference_volume::render(&input, &cam.rays(w, h), &Default::default())?;
+                        let img = f.to_image([0.0; 3]);
+                        volterra_formats::exr_io::write_exr(&path, &img)?;
+                        img
+                    }
+                };
+                list.push(rgba_of(&img));
+            }
         }
+        sets.push(set);
     }
+    let (parallel, perspective) = (&sets[0], &sets[1]);
 
     let mut rows = Vec::new();
     let wanted = |name: &str| b.only.as_deref().is_none_or(|o| name.contains(o));
-    let time_shaded = |name: String, blend: BlendMode, s: shear_warp::Settings, shade: bool| -> Result<Option<Row>> {
+    let time_in = |set: &ViewSet, name: String, blend: BlendMode, s: shear_warp::Settings, shade: bool| -> Result<Option<Row>> {
+        let name = format!("{}{name}", set.prefix);
         if !wanted(&name) {
             return Ok(None);
         }
+        let ViewSet { cams, refs, refs_mip, refs_shaded, .. } = set;
         let shading = shade.then_some(&shading);
         let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend, shading, lights };
         let (mut ms, mut err, mut psnr, mut mpix) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -148,6 +188,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         Ok(Some(row))
     };
+    let time_shaded = |name: String, blend: BlendMode, s: shear_warp::Settings, shade: bool| time_in(parallel, name, blend, s, shade);
     let time_config = |name: String, blend: BlendMode, s: shear_warp::Settings| time_shaded(name, blend, s, false);
     // The paper's renderer (one sample per slab) with each leaping mode at its ratios.
     for leaping in [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped] {
@@ -197,12 +238,20 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     }
     rows.extend(time_shaded("shaded shear-warp auto (default)".into(), BlendMode::Composite, Default::default(), true)?);
 
+    // Perspective (the same views at 30°), unshaded and shaded, against the perspective
+    // references.
+    rows.extend(time_in(perspective, "shear-warp overlapped auto (default)".into(), BlendMode::Composite, Default::default(), false)?);
+    rows.extend(time_in(perspective, "shaded shear-warp auto (default)".into(), BlendMode::Composite, Default::default(), true)?);
+
     // VTK's fixed-point mapper through Python, same views, same references.
-    for (shade, name, refs) in [(false, "vtk fixed-point", &refs), (true, "shaded vtk fixed-point", &refs_shaded)] {
-        if wanted(name) {
-            match vtk_rows(b, &cams, refs, shade.then_some(&shading)) {
-                Ok(r) => rows.extend(r),
-                Err(e) => eprintln!("VTK rows ({name}) skipped: {e:#}"),
+    for set in &sets {
+        for (shade, name, refs) in [(false, "vtk fixed-point", &set.refs), (true, "shaded vtk fixed-point", &set.refs_shaded)] {
+            let name = format!("{}{name}", set.prefix);
+            if wanted(&name) {
+                match vtk_rows(b, set, refs, shade.then_some(&shading)) {
+                    Ok(r) => rows.extend(r),
+                    Err(e) => eprintln!("VTK rows ({name}) skipped: {e:#}"),
+                }
             }
         }
     }
@@ -241,11 +290,18 @@ fn intermediate_pixels(f: &Frame) -> f64 {
 
 /// VTK's row, with `ShadeOn` and these coefficients when `shading` is given (shading off
 /// otherwise, whatever the scene says).
-fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>], shading: Option<&VolumeShading>) -> Result<Vec<Row>> {
-    let tag = if shading.is_some() { "_shaded" } else { "" };
+fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: Option<&VolumeShading>) -> Result<Vec<Row>> {
+    let tag = format!("{}{}", if set.prefix.is_empty() { "" } else { "_perspective" }, if shading.is_some() { "_shaded" } else { "" });
     let image = |v: usize| b.env.work_dir.join(format!("vtk_{v}{tag}.exr"));
-    let spec_views: Vec<serde_json::Value> =
-        cams.iter().enumerate().map(|(v, c)| serde_json::json!({"position": c.position, "image": image(v)})).collect();
+    let spec_views: Vec<serde_json::Value> = set
+        .cams
+        .iter()
+        .enumerate()
+        .map(|(v, c)| {
+            serde_json::json!({"position": c.position, "image": image(v), "parallel": c.parallel_projection,
+                               "view_angle": c.view_angle, "parallel_scale": c.parallel_scale})
+        })
+        .collect();
     let shading = serde_json::to_value(shading.copied().unwrap_or_default())?;
     let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs, "shading": shading});
     let spec_path = b.env.work_dir.join("vtk_spec.json");
@@ -274,7 +330,12 @@ fn vtk_rows(b: &ShearWarpBench, cams: &[Camera], refs: &[Vec<[f32; 4]>], shading
         psnr.push(rgba_psnr(&rgba_of(&img), r));
     }
     let row = Row {
-        config: format!("{}vtk fixed-point {}", if tag.is_empty() { "" } else { "shaded " }, v["vtk"].as_str().unwrap_or("")),
+        config: format!(
+            "{}{}vtk fixed-point {}",
+            set.prefix,
+            if tag.ends_with("_shaded") { "shaded " } else { "" },
+            v["vtk"].as_str().unwrap_or("")
+        ),
         median_ms: median(&mut ms),
         rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
         rel_rmse_views: err.clone(),

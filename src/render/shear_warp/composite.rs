@@ -3,8 +3,8 @@
 //! row's links. The per-ray core of shear-warp; `render` in mod.rs drives it over runs,
 //! slices and rows.
 
-use super::factor::Factorization;
-use super::preint::PreintTable;
+use super::factor::{Factorization, SliceMap};
+use super::preint::{PreintTable, Rgba};
 use super::prepare::Axis;
 use super::scanline::{next_live, rows, Gradients, SliceRows};
 use super::shading::{FrameShading, SliceGradient};
@@ -51,11 +51,15 @@ pub(super) struct Slab<'a> {
     /// The back sample's row, and the front sample's relative to it.
     pub(super) y: f64,
     pub(super) dyo: f64,
-    pub(super) iz: f64,
-    /// Inverse Mapping: x = u_over_ratio[U] + iz, one lookup and one add per pixel.
-    pub(super) u_over_ratio: &'a [f64],
-    /// x of the front slice's sample relative to the back slice's.
-    pub(super) dxo: f64,
+    /// Inverse Mapping of the back slice: x = U·scale + x0.
+    pub(super) back_map: SliceMap,
+    /// x of the front slice's sample relative to the back slice's: dxo0 + U·ddxo (ddxo = 0
+    /// in a parallel view).
+    pub(super) dxo0: f64,
+    pub(super) ddxo: f64,
+    /// Each pixel's ray length between slices relative to the table's (perspective; empty
+    /// in a parallel view, where every ray has the table's).
+    pub(super) lengths: &'a [f32],
     pub(super) x_range: (f64, f64),
     pub(super) y_range: (f64, f64),
     /// Compositing-order index of the back slice.
@@ -72,7 +76,41 @@ pub(super) struct Slab<'a> {
     pub(super) shading: Option<SlabShading<'a>>,
 }
 
+/// A table entry (premultiplied colour, opacity) for a segment `length` times the table's:
+/// opacity 1 − (1 − α)^length, colour scaled with it (exact for a constant value).
+#[inline(always)]
+pub(super) fn for_length(e: Rgba, length: f32) -> ([f32; 3], f32) {
+    if length == 1.0 || e.a <= 0.0 {
+        return (e.c, e.a);
+    }
+    let a = if e.a >= 1.0 { 1.0 } else { 1.0 - (1.0 - e.a).powf(length) };
+    let scale = a / e.a;
+    (e.c.map(|c| c * scale), a)
+}
+
 impl Slab<'_> {
+    /// x of pixel u's back sample.
+    #[inline(always)]
+    pub(super) fn xb(&self, u: usize) -> f64 {
+        u as f64 * self.back_map.scale + self.back_map.x0
+    }
+
+    /// x of pixel u's front sample relative to its back sample.
+    #[inline(always)]
+    pub(super) fn dxo(&self, u: usize) -> f64 {
+        self.dxo0 + u as f64 * self.ddxo
+    }
+
+    /// Pixel u's ray length between slices relative to the table's.
+    #[inline(always)]
+    fn length(&self, u: usize) -> f32 {
+        if self.lengths.is_empty() {
+            1.0
+        } else {
+            self.lengths[u]
+        }
+    }
+
     /// Composites the live pixels of u..run_end through K segments per slab and returns
     /// the next live pixel at or after run_end. Generic over K so that the paper's one
     /// segment per slab compiles without the loop over samples between the slices (a
@@ -105,13 +143,14 @@ impl Slab<'_> {
         });
         let mut uu = u;
         while uu < run_end {
-            let xb = self.u_over_ratio[uu] + self.iz;
+            let (xb, dxo) = (self.xb(uu), self.dxo(uu));
+            let length = self.length(uu);
             let back = self.back.at(xb) * q;
             *n_samples += 1;
             let front = if stamp[uu] == self.zi - 1 {
                 Some(prev[uu])
             } else {
-                let xf = xb + self.dxo;
+                let xf = xb + dxo;
                 match &self.front {
                     Some(front) if xf >= self.x_range.0 && xf <= self.x_range.1 => {
                         *n_samples += 1;
@@ -135,29 +174,29 @@ impl Slab<'_> {
                     } else {
                         let (fs, bs) = &between.as_ref().unwrap()[j];
                         let w = (j + 1) as f32 / K as f32;
-                        let xj = xb + self.dxo * (1.0 - w as f64);
+                        let xj = xb + dxo * (1.0 - w as f64);
                         let (sf, sb) = (fs.at(xj), bs.at(xj));
                         *n_samples += 2;
                         (sf + w * (sb - sf)) * q
                     };
                     if f.max(b) >= table.clear_below {
-                        let e = table.lookup(f, b);
-                        if e.a > 0.0 {
+                        let (c, a) = for_length(table.lookup(f, b), length);
+                        if a > 0.0 {
                             let c = match &self.shading {
-                                None => e.c,
+                                None => c,
                                 Some(sh) => {
                                     let gb = *g_back.get_or_insert_with(|| sh.back().at(xb));
                                     let gf = *g_front.get_or_insert_with(|| match sh.front() {
                                         _ if grads.stamp[uu] == self.zi - 1 => grads.value[uu],
-                                        Some(front) => front.at(xb + self.dxo),
+                                        Some(front) => front.at(xb + dxo),
                                         None => gb,
                                     });
                                     let w = (j as f32 + 0.5) / K as f32;
-                                    self.shade(sh, e.c, e.a, gf + (gb - gf) * w, xb, w as f64)
+                                    self.shade(sh, c, a, gf + (gb - gf) * w, (xb, dxo), w as f64)
                                 }
                             };
                             let seg = (j as f64 / K as f64, (j + 1) as f64 / K as f64);
-                            if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, e.a, seg) {
+                            if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, a, seg) {
                                 links[uu] = uu as u32 + 1; // early ray termination
                                 break;
                             }
@@ -165,13 +204,13 @@ impl Slab<'_> {
                     }
                     f = b;
                 }
-            } else if let Some((w0, _)) = self.inside(xb) {
+            } else if let Some((w0, _)) = self.inside((xb, dxo)) {
                 // The ray entered the volume between these slices, through a side face:
                 // the piece from there to the back sample.
                 let g = self.shading.as_ref().map(|sh| *g_back.get_or_insert_with(|| sh.back().at(xb)));
-                let f0 = self.value_at(xb, w0);
+                let f0 = self.value_at((xb, dxo), w0);
                 *n_samples += 2;
-                if self.composite_piece(K, row, depth, uu, xb, (w0, f0), (1.0, back), g) {
+                if self.composite_piece(K, row, depth, uu, (xb, dxo), (w0, f0), (1.0, back), g) {
                     links[uu] = uu as u32 + 1;
                 }
             }
@@ -208,23 +247,24 @@ impl Slab<'_> {
                 uu = next_live(links, back_span.unwrap().1 + 1);
                 continue;
             }
-            let xb = self.u_over_ratio[uu] + self.iz;
-            if let Some((w0, w1)) = self.inside(xb).filter(|&(_, w1)| w1 < 1.0) {
-                let xf = xb + self.dxo;
+            let ray = (self.xb(uu), self.dxo(uu));
+            let xb = ray.0;
+            if let Some((w0, w1)) = self.inside(ray).filter(|&(_, w1)| w1 < 1.0) {
+                let xf = xb + ray.1;
                 let front_inside = w0 == 0.0 && self.front.is_some();
                 let f0 = match &self.front {
                     _ if front_inside && stamp[uu] == self.zi - 1 => prev[uu],
                     Some(front) if front_inside => front.at(xf) * self.q_to_level,
-                    _ => self.value_at(xb, w0),
+                    _ => self.value_at(ray, w0),
                 };
-                let f1 = self.value_at(xb, w1);
+                let f1 = self.value_at(ray, w1);
                 *n_samples += 3;
                 let g = self.shading.as_ref().map(|sh| match sh.front() {
                     _ if grads.stamp[uu] == self.zi - 1 => grads.value[uu],
                     Some(front) => front.at(xf),
                     None => sh.back().at(xb),
                 });
-                if self.composite_piece(k, row, depth, uu, xb, (w0, f0), (w1, f1), g) {
+                if self.composite_piece(k, row, depth, uu, ray, (w0, f0), (w1, f1), g) {
                     links[uu] = uu as u32 + 1;
                 }
             }
@@ -232,12 +272,13 @@ impl Slab<'_> {
         }
     }
 
-    /// The part of pixel u's ray (back sample at x = xb) inside the volume's box within
-    /// this slab, as fractions [w0, w1] from the front sample (0) to the back one (1).
-    fn inside(&self, xb: f64) -> Option<(f64, f64)> {
+    /// The part of a pixel's ray (back sample at x = xb, front at xb + dxo) inside the
+    /// volume's box within this slab, as fractions [w0, w1] from the front sample (0) to
+    /// the back one (1).
+    fn inside(&self, (xb, dxo): (f64, f64)) -> Option<(f64, f64)> {
         let (mut w0, mut w1) = (0.0f64, 1.0f64);
         // At fraction w the ray is at x = xb + dxo·(1 − w), y = y + dyo·(1 − w).
-        for (back, d, (lo, hi)) in [(xb, self.dxo, self.x_range), (self.y, self.dyo, self.y_range)] {
+        for (back, d, (lo, hi)) in [(xb, dxo, self.x_range), (self.y, self.dyo, self.y_range)] {
             let at_front = back + d;
             if d == 0.0 {
                 if at_front < lo || at_front > hi {
@@ -252,10 +293,11 @@ impl Slab<'_> {
         (w0 < w1).then_some((w0, w1))
     }
 
-    /// The trilinear value (in table levels) on pixel u's ray at fraction w of the slab.
-    fn value_at(&self, xb: f64, w: f64) -> f32 {
+    /// The trilinear value (in table levels) on a pixel's ray (back sample at xb, front at
+    /// xb + dxo) at fraction w of the slab.
+    fn value_at(&self, (xb, dxo): (f64, f64), w: f64) -> f32 {
         let t = 1.0 - w;
-        let (x, y) = (xb + self.dxo * t, self.y + self.dyo * t);
+        let (x, y) = (xb + dxo * t, self.y + self.dyo * t);
         let (r0, r1, rw) = rows(y, self.axis.dims[1]);
         let (a, b) = (SliceRows::new(self.axis, self.zp, r0, r1, rw).at(x), SliceRows::new(self.axis, self.z, r0, r1, rw).at(x));
         (a + w as f32 * (b - a)) * self.q_to_level
@@ -265,6 +307,7 @@ impl Slab<'_> {
     /// uu: the parts of the k segments it overlaps, each pre-integrated over its own
     /// length (the table's opacity scaled to the shorter length, exact for a constant
     /// value), shaded with gradient `g` throughout. True once the pixel is opaque.
+    /// `ray`: the back sample's x and the front's relative to it.
     #[allow(clippy::too_many_arguments)]
     fn composite_piece(
         &self,
@@ -272,7 +315,7 @@ impl Slab<'_> {
         row: &mut [[f32; 4]],
         depth: &mut [f32],
         uu: usize,
-        xb: f64,
+        ray: (f64, f64),
         (w0, f0): (f64, f32),
         (w1, f1): (f64, f32),
         g: Option<Vec3>,
@@ -283,17 +326,14 @@ impl Slab<'_> {
             if sb <= sa {
                 continue;
             }
-            let b = if sb >= w1 { f1 } else { self.value_at(xb, sb) };
+            let b = if sb >= w1 { f1 } else { self.value_at(ray, sb) };
             if f.max(b) >= self.table.clear_below {
-                let e = self.table.lookup(f, b);
-                if e.a > 0.0 {
-                    // The table is for a whole segment, 1/k of the slab: this one is r of it.
-                    let r = ((sb - sa) * k as f64) as f32;
-                    let a = if r < 1.0 { 1.0 - (1.0 - e.a).powf(r) } else { e.a };
-                    let scale = a / e.a;
-                    let c = e.c.map(|c| c * scale);
+                // The table is for a whole segment, 1/k of the slab: this one is r of it.
+                let r = ((sb - sa) * k as f64) as f32;
+                let (c, a) = for_length(self.table.lookup(f, b), r * self.length(uu));
+                if a > 0.0 {
                     let c = match (&self.shading, g) {
-                        (Some(sh), Some(g)) => self.shade(sh, c, a, g, xb, 0.5 * (sa + sb)),
+                        (Some(sh), Some(g)) => self.shade(sh, c, a, g, ray, 0.5 * (sa + sb)),
                         _ => c,
                     };
                     if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, a, (sa, sb)) {
@@ -307,11 +347,12 @@ impl Slab<'_> {
     }
 
     /// The shaded colour of a segment (premultiplied colour c, opacity a, gradient g)
-    /// whose middle lies at fraction w of the slab on the ray whose back sample is at xb.
+    /// whose middle lies at fraction w of the slab on the ray whose back sample is at xb
+    /// (front at xb + dxo).
     #[inline]
-    fn shade(&self, sh: &SlabShading, c: [f32; 3], a: f32, g: Vec3, xb: f64, w: f64) -> [f32; 3] {
+    fn shade(&self, sh: &SlabShading, c: [f32; 3], a: f32, g: Vec3, (xb, dxo): (f64, f64), w: f64) -> [f32; 3] {
         let t = 1.0 - w;
-        let mid = DVec3::new(xb + self.dxo * t, self.y + self.dyo * t, self.z as f64 + (self.zp as f64 - self.z as f64) * t);
+        let mid = DVec3::new(xb + dxo * t, self.y + self.dyo * t, self.z as f64 + (self.zp as f64 - self.z as f64) * t);
         sh.frame.shade(c, a, g, mid)
     }
 

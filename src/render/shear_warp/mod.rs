@@ -1,16 +1,21 @@
-//! The shear-warp volume renderer (Kye & Kim, after Lacroute & Levoy), for parallel
-//! projection: rendering along intermediate-image scanlines at any real supersampling
-//! ratio, post-classification through a pre-integrated table, early ray termination with
-//! links over opaque pixels, empty-space leaping with the overlapped min-max map (or the
-//! paper's two baselines), maximum intensity projection, gradient shading (`shading`),
-//! and a bilinear 2-D warp. Rays are composited over the whole box of voxel centres,
-//! including the pieces that enter or leave it through a side face between two slices
-//! (`Slab::composite_exits` and the entry case of `composite_run`).
+//! The shear-warp volume renderer (Kye & Kim, after Lacroute & Levoy), for parallel and
+//! perspective projection: rendering along intermediate-image scanlines at any real
+//! supersampling ratio, post-classification through a pre-integrated table, early ray
+//! termination with links over opaque pixels, empty-space leaping with the overlapped
+//! min-max map (or the paper's two baselines), maximum intensity projection, gradient
+//! shading (`shading`), and a 2-D warp (bilinear samples; affine or projective). Rays are
+//! composited over the whole box of voxel centres, including the pieces that enter or
+//! leave it through a side face between two slices (`Slab::composite_exits` and the entry
+//! case of `composite_run`).
 //!
-//! Perspective views are refused with an error naming the limitation: perspective
-//! shear-warp (Lacroute 1995; Schulze et al. 2001) is not implemented; the `reference`
-//! renderer draws them.
-
+//! Perspective (the factorisation in `factor`): each slice is scaled about the eye's foot
+//! as well as sheared, so a ray's step from one slice to the next varies along the
+//! intermediate row (x) but not along the column (y). The pre-integrated table is made for
+//! the ray through the volume's centre; each ray's segments are corrected to its own
+//! length (opacity α → 1 − (1 − α)^r, colour scaled with it: exact for a constant value).
+//! Empty-space leaping applies where a ray's sideways step between slices stays within the
+//! voxel the overlapped map's blocks reach (always, in a parallel view); elsewhere the
+//! slabs are sampled. A view from inside the volume is refused with that reason.
 mod composite;
 pub mod factor;
 pub mod minmax;
@@ -30,8 +35,8 @@ use super::registry::{NodeSettings, RendererDecl};
 use super::settings::{Bounds, Control, Preview, Widget};
 use crate::scene::NodeKind;
 use crate::scene::{BlendMode, Light, RayGenerator, TransferFunction, VolumeShading};
-use anyhow::{bail, Result};
-use factor::Factorization;
+use anyhow::Result;
+use factor::{Factorization, SliceMap};
 use glam::DMat4;
 use minmax::next_unclear;
 use preint::PreintTable;
@@ -91,8 +96,9 @@ pub const RENDERER: RendererDecl = RendererDecl {
     doc: "Shear-warp on the CPU (Kye & Kim, after Lacroute & Levoy): intermediate-image \
           supersampling at any real ratio, pre-integrated classification, early ray \
           termination, empty-space leaping with the overlapped min-max map, MIP, a bilinear \
-          warp, gradient shading. **Parallel projection only**: a perspective camera is \
-          refused with an error (use `reference`).",
+          warp, gradient shading. Parallel and perspective cameras (the perspective \
+          factorisation: slices scaled about the eye's foot, a projective warp); a camera \
+          inside the volume is refused with an error (use `reference`).",
     reference: false,
     settings: Settings::DECLS,
     parse: |t| Settings::from_table(t).map(NodeSettings::ShearWarp),
@@ -120,16 +126,14 @@ struct Intermediate {
 const MAX_SLAB_SAMPLES: usize = 4;
 
 pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-    if !rays.is_parallel() {
-        bail!("shear-warp renders parallel projections only (perspective shear-warp is not implemented); set camera.parallel_projection = true or use renderer = \"reference\"");
-    }
     settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", RENDERER.name))?;
     let start = std::time::Instant::now();
     let prep = input.prepared;
     let tf = input.tf;
     let index_to_world = super::geometry::index_to_world(input.node_to_world, prep.affine)?;
     let ratio = (settings.supersampling > 0.0).then_some(settings.supersampling);
-    let fac = Factorization::new(index_to_world, prep.dims, rays, ratio);
+    let fac = Factorization::new(index_to_world, prep.dims, rays, ratio).map_err(|e| anyhow::anyhow!("{}: {e}", RENDERER.name))?;
+    let perspective = fac.is_perspective();
     let axis = prep.axis(fac.perm)?;
     let [nx, ny, nz] = axis.dims;
     let n_levels = if settings.table_levels >= 2 { settings.table_levels.min(4096) } else { preint::level_count(tf, prep.lo, prep.hi) };
@@ -150,13 +154,20 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let clear_mask = over_map.as_ref().filter(|_| !mip).map(|m| axis.clear_mask(m, &clear));
     let (over_map, scan_map, clear_mask) = (over_map.as_deref(), scan_map.as_deref(), clear_mask.as_deref());
 
-    // View clipping: only intermediate pixels the final image can see.
+    // View clipping: only intermediate pixels the final image can see (in perspective the
+    // factorisation made the intermediate image no larger than that).
     let (w, h) = rays.size();
-    let corners = [(0.0, 0.0), (w as f64, 0.0), (0.0, h as f64), (w as f64, h as f64)].map(|(x, y)| fac.to_intermediate(x, y));
-    let u_clip_lo = (corners.iter().map(|c| c.0).fold(f64::INFINITY, f64::min).floor() - 1.0).max(0.0) as usize;
-    let u_clip_hi = (corners.iter().map(|c| c.0).fold(f64::NEG_INFINITY, f64::max).ceil() + 1.0).min(fac.width as f64 - 1.0);
-    let v_clip_lo = (corners.iter().map(|c| c.1).fold(f64::INFINITY, f64::min).floor() - 1.0).max(0.0) as usize;
-    let v_clip_hi = (corners.iter().map(|c| c.1).fold(f64::NEG_INFINITY, f64::max).ceil() + 1.0).min(fac.height as f64 - 1.0);
+    let (u_clip_lo, u_clip_hi, v_clip_lo, v_clip_hi) = if perspective {
+        (0, fac.width as f64 - 1.0, 0, fac.height as f64 - 1.0)
+    } else {
+        let corners = [(0.0, 0.0), (w as f64, 0.0), (0.0, h as f64), (w as f64, h as f64)].map(|(x, y)| fac.to_intermediate(x, y));
+        (
+            (corners.iter().map(|c| c.0).fold(f64::INFINITY, f64::min).floor() - 1.0).max(0.0) as usize,
+            (corners.iter().map(|c| c.0).fold(f64::NEG_INFINITY, f64::max).ceil() + 1.0).min(fac.width as f64 - 1.0),
+            (corners.iter().map(|c| c.1).fold(f64::INFINITY, f64::min).floor() - 1.0).max(0.0) as usize,
+            (corners.iter().map(|c| c.1).fold(f64::NEG_INFINITY, f64::max).ceil() + 1.0).min(fac.height as f64 - 1.0),
+        )
+    };
     if u_clip_hi < 0.0 || v_clip_hi < 0.0 || u_clip_lo as f64 > u_clip_hi || v_clip_lo as f64 > v_clip_hi {
         let mut f = Frame::empty(w, h);
         f.stats = FrameStats { renderer: RENDERER.name.into(), seconds: start.elapsed().as_secs_f64(), ..Default::default() };
@@ -168,17 +179,16 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let mut inter = Intermediate { width: iw, rgba: vec![[0.0; 4]; iw * fac.height], depth: vec![f32::INFINITY; iw * fac.height] };
     let samples = AtomicU64::new(0);
     let slabs_leapt = AtomicU64::new(0);
-    let inv_ratio = 1.0 / fac.ratio;
-    // The paper's per-image 1-D table for Inverse Mapping: U / ratio for every U.
-    let u_over_ratio: Vec<f64> = (0..iw).map(|u| u as f64 * inv_ratio).collect();
     let termination = settings.termination as f32;
     // x extent of the slices (a one-voxel axis spans ±0.5).
     let (x_lo, x_hi) = if nx == 1 { (-0.5, 0.5) } else { (0.0, (nx - 1) as f64) };
     let (y_lo, y_hi) = if ny == 1 { (-0.5, 0.5) } else { (0.0, (ny - 1) as f64) };
     let slice_at = |zi: usize| if fac.z_forward { zi } else { nz - 1 - zi };
     let nbx = nx / n + 2;
+    // Each slice's place on the intermediate image (Inverse Mapping: x = U·scale + x0).
+    let maps: Vec<SliceMap> = (0..nz).map(|z| fac.slice_map(z as f64)).collect();
     let slice_runs: Vec<SliceRuns> =
-        (0..nz).into_par_iter().map(|z| SliceRuns::new(&fac, z, (x_lo, x_hi), (u_clip_lo, u_clip_hi), n, nbx)).collect();
+        (0..nz).into_par_iter().map(|z| SliceRuns::new(maps[z], (x_lo, x_hi), (u_clip_lo, u_clip_hi), n, nbx)).collect();
 
     // Bands of intermediate rows, one task each; inside a band the slices come first
     // (object order), so the slice rows that neighbouring intermediate rows read are
@@ -188,11 +198,16 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         let (band_rgba, band_depth, band_rows, v_first) = (band.rgba, band.depth, band.rows, band.y0);
         let mut states: Vec<RowState> = (0..band_rows).map(|_| RowState::new(iw)).collect();
         let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r));
+        // Each ray's length between slices relative to the table's (perspective only).
+        let lengths: Vec<Vec<f32>> = if perspective {
+            (0..band_rows).map(|r| (0..iw).map(|u| fac.length_ratio(u as f64, (v_first + r) as f64) as f32).collect()).collect()
+        } else {
+            vec![Vec::new(); band_rows]
+        };
         let mut n_samples = 0u64;
         let mut n_leapt = 0u64;
-        // Inverse Mapping: x = U / ratio + Iz[z], one lookup (U/ratio) and one add.
-        let x_of = |u: usize, iz: f64| u_over_ratio[u] + iz;
-        let y_at = |vf: f64, z: usize| vf * inv_ratio + fac.vmin + z as f64 * fac.sy;
+        let x_of = |u: usize, m: &SliceMap| u as f64 * m.scale + m.x0;
+        let y_at = |vf: f64, z: usize| vf * maps[z].scale + maps[z].y0;
 
         for r in (0..band_rows).filter(|&r| nz == 1 && live(r)) {
             // One slice: one slab of constant value, one voxel thick.
@@ -205,22 +220,22 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             }
             let (y0, y1, wy) = rows(y, ny);
             if let Some((ua, ub)) = slice_runs[0].span {
-                let iz = slice_runs[0].iz;
                 let slice = SliceRows::new(axis, 0, y0, y1, wy);
                 for u in ua..=ub {
-                    let s = slice.at(x_of(u, iz)) * q_to_level;
+                    let x = x_of(u, &maps[0]);
+                    let s = slice.at(x) * q_to_level;
                     n_samples += 1;
                     if mip {
                         max_level[u] = s;
                     } else {
-                        let e = table.lookup(s, s);
-                        let x = x_of(u, iz);
+                        let length = lengths[r].get(u).copied().unwrap_or(1.0);
+                        let (c, a) = composite::for_length(table.lookup(s, s), length);
                         let c = match &shading {
-                            Some(sh) if e.a > 0.0 => sh.shade(e.c, e.a, SliceGradient::new(axis, 0, y).at(x), glam::DVec3::new(x, y, 0.0)),
-                            _ => e.c,
+                            Some(sh) if a > 0.0 => sh.shade(c, a, SliceGradient::new(axis, 0, y).at(x), glam::DVec3::new(x, y, 0.0)),
+                            _ => c,
                         };
-                        row[u] = [c[0], c[1], c[2], e.a];
-                        if e.a >= 0.5 {
+                        row[u] = [c[0], c[1], c[2], a];
+                        if a >= 0.5 {
                             depth[u] = fac.depth(u as f64, vf, 0.0) as f32;
                         }
                     }
@@ -239,6 +254,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     continue;
                 }
                 let runs = &slice_runs[z];
+                let back_map = &maps[z];
                 // The pixels whose sample on this slice lies inside it. Where there are
                 // none, a ray may still leave the volume through a side face between the
                 // previous slice and this one (composite only).
@@ -248,17 +264,20 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 }
                 let (ua, ub) = back_span.unwrap_or((1, 0));
                 let (y0, y1, wy) = rows(y, ny);
-                let iz = runs.iz;
                 let back_slice = SliceRows::new(axis, z, y0, y1, wy);
+                // The front slice (the previous in compositing order) relative to this
+                // one: its sample for pixel u lies at x + dxo0 + u·ddxo, y + dyo.
+                let front = (zi > 0).then(|| {
+                    let zp = slice_at(zi - 1);
+                    let fm = &maps[zp];
+                    (zp, fm.x0 - back_map.x0, fm.scale - back_map.scale, y_at(vf, zp) - y)
+                });
                 if mip {
                     // Sample every slice (and, with k samples per slab, k − 1 trilinear
                     // samples between it and the previous one: the maximum along an
                     // oblique ray often lies between slices); skip runs whose block
                     // cannot raise any pixel's max.
-                    let between = (zi > 0 && k > 1).then(|| {
-                        let zp = slice_at(zi - 1);
-                        let dz = zp as f64 - z as f64;
-                        let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
+                    let between = front.filter(|_| k > 1).map(|(zp, dxo0, ddxo, dyo)| {
                         // Points outside the volume (the ray enters between the slices)
                         // are not samples.
                         let pairs: [Option<(f64, SliceRows, SliceRows)>; MAX_SLAB_SAMPLES - 1] = std::array::from_fn(|i| {
@@ -271,33 +290,39 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         });
                         // The composite loop's block: both slices over the whole segment.
                         let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
-                        (zp, dxo, z.min(zp), row_start, usize::from(dxo < 0.0), pairs)
+                        (zp, dxo0, ddxo, dyo, z.min(zp), row_start, pairs)
                     });
                     let mut u = ua;
                     while u <= ub {
                         let (bx, run_end) = runs.run(u, ub + 1);
                         if let Some(map) = over_map {
                             let mm = match &between {
-                                Some((_, _, zs, row_start, variant, _)) => map.get(*zs, *row_start, *variant, bx),
-                                None => map.get(if z + 1 < nz { z } else { z - 1 }, y0 as isize, 0, bx),
+                                Some((_, dxo0, ddxo, dyo, zs, row_start, _)) => {
+                                    let dxo = |u: usize| dxo0 + u as f64 * ddxo;
+                                    leap_variant(dxo(u), dxo(run_end - 1), *dyo).map(|v| map.get(*zs, *row_start, v, bx))
+                                }
+                                None => Some(map.get(if z + 1 < nz { z } else { z - 1 }, y0 as isize, 0, bx)),
                             };
-                            let block_max = mm.max as f32 * q_to_level;
-                            let run_min = max_level[u..run_end].iter().cloned().fold(f32::INFINITY, f32::min);
-                            if block_max <= run_min {
-                                n_leapt += 1;
-                                u = run_end;
-                                continue;
+                            if let Some(mm) = mm {
+                                let block_max = mm.max as f32 * q_to_level;
+                                let run_min = max_level[u..run_end].iter().cloned().fold(f32::INFINITY, f32::min);
+                                if block_max <= run_min {
+                                    n_leapt += 1;
+                                    u = run_end;
+                                    continue;
+                                }
                             }
                         }
                         for uu in u..run_end {
-                            let xb = x_of(uu, iz);
+                            let xb = x_of(uu, back_map);
                             let s = back_slice.at(xb) * q_to_level;
                             n_samples += 1;
                             if s > max_level[uu] {
                                 max_level[uu] = s;
                                 max_z[uu] = z as f32;
                             }
-                            if let Some((zp, dxo, _, _, _, pairs)) = &between {
+                            if let Some((zp, dxo0, ddxo, _, _, _, pairs)) = &between {
+                                let dxo = dxo0 + uu as f64 * ddxo;
                                 for (w, fs, bs) in pairs.iter().flatten() {
                                     let xj = xb + dxo * (1.0 - w);
                                     if xj < x_lo || xj > x_hi {
@@ -317,13 +342,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     }
                     continue;
                 }
-                if zi == 0 {
-                    continue; // the first slice only starts rays; its samples are taken below
-                }
-                let zp = slice_at(zi - 1);
+                // The first slice only starts rays; its samples are taken below.
+                let Some((zp, dxo0, ddxo, dyo)) = front else { continue };
                 let zs = z.min(zp);
-                let dz = zp as f64 - z as f64; // the front slice relative to this one
-                let (dxo, dyo) = (dz * fac.sx, dz * fac.sy);
                 let yp = y + dyo;
                 if back_span.is_none() && !(y_lo..=y_hi).contains(&yp) {
                     continue;
@@ -340,9 +361,10 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     axis,
                     y,
                     dyo,
-                    iz,
-                    u_over_ratio: &u_over_ratio,
-                    dxo,
+                    back_map: *back_map,
+                    dxo0,
+                    ddxo,
+                    lengths: &lengths[r],
                     x_range: (x_lo, x_hi),
                     y_range: (y_lo, y_hi),
                     zi: zi as u32,
@@ -355,39 +377,44 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     fac: &fac,
                     shading: slab_shading,
                 };
-                let variant = usize::from(dxo < 0.0);
                 let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
-                let mask_row = clear_mask.map(|m| m.row(zs, row_start, variant));
-                let block_clear = |bx: usize| match leaping {
+                let mask_rows = [0, 1].map(|variant| clear_mask.map(|m| m.row(zs, row_start, variant)));
+                let block_clear = |bx: usize, variant: usize| match leaping {
                     Leaping::None => false,
-                    Leaping::Overlapped => mask_row.unwrap()[bx / 64] >> (bx % 64) & 1 == 1,
+                    Leaping::Overlapped => mask_rows[variant].unwrap()[bx / 64] >> (bx % 64) & 1 == 1,
                     Leaping::MultiScanline => {
                         let xl = (n * bx) as isize - variant as isize;
                         let mm = scan_map.unwrap().region(xl, xl + n as isize + 1, row_start, row_start + 2, zs, zs + 1);
                         clear.clear(mm.min, mm.max)
                     }
                 };
+                // The blocks' variant for pixels a..=b (None: not leapable there).
+                let variant_of = |a: usize, b: usize| leap_variant(slab.dxo(a), slab.dxo(b), dyo);
                 let mut u = next_live(links, ua);
                 while u <= ub {
                     let (bx, run_end) = runs.run(u, ub + 1);
-                    if block_clear(bx) {
+                    if let Some(variant) = variant_of(u, run_end - 1).filter(|&v| leaping != Leaping::None && block_clear(bx, v)) {
                         // Leap this block and the transparent blocks after it (one bit
                         // scan with the overlapped map's mask, one test per block for
                         // the multi-scanline baseline), then find the next live pixel.
-                        let (b, end) = match mask_row {
+                        let (b, end) = match mask_rows[variant] {
                             Some(mask_row) => {
                                 let b = next_unclear(mask_row, bx + 1, nbx);
                                 (b, if b < nbx { runs.block_end[b - 1].max(run_end) } else { usize::MAX })
                             }
                             None => {
                                 let (mut b, mut end) = (bx + 1, run_end);
-                                while end <= ub && b < nbx && block_clear(b) {
+                                while end <= ub && b < nbx && block_clear(b, variant) {
                                     end = runs.block_end[b];
                                     b += 1;
                                 }
                                 (b, end)
                             }
                         };
+                        // In perspective the front samples may change side within the
+                        // leap: then leap this block alone.
+                        let (b, end) =
+                            if end > run_end && variant_of(u, end.min(ub + 1) - 1) != Some(variant) { (bx + 1, run_end) } else { (b, end) };
                         n_leapt += (b - bx) as u64;
                         u = if end > ub { ub + 1 } else { next_live(links, end) };
                         continue;
@@ -442,4 +469,18 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         nodes: vec![],
     };
     Ok(frame)
+}
+
+/// The overlapped map's variant whose blocks hold the front samples of a run of pixels
+/// whose sideways step from the back sample to the front one runs from `dxo_first` to
+/// `dxo_last` (linear between) and whose row step is `dyo`: the blocks reach one voxel
+/// beyond the back samples on one side (variant 1: left, x − 1; 0: right) and one row
+/// either way. None where a step leaves that reach (perspective rays far off the principal
+/// axis) or the side changes within the run. A parallel view always has one (|sx|, |sy| ≤
+/// 1; the tolerance keeps exactly 45° views leaping through rounding).
+#[inline]
+fn leap_variant(dxo_first: f64, dxo_last: f64, dyo: f64) -> Option<usize> {
+    const REACH: f64 = 1.0 + 1e-9;
+    let ok = dxo_first.abs() <= REACH && dxo_last.abs() <= REACH && dyo.abs() <= REACH && (dxo_first < 0.0) == (dxo_last < 0.0);
+    ok.then_some(usize::from(dxo_first < 0.0))
 }

@@ -2,7 +2,7 @@
 //! neighbouring slice rows, each slice's runs of pixels per min-max block, the per-row
 //! state (early-termination links, the previous slice's samples, the MIP maximum).
 
-use super::factor::Factorization;
+use super::factor::SliceMap;
 use super::prepare::Axis;
 use glam::Vec3;
 
@@ -81,13 +81,11 @@ impl RowState {
 }
 
 /// One slice's place on the intermediate scanlines, the same for every row: Mapping
-/// (U = ratio·x + Tz) and the runs of pixels whose x falls in each min-max block. Built
+/// (x = U·scale + x0) and the runs of pixels whose x falls in each min-max block. Built
 /// once per frame, so the compositing loop finds a pixel's block and the block's end with
 /// two lookups; computing them per run (a division by n, a ceil, u64↔f64 conversions) was
 /// over half the time on the aneurism at ratio 1.
 pub(super) struct SliceRuns {
-    /// Inverse Mapping offset: x = U / ratio + iz.
-    pub(super) iz: f64,
     /// Pixels where x lies inside the slice (clipped to the view), if any.
     pub(super) span: Option<(usize, usize)>,
     /// Block of each pixel of `span`, from its first pixel.
@@ -97,20 +95,17 @@ pub(super) struct SliceRuns {
 }
 
 impl SliceRuns {
-    pub(super) fn new(fac: &Factorization, z: usize, x_range: (f64, f64), u_clip: (usize, usize), n: usize, nbx: usize) -> SliceRuns {
-        let iz = fac.umin + z as f64 * fac.sx;
-        let tz = -fac.ratio * iz;
-        let lo = (fac.ratio * x_range.0 + tz).ceil().max(u_clip.0 as f64);
-        let hi = (fac.ratio * x_range.1 + tz).floor().min(u_clip.1 as f64);
+    pub(super) fn new(map: SliceMap, x_range: (f64, f64), u_clip: (usize, usize), n: usize, nbx: usize) -> SliceRuns {
+        let lo = ((x_range.0 - map.x0) * map.inv_scale).ceil().max(u_clip.0 as f64);
+        let hi = ((x_range.1 - map.x0) * map.inv_scale).floor().min(u_clip.1 as f64);
         let span = (lo <= hi).then_some((lo as usize, hi as usize));
-        let inv_ratio = 1.0 / fac.ratio;
         let block = match span {
-            Some((ua, ub)) => (ua..=ub).map(|u| ((u as f64 * inv_ratio + iz).max(0.0) as usize / n) as u32).collect(),
+            Some((ua, ub)) => (ua..=ub).map(|u| ((u as f64 * map.scale + map.x0).max(0.0) as usize / n) as u32).collect(),
             None => Vec::new(),
         };
-        // Pixels whose x falls in block bx: U < ratio·(n·(bx+1) − iz).
-        let block_end = (0..nbx).map(|bx| ((((bx + 1) * n) as f64 - iz) * fac.ratio).ceil().max(0.0) as usize).collect();
-        SliceRuns { iz, span, block, block_end }
+        // Pixels whose x falls in block bx: U < (n·(bx+1) − x0) / scale.
+        let block_end = (0..nbx).map(|bx| ((((bx + 1) * n) as f64 - map.x0) * map.inv_scale).ceil().max(0.0) as usize).collect();
+        SliceRuns { span, block, block_end }
     }
 
     /// The block of pixel u (in `span`) and the end of its run, at most `limit`.

@@ -28,10 +28,13 @@ use anyhow::Result;
 use glam::{DVec3, Vec3};
 
 /// What shading needs for one frame: the lights for this view direction, with gradients
-/// in quanta per permuted voxel going straight to world, and where samples are.
+/// in quanta per permuted voxel going straight to world, and where samples are. In
+/// perspective each ray has its own direction toward the eye (and the headlight lies along
+/// it, as in the reference ray caster).
 pub(super) struct FrameShading<'a> {
     lighting: ParallelLighting,
     fac: &'a Factorization,
+    perspective: bool,
 }
 
 impl<'a> FrameShading<'a> {
@@ -46,15 +49,20 @@ impl<'a> FrameShading<'a> {
         // for them takes permuted gradients to world.
         let Some(shader) = Shader::new(shading, lights, fac.to_world)? else { return Ok(None) };
         let lighting = ParallelLighting::new(&shader, fac.forward, (value_range.1 - value_range.0) / 65535.0);
-        Ok(Some(FrameShading { lighting, fac }))
+        Ok(Some(FrameShading { lighting, fac, perspective: fac.is_perspective() }))
     }
 
     /// The shaded premultiplied colour of a segment with table entry (c, a), gradient `g`
     /// (quanta per permuted voxel) and middle point `p` (permuted voxel coordinates).
     #[inline]
     pub(super) fn shade(&self, c: [f32; 3], a: f32, g: Vec3, p: DVec3) -> [f32; 3] {
-        let at = if self.lighting.needs_position() { self.fac.to_world.transform_point3(p) } else { DVec3::ZERO };
-        let (d, s) = self.lighting.lighting(g, at);
+        let (d, s) = if self.perspective {
+            let at = self.fac.to_world.transform_point3(p);
+            self.lighting.lighting_seen_from(g, at, (self.fac.eye - at).normalize_or_zero().as_vec3())
+        } else {
+            let at = if self.lighting.needs_position() { self.fac.to_world.transform_point3(p) } else { DVec3::ZERO };
+            self.lighting.lighting(g, at)
+        };
         (Vec3::from(c) * d + s * a).to_array()
     }
 }

@@ -1,5 +1,6 @@
-//! The 2-D warp from the intermediate image to the final one: each final pixel samples
-//! the intermediate image bilinearly (premultiplied colour and opacity; depth from the
+//! The 2-D warp from the intermediate image to the final one (affine in a parallel view,
+//! projective in a perspective one): each final pixel samples the intermediate image
+//! bilinearly (premultiplied colour and opacity; depth from the
 //! finite neighbours), skipping groups of pixels the intermediate image leaves empty.
 
 use super::factor::Factorization;
@@ -96,8 +97,7 @@ mod tests {
         Factorization {
             perm: [0, 1, 2],
             dims: [1, 1, 1],
-            sx: 0.0,
-            sy: 0.0,
+            projection: super::super::factor::Projection::Parallel { sx: 0.0, sy: 0.0, warp: [[du, 1.0, 0.0], [dv, 0.0, 1.0]] },
             z_forward: true,
             umin: 0.0,
             vmin: 0.0,
@@ -106,7 +106,6 @@ mod tests {
             height: 4,
             slab_length: 1.0,
             to_world: DMat4::IDENTITY,
-            warp: [[du, 1.0, 0.0], [dv, 0.0, 1.0]],
             forward: DVec3::Z,
             eye: DVec3::ZERO,
         }
