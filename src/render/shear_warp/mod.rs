@@ -390,10 +390,53 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 };
                 // The blocks' variant for pixels a..=b (None: not leapable there).
                 let variant_of = |a: usize, b: usize| leap_variant(slab.dxo(a), slab.dxo(b), dyo);
+                // Perspective rays far off the principal axis step more than a voxel
+                // sideways between slices, beyond one block's reach: their run is tested
+                // over every block and row start its samples can touch (variant 0 blocks
+                // cover x from n·b to n·b + n + 1, row starts s rows s to s + 2).
+                let (rows_lo, rows_hi) = (
+                    (y0 as isize + dyo.min(0.0).floor() as isize).max(0),
+                    (y0 as isize + 1 + dyo.max(0.0).ceil() as isize).min(ny as isize - 1),
+                );
+                let wide_clear = |bx: usize, d_lo: f64, d_hi: f64| -> bool {
+                    let xa = ((n * bx) as isize + d_lo.min(0.0).floor() as isize).max(0);
+                    let xb = ((n * bx + n) as isize + d_hi.max(0.0).ceil() as isize).min(nx as isize - 1);
+                    match leaping {
+                        Leaping::None => false,
+                        Leaping::MultiScanline => {
+                            let mm = scan_map.unwrap().region(xa, xb, rows_lo, rows_hi, zs, zs + 1);
+                            clear.clear(mm.min, mm.max)
+                        }
+                        Leaping::Overlapped => {
+                            let mask = clear_mask.unwrap();
+                            let (b_lo, b_hi) = (xa as usize / n, ((xb - n as isize - 1).max(0) as usize).div_ceil(n).min(nbx - 1));
+                            let mut start = rows_lo;
+                            loop {
+                                let row = mask.row(zs, start, 0);
+                                if (b_lo..=b_hi.max(b_lo)).any(|b| row[b / 64] >> (b % 64) & 1 == 0) {
+                                    return false;
+                                }
+                                if start + 2 >= rows_hi {
+                                    return true;
+                                }
+                                start = (start + 3).min(rows_hi);
+                            }
+                        }
+                    }
+                };
                 let mut u = next_live(links, ua);
                 while u <= ub {
                     let (bx, run_end) = runs.run(u, ub + 1);
-                    if let Some(variant) = variant_of(u, run_end - 1).filter(|&v| leaping != Leaping::None && block_clear(bx, v)) {
+                    let variant = variant_of(u, run_end - 1);
+                    if variant.is_none() && perspective {
+                        let (d0, d1) = (slab.dxo(u), slab.dxo(run_end - 1));
+                        if wide_clear(bx, d0.min(d1), d0.max(d1)) {
+                            n_leapt += 1;
+                            u = if run_end > ub { ub + 1 } else { next_live(links, run_end) };
+                            continue;
+                        }
+                    }
+                    if let Some(variant) = variant.filter(|&v| leaping != Leaping::None && block_clear(bx, v)) {
                         // Leap this block and the transparent blocks after it (one bit
                         // scan with the overlapped map's mask, one test per block for
                         // the multi-scanline baseline), then find the next live pixel.
