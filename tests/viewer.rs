@@ -66,16 +66,20 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     assert!(m0[0] > m0[2], "the angiography transfer function is red over blue: {m0:?}");
     assert_eq!(first.stats.renderer, "shear-warp");
 
-    // Transfer function: choose the CT bone preset from the editor's combo box.
+    // Transfer function: choose the CT-Bone preset from the editor's combo box; the node
+    // keeps it by name (what a saved scene says), drawn by the preset's points.
     h.get_by_label("Preset").click();
     h.run_steps(3);
-    h.get_by_label("CT bone").click();
+    h.get_by_label("CT-Bone").click();
     h.run_steps(3);
     settle(&mut h);
     let scene = h.state().scene().unwrap();
     let vol = scene.volume(0).unwrap();
+    assert_eq!(scene.nodes()[0].preset.as_deref(), Some("CT-Bone"));
+    assert!(scene.nodes()[0].transfer_function.is_none());
     let expected = Preset::CtBone.transfer_function(&ValueStats::of(&vol), 0.6);
-    assert_eq!(scene.nodes()[0].transfer_function.as_ref().unwrap().scalar_opacity, expected.scalar_opacity);
+    assert_eq!(scene.transfer_function(0).unwrap().scalar_opacity, expected.scalar_opacity);
+    assert!(scene.shading(0).is_some_and(|s| s.shade), "with Slicer's shading");
     let m1 = mean_rgba(h.state().current_full_frame().unwrap());
     assert!((m1[3] - m0[3]).abs() > 1e-3, "a new transfer function changes the picture: {m0:?} → {m1:?}");
 

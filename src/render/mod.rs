@@ -96,8 +96,8 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         return Ok(None);
     }
     let rays = camera.rays(size.0, size.1);
-    let transfer_function =
-        || desc.transfer_function.as_ref().ok_or_else(|| anyhow!("node '{}': a volume needs a transfer_function", desc.name));
+    // A volume's own transfer function, or its preset's placed on its data.
+    let transfer_function = || scene.transfer_function(node);
     let medium = || {
         desc.medium
             .as_ref()
@@ -105,7 +105,6 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     };
     // What the node's description lacks is an error before its data is read.
     match desc.kind {
-        crate::scene::NodeKind::Volume => drop(transfer_function()?),
         crate::scene::NodeKind::Particles => drop(medium()?),
         _ => {}
     }
@@ -120,24 +119,26 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     let t = Instant::now();
     let mut frame = match (settings, data) {
         (NodeSettings::Reference(s), NodeData::Volume(vol)) => {
+            let (tf, shading) = (transfer_function()?, scene.shading(node));
             let input = reference_volume::VolumeInput {
                 volume: &vol,
                 node_to_world,
-                tf: transfer_function()?,
+                tf: &tf,
                 blend: desc.blend,
-                shading: desc.shading.as_ref(),
+                shading: shading.as_ref(),
                 lights: &scene.file.lights,
             };
             reference_volume::render(&input, &rays, s)?
         }
         (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
             let prepared = timed(&mut prepare, || cache.shear_warp(&vol, scene.limits()))?;
+            let (tf, shading) = (transfer_function()?, scene.shading(node));
             let input = shear_warp::Input {
                 prepared: &prepared,
                 node_to_world,
-                tf: transfer_function()?,
+                tf: &tf,
                 blend: desc.blend,
-                shading: desc.shading.as_ref(),
+                shading: shading.as_ref(),
                 lights: &scene.file.lights,
             };
             shear_warp::render(&input, &rays, s)?

@@ -2,7 +2,6 @@
 //! kind draws best, a camera that frames it, a light, and for volumes the transfer-function
 //! preset that suits the modality.
 
-use super::presets::{Preset, ValueStats};
 use super::{Camera, ImageSettings, Light, LightKind, Medium, NodeData, NodeDesc, NodeKind, Scene, SceneFile, Transform};
 use anyhow::{anyhow, Result};
 use glam::{DMat4, DVec3};
@@ -30,6 +29,9 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         volume_index: opts.nifti.volume_index,
         resample: opts.dicom.resample,
         transfer_function: None,
+        preset: None,
+        preset_shift: 0.0,
+        modality: None,
         shading: None,
         blend: Default::default(),
         png: None,
@@ -42,11 +44,9 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
     let mut image = ImageSettings::default();
     let mut lights = Vec::new();
     match &data {
-        NodeData::Volume(v) => {
-            let stats = ValueStats::of(v);
-            let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
-            node.transfer_function = Some(Preset::for_volume(v, &stats).transfer_function(&stats, unit));
-        }
+        // A volume gets no transfer function of its own: the preset of its modality
+        // classifies it (`Scene::transfer_function`), so choosing a modality changes it.
+        NodeData::Volume(_) => {}
         NodeData::Heightfield(_) => {
             if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
                 node.png = Some(opts.png.clone());

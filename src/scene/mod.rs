@@ -131,6 +131,16 @@ pub struct NodeDesc {
     #[serde(default)]
     pub resample: bool,
     pub transfer_function: Option<TransferFunction>,
+    /// A transfer-function preset by name (`presets::Preset::name`: 3D Slicer's names),
+    /// for a volume that gives no `transfer_function`; its shading too, unless the node
+    /// gives its own. A volume with neither gets the preset for its modality.
+    pub preset: Option<String>,
+    /// Moves the preset along the value axis (3D Slicer's "Shift"), in the data's units.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub preset_shift: f64,
+    /// The modality (CT, MR, PT, NM) of data whose file does not say it (NIfTI): it picks
+    /// the preset when none is named.
+    pub modality: Option<String>,
     /// Gradient shading of a volume (vtkVolumeProperty's `shade`, `ambient`, …).
     pub shading: Option<VolumeShading>,
     #[serde(default)]
@@ -146,6 +156,10 @@ pub struct NodeDesc {
 
 fn yes() -> bool {
     true
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
@@ -288,6 +302,8 @@ pub struct Scene {
     renderers: Vec<Option<(&'static RendererDecl, NodeSettings)>>,
     data: Vec<OnceLock<Result<NodeData, SharedError>>>,
     textures: Vec<OnceLock<Result<Arc<RgbImage>, SharedError>>>,
+    /// A volume node's value statistics, for its preset (computed on first use).
+    stats: Vec<OnceLock<Arc<presets::ValueStats>>>,
     /// The memory limits handed to every reader of the scene's data and to every renderer's
     /// preparation (`--max-memory`).
     limits: Limits,
@@ -437,6 +453,23 @@ impl Scene {
             if let Some(tf) = &n.transfer_function {
                 tf.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
             }
+            if n.kind != NodeKind::Volume && (n.preset.is_some() || n.modality.is_some() || n.preset_shift != 0.0) {
+                bail!("{src}: node '{}': preset, preset_shift and modality apply to volume nodes only", n.name);
+            }
+            if let Some(p) = &n.preset {
+                presets::Preset::from_name(p).map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
+                if n.transfer_function.is_some() {
+                    bail!("{src}: node '{}': give a transfer_function or a preset, not both", n.name);
+                }
+            }
+            if !n.preset_shift.is_finite() {
+                bail!("{src}: node '{}': preset_shift must be finite", n.name);
+            }
+            if let Some(m) = &n.modality {
+                if !presets::MODALITIES.contains(&m.as_str()) {
+                    bail!("{src}: node '{}': unknown modality '{m}' (known: {})", n.name, presets::MODALITIES.join(", "));
+                }
+            }
             if let Some(s) = &n.shading {
                 if n.kind != NodeKind::Volume {
                     bail!("{src}: node '{}': shading applies to volume nodes only", n.name);
@@ -500,6 +533,7 @@ impl Scene {
             renderers,
             data: (0..n).map(|_| OnceLock::new()).collect(),
             textures: (0..n).map(|_| OnceLock::new()).collect(),
+            stats: (0..n).map(|_| OnceLock::new()).collect(),
             limits: Limits::default(),
         })
     }
@@ -646,8 +680,58 @@ impl Scene {
             if let (true, true, Some(t)) = (same_data, o.texture == n.texture, self.textures[j].get()) {
                 let _ = next.textures[i].set(t.clone());
             }
+            if let (true, Some(s)) = (same_data, self.stats[j].get()) {
+                let _ = next.stats[i].set(s.clone());
+            }
         }
         Ok(next)
+    }
+
+    /// The preset that classifies volume node `node` when it gives no transfer function:
+    /// the one it names, else the one for its modality (the node's `modality`, else the
+    /// file's). Reads the data (for its modality and values) only when none is named.
+    pub fn preset(&self, node: usize) -> Result<presets::Preset> {
+        let n = &self.file.nodes[node];
+        if let Some(p) = &n.preset {
+            return presets::Preset::from_name(p).map_err(|m| anyhow!("node '{}': {m}", n.name));
+        }
+        let NodeData::Volume(v) = self.data(node)? else { bail!("node '{}' is not a volume", n.name) };
+        let modality = n.modality.as_deref().or(v.modality.as_deref());
+        Ok(presets::Preset::for_modality(modality, &*self.value_stats(node)?))
+    }
+
+    /// A volume node's value statistics (read and counted once).
+    pub fn value_stats(&self, node: usize) -> Result<Arc<presets::ValueStats>> {
+        if let Some(s) = self.stats[node].get() {
+            return Ok(s.clone());
+        }
+        let NodeData::Volume(v) = self.data(node)? else { bail!("node '{}' is not a volume", self.file.nodes[node].name) };
+        Ok(self.stats[node].get_or_init(|| Arc::new(presets::ValueStats::of(&v))).clone())
+    }
+
+    /// The transfer function that classifies volume node `node`: its own, else its preset's
+    /// (see `preset`) placed on its data (the smallest voxel spacing as unit distance, as
+    /// Slicer sets it), moved by `preset_shift`.
+    pub fn transfer_function(&self, node: usize) -> Result<TransferFunction> {
+        let n = &self.file.nodes[node];
+        if let Some(tf) = &n.transfer_function {
+            return Ok(tf.clone());
+        }
+        let preset = self.preset(node)?;
+        let NodeData::Volume(v) = self.data(node)? else { bail!("node '{}' is not a volume", n.name) };
+        let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
+        Ok(preset.shifted(&*self.value_stats(node)?, unit, n.preset_shift))
+    }
+
+    /// The shading of volume node `node`: its own `[node.shading]`, else the shading of its
+    /// preset (named, or its modality's when it gives no transfer function; a transfer
+    /// function given as points comes with none).
+    pub fn shading(&self, node: usize) -> Option<VolumeShading> {
+        let n = &self.file.nodes[node];
+        if n.shading.is_some() || n.transfer_function.is_some() {
+            return n.shading;
+        }
+        self.preset(node).ok().and_then(presets::Preset::shading)
     }
 
     /// Gives a node data already read (a viewer that opened a data file read it to build

@@ -1,11 +1,12 @@
-//! Transfer-function presets (CT angiography, CT bone, MR, PET) and the value statistics
-//! they and the viewer's histogram are built from.
+//! Transfer-function presets, named as 3D Slicer names them (CT-AAA, CT-Bone,
+//! CT-Chest-Contrast-Enhanced, MR-Angio, MR-Default; PET-Hot and PET-Rainbow, which Slicer
+//! lacks), and the value statistics they and the viewer's histogram are built from.
 //!
-//! CT presets are in Hounsfield units, as CT readers expect: contrast-filled vessels
-//! ≈ 150–500 HU, cortical bone ≈ 700–2000 HU. MR and PET values have no absolute scale,
-//! so their presets follow the data's own percentiles.
+//! CT presets are Slicer's points in Hounsfield units, as CT readers expect:
+//! contrast-filled vessels ≈ 150–500 HU, cortical bone ≈ 700–2000 HU. MR and PET values
+//! have no absolute scale, so their presets follow the data's own percentiles.
 
-use super::TransferFunction;
+use super::{TransferFunction, VolumeShading};
 use volterra_formats::Volume;
 
 /// Histogram bins the statistics keep.
@@ -59,93 +60,235 @@ impl ValueStats {
     }
 }
 
+/// A transfer-function preset. CT presets are 3D Slicer's (its `presets.xml`, Hounsfield
+/// units, with its shading); MR presets keep the shape of Slicer's but are placed on the
+/// data's own percentiles (MR values have no absolute scale: Slicer's points, in its
+/// sample data's units, would show noise or nothing elsewhere); PET presets, which Slicer
+/// lacks, show uptake above the 90th percentile in hot or rainbow colours.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Preset {
-    CtAngiography,
+    CtAaa,
     CtBone,
-    Mr,
-    Pet,
+    CtChestContrastEnhanced,
+    MrAngio,
+    MrDefault,
+    PetHot,
+    PetRainbow,
 }
 
-impl Preset {
-    pub const ALL: [Preset; 4] = [Preset::CtAngiography, Preset::CtBone, Preset::Mr, Preset::Pet];
+/// Slicer's shading of its CT presets (and most others): shade on, ambient 0.1, diffuse
+/// 0.9, specular 0.2, specular power 10.
+const SLICER_CT_SHADING: VolumeShading = VolumeShading { shade: true, ambient: 0.1, diffuse: 0.9, specular: 0.2, specular_power: 10.0 };
+/// Slicer's shading of its MR presets: shade on, ambient 0.2, diffuse 1, no specular.
+const SLICER_MR_SHADING: VolumeShading = VolumeShading { shade: true, ambient: 0.2, diffuse: 1.0, specular: 0.0, specular_power: 1.0 };
 
-    pub fn label(self) -> &'static str {
+/// The modalities a scene's `modality` key takes (DICOM's codes).
+pub const MODALITIES: [&str; 4] = ["CT", "MR", "PT", "NM"];
+
+impl Preset {
+    pub const ALL: [Preset; 7] = [
+        Preset::CtAaa,
+        Preset::CtBone,
+        Preset::CtChestContrastEnhanced,
+        Preset::MrAngio,
+        Preset::MrDefault,
+        Preset::PetHot,
+        Preset::PetRainbow,
+    ];
+
+    /// The name a scene's `preset` key takes: 3D Slicer's where Slicer has the preset.
+    pub fn name(self) -> &'static str {
         match self {
-            Preset::CtAngiography => "CT angiography",
-            Preset::CtBone => "CT bone",
-            Preset::Mr => "MR",
-            Preset::Pet => "PET",
+            Preset::CtAaa => "CT-AAA",
+            Preset::CtBone => "CT-Bone",
+            Preset::CtChestContrastEnhanced => "CT-Chest-Contrast-Enhanced",
+            Preset::MrAngio => "MR-Angio",
+            Preset::MrDefault => "MR-Default",
+            Preset::PetHot => "PET-Hot",
+            Preset::PetRainbow => "PET-Rainbow",
         }
     }
 
-    /// The preset that suits a volume: by its DICOM modality, else CT presets for data
-    /// whose values reach below −500 (HU of air), else the percentile-based MR preset.
-    pub fn for_volume(volume: &Volume, stats: &ValueStats) -> Preset {
-        match volume.modality.as_deref() {
-            Some("CT") => Preset::CtAngiography,
-            Some("PT") | Some("NM") => Preset::Pet,
-            Some("MR") => Preset::Mr,
-            _ if stats.min < -500.0 => Preset::CtAngiography,
-            _ => Preset::Mr,
+    pub fn label(self) -> &'static str {
+        self.name()
+    }
+
+    /// The preset named `name` (case-insensitive), or an error listing the names.
+    pub fn from_name(name: &str) -> Result<Preset, String> {
+        Preset::ALL.into_iter().find(|p| p.name().eq_ignore_ascii_case(name)).ok_or_else(|| {
+            let names: Vec<&str> = Preset::ALL.iter().map(|p| p.name()).collect();
+            format!("unknown preset '{name}' (known: {})", names.join(", "))
+        })
+    }
+
+    /// The shading the preset comes with (Slicer's for its presets; none for PET).
+    pub fn shading(self) -> Option<VolumeShading> {
+        match self {
+            Preset::CtAaa | Preset::CtBone | Preset::CtChestContrastEnhanced => Some(SLICER_CT_SHADING),
+            Preset::MrAngio | Preset::MrDefault => Some(SLICER_MR_SHADING),
+            Preset::PetHot | Preset::PetRainbow => None,
         }
+    }
+
+    /// The preset that suits a volume: by its modality (`modality`, a scene's, else the
+    /// file's), else CT presets for data whose values reach below −500 (HU of air), else
+    /// the percentile-based MR preset.
+    pub fn for_modality(modality: Option<&str>, stats: &ValueStats) -> Preset {
+        match modality {
+            Some("CT") => Preset::CtAaa,
+            Some("PT") | Some("NM") => Preset::PetHot,
+            Some("MR") => Preset::MrDefault,
+            _ if stats.min < -500.0 => Preset::CtAaa,
+            _ => Preset::MrDefault,
+        }
+    }
+
+    /// As `for_modality`, with the volume's own modality.
+    pub fn for_volume(volume: &Volume, stats: &ValueStats) -> Preset {
+        Preset::for_modality(volume.modality.as_deref(), stats)
     }
 
     /// The transfer function; `unit_distance` (mm) is the opacity's unit distance, usually
-    /// the smallest voxel spacing so that an opacity reads as "per voxel".
+    /// the smallest voxel spacing so that an opacity reads as "per voxel" (as Slicer sets
+    /// it).
     pub fn transfer_function(self, stats: &ValueStats, unit_distance: f64) -> TransferFunction {
+        self.shifted(stats, unit_distance, 0.0)
+    }
+
+    /// The transfer function moved by `shift` along the value axis (Slicer's "Shift"), in
+    /// the data's units.
+    pub fn shifted(self, stats: &ValueStats, unit_distance: f64, shift: f64) -> TransferFunction {
         let (lo, hi) = (stats.min, stats.max);
-        // Points must increase and lie inside or at the data range's ends; clamp the fixed
-        // HU points into it and drop repeats so the function stays valid on any data.
-        let clamp =
-            |pts: Vec<[f64; 2]>| -> Vec<[f64; 2]> { monotone(pts.into_iter().map(|[v, a]| [v.clamp(lo, hi.max(lo)), a]).collect()) };
+        // Points must increase and lie inside or at the data range's ends; clamp the
+        // points into it and drop repeats so the function stays valid on any data.
+        let clamp = |pts: Vec<[f64; 2]>| -> Vec<[f64; 2]> {
+            monotone(pts.into_iter().map(|[v, a]| [(v + shift).clamp(lo, hi.max(lo)), a]).collect())
+        };
         let clamp4 = |pts: Vec<[f64; 4]>| -> Vec<[f64; 4]> {
             let mut out: Vec<[f64; 4]> = Vec::new();
             for [v, r, g, b] in pts {
-                let v = v.clamp(lo, hi.max(lo));
+                let v = (v + shift).clamp(lo, hi.max(lo));
                 if out.last().is_none_or(|l| v > l[0]) {
                     out.push([v, r, g, b]);
                 }
             }
             out
         };
+        // Slicer's shape placed on the data: Slicer's value s0 → the data's percentile q0,
+        // s1 → q1 (linear between and beyond).
+        let placed = |s0: f64, q0: f64, s1: f64, q1: f64| {
+            let (a, b) = (stats.percentile(q0), stats.percentile(q1));
+            let b = if b > a { b } else { hi.max(a + 1e-9) };
+            move |s: f64| a + (s - s0) * (b - a) / (s1 - s0)
+        };
         let (opacity, color) = match self {
-            Preset::CtAngiography => (
-                clamp(vec![[lo, 0.0], [120.0, 0.0], [250.0, 0.25], [500.0, 0.6], [1200.0, 0.85], [hi, 0.9]]),
+            Preset::CtAaa => (
+                clamp(vec![
+                    [-3024.0, 0.0],
+                    [143.556, 0.0],
+                    [166.222, 0.686275],
+                    [214.389, 0.696078],
+                    [419.736, 0.833333],
+                    [3071.0, 0.803922],
+                ]),
                 clamp4(vec![
-                    [lo, 0.5, 0.05, 0.02],
-                    [120.0, 0.55, 0.08, 0.04],
-                    [250.0, 0.85, 0.25, 0.15],
-                    [500.0, 1.0, 0.8, 0.6],
-                    [1200.0, 1.0, 1.0, 0.95],
+                    [-3024.0, 0.0, 0.0, 0.0],
+                    [143.556, 0.615686, 0.356863, 0.184314],
+                    [166.222, 0.882353, 0.603922, 0.290196],
+                    [214.389, 1.0, 1.0, 1.0],
+                    [419.736, 1.0, 0.937033, 0.954531],
+                    [3071.0, 0.827451, 0.658824, 1.0],
                 ]),
             ),
             Preset::CtBone => (
-                clamp(vec![[lo, 0.0], [200.0, 0.0], [450.0, 0.2], [1000.0, 0.9], [hi, 1.0]]),
-                clamp4(vec![[lo, 0.6, 0.45, 0.3], [200.0, 0.75, 0.6, 0.45], [700.0, 0.95, 0.9, 0.8], [1500.0, 1.0, 1.0, 1.0]]),
+                clamp(vec![[-3024.0, 0.0], [-16.4458, 0.0], [641.385, 0.715686], [3071.0, 0.705882]]),
+                clamp4(vec![
+                    [-3024.0, 0.0, 0.0, 0.0],
+                    [-16.4458, 0.729412, 0.254902, 0.301961],
+                    [641.385, 0.905882, 0.815686, 0.552941],
+                    [3071.0, 1.0, 1.0, 1.0],
+                ]),
             ),
-            Preset::Mr => {
-                let (a, b) = (stats.percentile(0.60), stats.percentile(0.995));
-                let b = if b > a { b } else { hi };
+            Preset::CtChestContrastEnhanced => (
+                clamp(vec![[-3024.0, 0.0], [67.0106, 0.0], [251.105, 0.446429], [439.291, 0.625], [3071.0, 0.616071]]),
+                clamp4(vec![
+                    [-3024.0, 0.0, 0.0, 0.0],
+                    [67.0106, 0.54902, 0.25098, 0.14902],
+                    [251.105, 0.882353, 0.603922, 0.290196],
+                    [439.291, 1.0, 0.937033, 0.954531],
+                    [3071.0, 0.827451, 0.658824, 1.0],
+                ]),
+            ),
+            Preset::MrAngio => {
+                // Flow-bright vessels are the brightest percent or so of an angiogram:
+                // Slicer's ramp (151 → 201) placed from the 99th to the 99.9th percentile,
+                // so the background and its noise stay clear.
+                let at = placed(151.354, 0.99, 200.873, 0.999);
                 (
-                    monotone(vec![[lo, 0.0], [a, 0.0], [b, 0.5], [hi, 0.7]]),
-                    clamp4(vec![[lo, 0.0, 0.0, 0.0], [a, 0.3, 0.3, 0.3], [b, 1.0, 1.0, 1.0]]),
+                    clamp(vec![
+                        [lo - shift, 0.0],
+                        [at(151.354), 0.0],
+                        [at(158.279), 0.4375],
+                        [at(190.112), 0.580357],
+                        [at(200.873), 0.732143],
+                        [hi - shift, 0.741071],
+                    ]),
+                    clamp4(vec![
+                        [lo - shift, 0.0, 0.0, 0.0],
+                        [at(151.354), 0.0, 0.0, 0.0],
+                        [at(158.279), 0.74902, 0.376471, 0.0],
+                        [at(190.112), 1.0, 0.866667, 0.733333],
+                        [at(200.873), 0.937255, 0.937255, 0.937255],
+                        [hi - shift, 1.0, 1.0, 1.0],
+                    ]),
                 )
             }
-            Preset::Pet => {
-                // Uptake: transparent below the 90th percentile, hot colours up to the maximum.
-                let a = stats.percentile(0.90);
-                let m = |f: f64| a + f * (hi - a);
+            Preset::MrDefault => {
+                // Slicer's first visible value (40) at the 60th percentile, its 220 at the
+                // 99.5th: the head's surface, as Slicer's MR-Default shows its sample MR.
+                let at = placed(40.0, 0.60, 220.0, 0.995);
                 (
-                    monotone(vec![[lo, 0.0], [a, 0.0], [m(0.3), 0.15], [m(1.0), 0.8]]),
+                    clamp(vec![
+                        [lo - shift, 0.0],
+                        [at(20.0), 0.0],
+                        [at(40.0), 0.15],
+                        [at(120.0), 0.3],
+                        [at(220.0), 0.375],
+                        [at(1024.0), 0.5],
+                    ]),
                     clamp4(vec![
-                        [lo, 0.0, 0.0, 0.0],
-                        [a, 0.3, 0.0, 0.0],
+                        [lo - shift, 0.0, 0.0, 0.0],
+                        [at(20.0), 0.168627, 0.0, 0.0],
+                        [at(40.0), 0.403922, 0.145098, 0.0784314],
+                        [at(120.0), 0.780392, 0.607843, 0.380392],
+                        [at(220.0), 0.847059, 0.835294, 0.788235],
+                        [at(1024.0), 1.0, 1.0, 1.0],
+                    ]),
+                )
+            }
+            Preset::PetHot | Preset::PetRainbow => {
+                // Uptake: transparent below the 90th percentile, colour up to the maximum.
+                let a = stats.percentile(0.90);
+                let m = |f: f64| a + f * (hi - a) - shift;
+                let colours = if self == Preset::PetHot {
+                    vec![
+                        [lo - shift, 0.0, 0.0, 0.0],
+                        [m(0.0), 0.3, 0.0, 0.0],
                         [m(0.35), 1.0, 0.2, 0.0],
                         [m(0.7), 1.0, 0.85, 0.1],
                         [m(1.0), 1.0, 1.0, 1.0],
-                    ]),
-                )
+                    ]
+                } else {
+                    vec![
+                        [lo - shift, 0.0, 0.0, 0.5],
+                        [m(0.0), 0.0, 0.0, 1.0],
+                        [m(0.25), 0.0, 1.0, 1.0],
+                        [m(0.5), 0.0, 1.0, 0.0],
+                        [m(0.75), 1.0, 1.0, 0.0],
+                        [m(1.0), 1.0, 0.0, 0.0],
+                    ]
+                };
+                (clamp(vec![[lo - shift, 0.0], [m(0.0), 0.0], [m(0.3), 0.15], [m(1.0), 0.8]]), clamp4(colours))
             }
         };
         TransferFunction { scalar_opacity: opacity, color, scalar_opacity_unit_distance: unit_distance }
@@ -199,8 +342,8 @@ mod tests {
         }
         let ct = volume(vec![-1024, 0, 400, 2000], Some("CT"));
         let s = ValueStats::of(&ct);
-        assert_eq!(Preset::for_volume(&ct, &s), Preset::CtAngiography);
-        let tf = Preset::CtAngiography.transfer_function(&s, 1.0);
+        assert_eq!(Preset::for_volume(&ct, &s), Preset::CtAaa);
+        let tf = Preset::CtAaa.transfer_function(&s, 1.0);
         assert_eq!(tf.opacity(0.0), 0.0, "soft tissue is transparent");
         assert!(tf.opacity(400.0) > 0.3, "contrast-filled vessels are visible");
     }

@@ -714,6 +714,10 @@ impl Viewer {
         let n = doc.scene.nodes()[i].clone();
         let stats = doc.stats.get(i).cloned().flatten();
         let volume = doc.scene.volume(i).ok();
+        // The transfer function drawn: the node's points, else its preset's on its data.
+        let drawn_tf = n.transfer_function.clone().or_else(|| doc.scene.transfer_function(i).ok());
+        let modality_preset = (n.transfer_function.is_none() && n.preset.is_none()).then(|| doc.scene.preset(i).ok()).flatten();
+        let drawn_shading = doc.scene.shading(i);
         let mut mip = n.blend == BlendMode::Mip;
         if ui.checkbox(&mut mip, "Maximum intensity projection").changed() {
             self.edit(false, |f| f.nodes[i].blend = if mip { BlendMode::Mip } else { BlendMode::Composite });
@@ -723,22 +727,59 @@ impl Viewer {
         ui.separator();
         ui.label(egui::RichText::new("Transfer function").strong());
         let Some(stats) = stats else { return };
-        let Some(mut tf) = n.transfer_function.clone() else {
+        if let Some(p) = &n.preset {
+            ui.label(format!("Preset {p} (saved by name; editing a point makes it points)"));
+        } else if let Some(p) = modality_preset {
+            ui.label(format!("Preset {} (the modality's)", p.name()));
+        }
+        let Some(mut tf) = drawn_tf else {
             if ui.button("Add a transfer function").clicked() {
                 if let Some(v) = volume {
-                    let p = volterra::scene::presets::Preset::for_volume(&v, &stats);
-                    let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
-                    self.edit(false, |f| f.nodes[i].transfer_function = Some(p.transfer_function(&stats, unit)));
+                    let modality = n.modality.as_deref().or(v.modality.as_deref());
+                    let p = volterra::scene::presets::Preset::for_modality(modality, &stats);
+                    self.edit(false, |f| f.nodes[i].preset = Some(p.name().to_string()));
                 }
             }
             return;
         };
-        if self.tf_editor.show(ui, &mut tf, &stats) && tf.validate().is_ok() {
-            let moving = ui.input(|inp| inp.pointer.any_down());
-            self.edit(moving, |f| f.nodes[i].transfer_function = Some(tf));
+        if self.tf_editor.show(ui, &mut tf, &stats) {
+            if let Some(p) = self.tf_editor.chosen_preset.take() {
+                // A preset chosen is saved as such (its name), with Slicer's shading
+                // unless the node has its own.
+                self.edit(false, |f| {
+                    f.nodes[i].transfer_function = None;
+                    f.nodes[i].preset = Some(p.name().to_string());
+                    f.nodes[i].preset_shift = 0.0;
+                });
+            } else if tf.validate().is_ok() {
+                // Points moved by hand replace the preset; the shading it gave is kept.
+                let moving = ui.input(|inp| inp.pointer.any_down());
+                self.edit(moving, |f| {
+                    f.nodes[i].transfer_function = Some(tf);
+                    if f.nodes[i].preset.take().is_some() {
+                        f.nodes[i].shading = drawn_shading;
+                        f.nodes[i].preset_shift = 0.0;
+                    }
+                });
+            }
         }
         ui.separator();
-        self.shading_controls(ui, i, n.shading.unwrap_or_default(), mip);
+        self.modality_control(ui, i, n.modality.as_deref());
+        self.shading_controls(ui, i, drawn_shading.unwrap_or_default(), mip);
+    }
+
+    /// The modality of data whose file does not say it (NIfTI): it picks the preset.
+    fn modality_control(&mut self, ui: &mut egui::Ui, i: usize, modality: Option<&str>) {
+        let mut chosen = modality.map(str::to_string);
+        egui::ComboBox::from_label("Modality").selected_text(modality.unwrap_or("from the file")).show_ui(ui, |ui| {
+            ui.selectable_value(&mut chosen, None, "from the file");
+            for m in volterra::scene::presets::MODALITIES {
+                ui.selectable_value(&mut chosen, Some(m.to_string()), m);
+            }
+        });
+        if chosen.as_deref() != modality {
+            self.edit(false, |f| f.nodes[i].modality = chosen);
+        }
     }
 
     /// Gradient shading of a volume node, with vtkVolumeProperty's coefficients (MIP is

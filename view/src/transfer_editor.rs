@@ -19,6 +19,8 @@ pub enum Selected {
 pub struct TfEditor {
     pub selected: Option<Selected>,
     dragging: Option<Selected>,
+    /// The preset the user chose last (taken by the caller, which saves it by name).
+    pub chosen_preset: Option<Preset>,
 }
 
 const HANDLE_PX: f32 = 7.0;
@@ -36,6 +38,7 @@ impl TfEditor {
                 if ui.selectable_label(false, p.label()).clicked() {
                     *tf = p.transfer_function(stats, tf.scalar_opacity_unit_distance);
                     self.selected = None;
+                    self.chosen_preset = Some(p);
                     changed = true;
                 }
             }

@@ -1,0 +1,194 @@
+//! Transfer-function presets named in scene files (3D Slicer's names and points), the
+//! `modality` key for files that do not say it, and the preset's shading: a preset renders
+//! exactly as its points written out would; an MR angiogram's preset shows the vessels and
+//! leaves the noise clear.
+
+mod common;
+
+use std::path::Path;
+use volterra::render;
+use volterra::scene::presets::{Preset, ValueStats};
+use volterra::scene::Scene;
+use volterra_formats::{Volume, VoxelData};
+
+/// A CT-like i16 volume in HU: air −1000, soft tissue 40, a contrast-filled vessel 300
+/// and a bone 1200, 1 × 1 × 2 mm voxels.
+fn ct() -> Volume {
+    let dims = [24, 22, 14];
+    let mut data = Vec::new();
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let (x, y) = (i as f64 - 11.5, j as f64 - 10.5);
+                let r = x.hypot(y);
+                let v = if r > 9.0 {
+                    -1000.0
+                } else if (x - 3.0).hypot(y) < 2.5 {
+                    300.0
+                } else if (x + 4.0).hypot(y + 2.0) < 2.0 {
+                    1200.0
+                } else {
+                    40.0 + (k as f64 - 7.0)
+                };
+                data.push(v as i16);
+            }
+        }
+    }
+    Volume::centred(dims, [1.0, 1.0, 2.0], VoxelData::I16(data))
+}
+
+fn scene_text(node: &str) -> String {
+    format!(
+        "[image]\nwidth = 40\nheight = 40\n\n[camera]\nposition = [0.0, -80.0, 20.0]\nfocal_point = [0.0, 0.0, 0.0]\nview_up = [0.0, 0.0, 1.0]\n\n[[node]]\nname = \"v\"\nkind = \"volume\"\nfile = \"v.nii\"\n{node}\n"
+    )
+}
+
+fn load(dir: &Path, node: &str) -> Result<Scene, String> {
+    load_scene(dir, node)
+}
+
+/// The error a scene with `node` gives at load.
+fn load_error(dir: &Path, node: &str) -> String {
+    match load_scene(dir, node) {
+        Ok(_) => panic!("{node}: loads"),
+        Err(e) => e,
+    }
+}
+
+fn load_scene(dir: &Path, node: &str) -> Result<Scene, String> {
+    let p = dir.join("s.toml");
+    std::fs::write(&p, scene_text(node)).unwrap();
+    Scene::load(&p, &[]).map_err(|e| format!("{e:#}"))
+}
+
+/// `preset = "CT-AAA"` renders exactly as the same scene with Slicer's points and shading
+/// written out; `preset_shift` moves every point along the value axis.
+#[test]
+fn a_named_preset_renders_as_its_points_and_shading() {
+    let dir = tempfile::tempdir().unwrap();
+    let v = ct();
+    volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &v).unwrap();
+    let stats = ValueStats::of(&v);
+    for name in ["CT-AAA", "ct-bone", "CT-Chest-Contrast-Enhanced"] {
+        let preset = Preset::from_name(name).unwrap();
+        let named = load(dir.path(), &format!("preset = \"{name}\"")).unwrap();
+        let tf = preset.transfer_function(&stats, 1.0);
+        assert_eq!(named.transfer_function(0).unwrap(), tf);
+        let s = preset.shading().unwrap();
+        assert!(s.shade && (s.ambient, s.diffuse, s.specular, s.specular_power) == (0.1, 0.9, 0.2, 10.0), "Slicer's CT shading");
+        let tf_toml = toml::to_string(&tf).unwrap();
+        let sh_toml = toml::to_string(&s).unwrap();
+        let spelled = load(dir.path(), &format!("[node.transfer_function]\n{tf_toml}\n[node.shading]\n{sh_toml}")).unwrap();
+        let (a, b) = (render::render_scene(&named, None).unwrap(), render::render_scene(&spelled, None).unwrap());
+        assert_eq!(a.rgba, b.rgba, "{name}");
+        assert!(a.rgba.iter().any(|p| p[3] > 0.1), "{name} shows something");
+    }
+    // Slicer's CT-AAA: soft tissue clear, contrast and bone opaque.
+    let tf = Preset::CtAaa.transfer_function(&stats, 1.0);
+    assert_eq!(tf.opacity(40.0), 0.0);
+    assert!(tf.opacity(300.0) > 0.69 && tf.opacity(1200.0) > 0.8);
+    // A shift of +100 HU moves every point by 100 (the last, at 3071 HU, is clamped to the
+    // data's maximum either way).
+    let shifted = load(dir.path(), "preset = \"CT-AAA\"\npreset_shift = 100.0").unwrap().transfer_function(0).unwrap();
+    for v in [150.0, 200.0, 260.0, 400.0] {
+        assert!((shifted.opacity(v + 100.0) - tf.opacity(v)).abs() < 1e-9, "{v}");
+    }
+    // Its own shading wins over the preset's.
+    let own = load(dir.path(), "preset = \"CT-AAA\"\nshading = { shade = false }").unwrap();
+    assert!(!own.shading(0).unwrap().shade);
+}
+
+#[test]
+fn presets_and_modalities_are_checked_at_load() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &ct()).unwrap();
+    let e = load_error(dir.path(), "preset = \"CT-AA\"");
+    assert!(e.contains("unknown preset 'CT-AA'") && e.contains("CT-AAA, CT-Bone") && e.contains("PET-Hot"), "{e}");
+    let e = load_error(dir.path(), "preset = \"CT-AAA\"\n[node.transfer_function]\nscalar_opacity = [[0.0, 0.2]]");
+    assert!(e.contains("not both"), "{e}");
+    let e = load_error(dir.path(), "modality = \"PET\"");
+    assert!(e.contains("unknown modality 'PET'") && e.contains("CT, MR, PT, NM"), "{e}");
+    assert!(e.lines().count() == 1);
+}
+
+/// A NIfTI says no modality: a PET without a `modality` gets the MR preset (an opaque grey
+/// blob over the whole brain); with `modality = "PT"` it gets PET-Hot, clear below the
+/// 90th percentile.
+#[test]
+fn the_modality_key_picks_the_preset_of_a_nifti() {
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [20, 20, 20];
+    // Uptake: a smooth background of 1 with two hot spots of 8 and 5.
+    let mut data = Vec::new();
+    for k in 0..20 {
+        for j in 0..20 {
+            for i in 0..20 {
+                let d = |c: [f64; 3]| ((i as f64 - c[0]).powi(2) + (j as f64 - c[1]).powi(2) + (k as f64 - c[2]).powi(2)).sqrt();
+                data.push(
+                    (1.0 + 7.0 * (-d([6.0, 7.0, 9.0]).powi(2) / 4.0).exp() + 4.0 * (-d([13.0, 12.0, 10.0]).powi(2) / 6.0).exp()) as f32,
+                );
+            }
+        }
+    }
+    let pet = Volume::centred(dims, [3.0; 3], VoxelData::F32(data));
+    volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &pet).unwrap();
+    let plain = load(dir.path(), "").unwrap();
+    assert_eq!(plain.preset(0).unwrap(), Preset::MrDefault);
+    let tagged = load(dir.path(), "modality = \"PT\"").unwrap();
+    assert_eq!(tagged.preset(0).unwrap(), Preset::PetHot);
+    let tf = tagged.transfer_function(0).unwrap();
+    assert_eq!(tf.opacity(1.0), 0.0, "background uptake is clear");
+    assert!(tf.opacity(7.5) > 0.5, "the hot spot is seen");
+    assert!(tagged.shading(0).is_none(), "PET presets do not shade");
+    // Rendered, PET-Hot covers far less of the image than the MR preset's blob.
+    let cover = |s: &Scene| render::render_scene(s, None).unwrap().rgba.iter().filter(|p| p[3] > 0.2).count();
+    let (c_pet, c_mr) = (cover(&tagged), cover(&plain));
+    assert!(c_pet > 0 && 3 * c_pet < c_mr, "PET-Hot {c_pet} pixels, MR-Default {c_mr}");
+}
+
+/// An MR angiogram: noisy tissue (values 0–120) with thin flow-bright vessels (about 1 %
+/// of the voxels, 300–500). MR-Angio leaves the noise clear and shows the vessels;
+/// MR-Default shows the noise too.
+#[test]
+fn mr_angio_shows_vessels_not_noise() {
+    let n = 48;
+    let mut rng = volterra_formats::rng::Rng::new(7);
+    let mut data = Vec::with_capacity(n * n * n);
+    let mut vessel = Vec::with_capacity(n * n * n);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y, z) = (i as f64, j as f64, k as f64);
+                // Two vessels: one along z, one diagonal in the x-y plane.
+                let d1 = (x - 20.0).hypot(y - 30.0);
+                let d2 = ((x - y) / 2f64.sqrt()).hypot(z - 24.0);
+                let r = d1.min(d2);
+                let inside = r < 1.3;
+                let v = if inside { 300.0 + 200.0 * (1.0 - r / 1.3) } else { 120.0 * rng.uniform() };
+                data.push(v as f32);
+                vessel.push(inside);
+            }
+        }
+    }
+    let frac = vessel.iter().filter(|&&v| v).count() as f64 / vessel.len() as f64;
+    eprintln!("vessels: {:.2} % of the voxels", 100.0 * frac);
+    assert!((0.003..0.03).contains(&frac), "vessel fraction {frac}");
+    let v = Volume::centred([n; 3], [0.5; 3], VoxelData::F32(data.clone()));
+    let stats = ValueStats::of(&v);
+    let angio = Preset::MrAngio.transfer_function(&stats, 0.5);
+    let default = Preset::MrDefault.transfer_function(&stats, 0.5);
+    let visible = |tf: &volterra::scene::TransferFunction, want: bool| {
+        data.iter().zip(&vessel).filter(|(_, &inside)| inside == want).filter(|(&x, _)| tf.opacity(x as f64) > 0.0).count() as f64
+            / vessel.iter().filter(|&&inside| inside == want).count() as f64
+    };
+    let (noise_angio, vessels_angio) = (visible(&angio, false), visible(&angio, true));
+    eprintln!(
+        "MR-Angio: noise visible {noise_angio:.4}, vessels visible {vessels_angio:.3}; MR-Default noise {:.3}",
+        visible(&default, false)
+    );
+    assert!(noise_angio < 0.005, "MR-Angio shows noise: {noise_angio}");
+    assert!(vessels_angio > 0.8, "MR-Angio hides vessels: {vessels_angio}");
+    assert!(visible(&default, false) > 0.2, "MR-Default is the one that shows tissue");
+    // Slicer's shading for its MR presets.
+    assert_eq!(Preset::MrAngio.shading().unwrap().ambient, 0.2);
+}
