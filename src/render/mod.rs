@@ -104,9 +104,8 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             .ok_or_else(|| anyhow!("node '{}': a particle node needs medium = {{ c_ext = …, albedo = …, g = … }}", desc.name))
     };
     // What the node's description lacks is an error before its data is read.
-    match desc.kind {
-        crate::scene::NodeKind::Particles => drop(medium()?),
-        _ => {}
+    if desc.kind == crate::scene::NodeKind::Particles {
+        medium()?;
     }
     // Reading the data (once per scene: the scene keeps it), preparing what the renderer
     // keeps across frames, and the render itself, timed apart.
