@@ -52,7 +52,7 @@ impl RenderCache {
         if let Some((_, p)) = map.get(&key) {
             return Ok(p.clone());
         }
-        let p = Arc::new(shear_warp::Prepared::new(volume, limits)?);
+        let p = Arc::new(shear_warp::Prepared::shared(volume.clone(), limits)?);
         map.insert(key, (volume.clone(), p.clone()));
         Ok(p)
     }

@@ -50,13 +50,16 @@ impl Axis {
 }
 
 /// A volume prepared for shear-warp rendering. Everything here depends only on the
-/// volume: transfer-function and view changes reuse it.
+/// volume: transfer-function and view changes reuse it. No quantised copy of the whole
+/// volume is kept beside it: each principal axis's slices are quantised as they are
+/// permuted, straight from the volume (which the scene holds anyway), so a view costs the
+/// volume, one u16 copy and its min-max map.
 pub struct Prepared {
     pub(super) dims: [usize; 3],
     /// Real-world value range mapped onto quanta 0..65535.
     pub lo: f64,
     pub hi: f64,
-    quanta: Vec<u16>,
+    volume: Arc<Volume>,
     axes: [OnceLock<Axis>; 3],
     pub(super) affine: DMat4,
     /// Checked before each permuted copy is made.
@@ -64,43 +67,54 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    /// Quantises `volume`, within `limits` (`--max-memory`).
+    /// Prepares a copy of `volume`, within `limits` (`--max-memory`); `shared` avoids the
+    /// copy.
     pub fn new(volume: &Volume, limits: &Limits) -> Result<Prepared> {
-        limits.check(Path::new("shear-warp"), "the quantised volume", &[volume.voxel_count() as u64, 2])?;
+        limits.check(
+            Path::new("shear-warp"),
+            "a copy of the volume",
+            &[volume.voxel_count() as u64, volume.data.scalar_type().size() as u64],
+        )?;
+        Prepared::shared(Arc::new(volume.clone()), limits)
+    }
+
+    /// Prepares `volume`, kept shared with its other holders (the scene).
+    pub fn shared(volume: Arc<Volume>, limits: &Limits) -> Result<Prepared> {
         let (lo, hi) = volume.value_range().unwrap_or((0.0, 1.0));
         let hi = if hi > lo { hi } else { lo + 1.0 };
-        let scale = 65535.0 / (hi - lo);
-        let quanta = (0..volume.voxel_count())
-            .into_par_iter()
-            .map(|i| ((volume.value(i) - lo) * scale).round().clamp(0.0, 65535.0) as u16)
-            .collect();
         Ok(Prepared {
             dims: volume.dims,
             lo,
             hi,
-            quanta,
-            axes: [OnceLock::new(), OnceLock::new(), OnceLock::new()],
             affine: crate::render::geometry::affine_matrix(&volume.affine),
+            volume,
+            axes: [OnceLock::new(), OnceLock::new(), OnceLock::new()],
             limits: *limits,
         })
     }
 
-    /// The slices along `perm[2]`, permuted once and kept (checked against the memory limit
-    /// the first time).
+    /// Voxel i's value as a u16 quantum of [lo, hi].
+    #[inline]
+    fn quantum(&self, i: usize) -> u16 {
+        ((self.volume.value(i) - self.lo) * (65535.0 / (self.hi - self.lo))).round().clamp(0.0, 65535.0) as u16
+    }
+
+    /// The slices along `perm[2]`, quantised and permuted once and kept (checked against
+    /// the memory limit the first time).
     pub(super) fn axis(&self, perm: [usize; 3]) -> Result<&Axis> {
         if self.axes[perm[2]].get().is_none() {
-            self.limits.check(Path::new("shear-warp"), "the slices along the viewing axis", &[self.quanta.len() as u64, 2])?;
+            self.limits.check(Path::new("shear-warp"), "the slices along the viewing axis", &[self.volume.voxel_count() as u64, 2])?;
         }
         Ok(self.axes[perm[2]].get_or_init(|| {
             let d = self.dims;
             let pd = [d[perm[0]], d[perm[1]], d[perm[2]]];
             let stride = [1, d[0], d[0] * d[1]];
             let (sx, sy, sz) = (stride[perm[0]], stride[perm[1]], stride[perm[2]]);
-            let mut data = vec![0u16; self.quanta.len()];
+            let mut data = vec![0u16; self.volume.voxel_count()];
             data.par_chunks_mut(pd[0] * pd[1]).enumerate().for_each(|(z, slice)| {
                 for y in 0..pd[1] {
                     for x in 0..pd[0] {
-                        slice[y * pd[0] + x] = self.quanta[x * sx + y * sy + z * sz];
+                        slice[y * pd[0] + x] = self.quantum(x * sx + y * sy + z * sz);
                     }
                 }
             });
@@ -126,8 +140,8 @@ mod tests {
         let p = Prepared::new(&v, &Default::default()).unwrap();
         // Real values 2·stored − 10: −10 … 128.
         assert_eq!((p.lo, p.hi), (-10.0, 128.0));
-        assert_eq!((p.quanta[0], p.quanta[23]), (0, 65535));
-        let q = |x: usize, y: usize, z: usize| p.quanta[x + 4 * (y + 3 * z)];
+        assert_eq!((p.quantum(0), p.quantum(23)), (0, 65535));
+        let q = |x: usize, y: usize, z: usize| p.quantum(x + 4 * (y + 3 * z));
         // Principal axis x: permuted (y, z, x); slices of 3 × 2 along x.
         let a = p.axis([1, 2, 0]).unwrap();
         assert_eq!(a.dims, [3, 2, 4]);
@@ -137,13 +151,13 @@ mod tests {
         // Kept: the same slices the second time.
         assert!(std::ptr::eq(a, p.axis([1, 2, 0]).unwrap()));
         let z = p.axis([0, 1, 2]).unwrap();
-        assert_eq!(z.data, p.quanta);
+        assert_eq!(z.data, (0..24).map(|i| p.quantum(i)).collect::<Vec<_>>());
     }
 
     #[test]
     fn a_constant_volume_gets_a_unit_range() {
         let p = Prepared::new(&volume([2, 2, 2], vec![7; 8]), &Default::default()).unwrap();
         assert_eq!((p.lo, p.hi), (4.0, 5.0));
-        assert!(p.quanta.iter().all(|&q| q == 0));
+        assert!((0..8).all(|i| p.quantum(i) == 0));
     }
 }
