@@ -186,18 +186,21 @@ impl ParallelLighting {
     /// point `at` (read only when `needs_position`), as `Shader::lighting`.
     #[inline]
     pub fn lighting(&self, g: Vec3, at: DVec3) -> (Vec3, Vec3) {
-        self.lighting_along(g, at, None)
+        self.lighting_along::<false>(g, at, self.to_eye)
     }
 
     /// As `lighting`, for a sample whose own ray reaches the eye along the unit vector
     /// `to_eye` (a perspective view): the half vectors, and the headlight, follow it.
     #[inline]
     pub fn lighting_seen_from(&self, g: Vec3, at: DVec3, to_eye: Vec3) -> (Vec3, Vec3) {
-        self.lighting_along(g, at, Some(to_eye))
+        self.lighting_along::<true>(g, at, to_eye)
     }
 
-    #[inline]
-    fn lighting_along(&self, g: Vec3, at: DVec3, ray_to_eye: Option<Vec3>) -> (Vec3, Vec3) {
+    /// PER_RAY: `to_eye` is the sample's own (the half vectors and the headlight follow
+    /// it); else the frame's, with L and H as computed once (a constant, so the parallel
+    /// path compiles without the per-ray work).
+    #[inline(always)]
+    fn lighting_along<const PER_RAY: bool>(&self, g: Vec3, at: DVec3, to_eye: Vec3) -> (Vec3, Vec3) {
         let g = self.gradient_to_world * g;
         let len = g.length();
         let normal = (len > 0.0 && len.is_finite()).then(|| g / len);
@@ -215,12 +218,13 @@ impl ParallelLighting {
             d += colour * (self.diffuse * lambert);
             s += colour * (self.specular * highlight);
         };
-        let to_eye = ray_to_eye.unwrap_or(self.to_eye);
         for &(l, h, colour, head) in &self.fixed {
-            match ray_to_eye {
-                None => add(l, h, colour),
-                Some(v) if head => add(v, v, colour),
-                Some(v) => add(l, (l + v).normalize_or_zero(), colour),
+            if !PER_RAY {
+                add(l, h, colour);
+            } else if head {
+                add(to_eye, to_eye, colour);
+            } else {
+                add(l, (l + to_eye).normalize_or_zero(), colour);
             }
         }
         for &(q, colour) in &self.points {
