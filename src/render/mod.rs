@@ -96,8 +96,6 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         return Ok(None);
     }
     let rays = camera.rays(size.0, size.1);
-    // A volume's own transfer function, or its preset's placed on its data.
-    let transfer_function = || scene.transfer_function(node);
     let medium = || {
         desc.medium
             .as_ref()
@@ -118,7 +116,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     let t = Instant::now();
     let mut frame = match (settings, data) {
         (NodeSettings::Reference(s), NodeData::Volume(vol)) => {
-            let (tf, shading) = (transfer_function()?, scene.shading(node));
+            let (tf, shading) = (scene.transfer_function(node)?, scene.shading(node));
             let input = reference_volume::VolumeInput {
                 volume: &vol,
                 node_to_world,
@@ -131,7 +129,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         }
         (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
             let prepared = timed(&mut prepare, || cache.shear_warp(&vol, scene.limits()))?;
-            let (tf, shading) = (transfer_function()?, scene.shading(node));
+            let (tf, shading) = (scene.transfer_function(node)?, scene.shading(node));
             let input = shear_warp::Input {
                 prepared: &prepared,
                 node_to_world,

@@ -109,10 +109,6 @@ impl Preset {
         }
     }
 
-    pub fn label(self) -> &'static str {
-        self.name()
-    }
-
     /// The preset named `name` (case-insensitive), or an error listing the names.
     pub fn from_name(name: &str) -> Result<Preset, String> {
         Preset::ALL.into_iter().find(|p| p.name().eq_ignore_ascii_case(name)).ok_or_else(|| {
@@ -141,11 +137,6 @@ impl Preset {
             _ if stats.min < -500.0 => Preset::CtAaa,
             _ => Preset::MrDefault,
         }
-    }
-
-    /// As `for_modality`, with the volume's own modality.
-    pub fn for_volume(volume: &Volume, stats: &ValueStats) -> Preset {
-        Preset::for_modality(volume.modality.as_deref(), stats)
     }
 
     /// The transfer function; `unit_distance` (mm) is the opacity's unit distance, usually
@@ -342,7 +333,7 @@ mod tests {
         }
         let ct = volume(vec![-1024, 0, 400, 2000], Some("CT"));
         let s = ValueStats::of(&ct);
-        assert_eq!(Preset::for_volume(&ct, &s), Preset::CtAaa);
+        assert_eq!(Preset::for_modality(ct.modality.as_deref(), &s), Preset::CtAaa);
         let tf = Preset::CtAaa.transfer_function(&s, 1.0);
         assert_eq!(tf.opacity(0.0), 0.0, "soft tissue is transparent");
         assert!(tf.opacity(400.0) > 0.3, "contrast-filled vessels are visible");

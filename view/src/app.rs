@@ -43,7 +43,7 @@ pub enum NavMode {
 struct Opened {
     path: PathBuf,
     scene: Scene,
-    stats: Vec<Option<ValueStats>>,
+    stats: Vec<Option<Arc<ValueStats>>>,
     camera: Camera,
 }
 
@@ -54,8 +54,8 @@ fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
     let mut stats = vec![None; scene.nodes().len()];
     for (i, n) in scene.nodes().iter().enumerate() {
         if n.kind == NodeKind::Volume {
-            let volume = scene.volume(i)?;
-            stats[i] = Some(ValueStats::of(&volume));
+            // The scene's own statistics, which its presets are placed by too.
+            stats[i] = Some(scene.value_stats(i)?);
         } else if n.kind != NodeKind::Group {
             // Read now, not on the render thread's first frame.
             scene.data(i)?;
@@ -69,7 +69,7 @@ fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
 struct Document {
     scene: Arc<Scene>,
     /// Per node: value statistics of volumes (histogram, presets).
-    stats: Vec<Option<ValueStats>>,
+    stats: Vec<Option<Arc<ValueStats>>>,
     /// The camera "Reset camera" returns to.
     home: Camera,
 }

@@ -35,7 +35,7 @@ impl TfEditor {
         let mut changed = false;
         egui::ComboBox::from_label("Preset").selected_text("choose…").show_ui(ui, |ui| {
             for p in Preset::ALL {
-                if ui.selectable_label(false, p.label()).clicked() {
+                if ui.selectable_label(false, p.name()).clicked() {
                     *tf = p.transfer_function(stats, tf.scalar_opacity_unit_distance);
                     self.selected = None;
                     self.chosen_preset = Some(p);

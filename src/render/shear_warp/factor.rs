@@ -86,6 +86,11 @@ fn permutation(perm: [usize; 3]) -> DMat4 {
     DMat4::from_cols_array_2d(&m)
 }
 
+/// Intermediate pixels spanning [lo, hi] at `ratio` pixels per unit, both ends included.
+fn pixels(ratio: f64, lo: f64, hi: f64) -> usize {
+    (ratio * (hi - lo)).floor() as usize + 1
+}
+
 /// The most intermediate pixels a perspective view gets, as a multiple of its final
 /// pixels (and at least 4 M): the ratio is lowered to fit.
 const MAX_PIXELS_PER_FINAL_PIXEL: f64 = 8.0;
@@ -166,8 +171,8 @@ impl Factorization {
             umin,
             vmin,
             ratio,
-            width: (ratio * (umax - umin)).floor() as usize + 1,
-            height: (ratio * (vmax - vmin)).floor() as usize + 1,
+            width: pixels(ratio, umin, umax),
+            height: pixels(ratio, vmin, vmax),
             slab_length,
             to_world,
             forward,
@@ -292,8 +297,8 @@ impl Factorization {
             umin,
             vmin,
             ratio,
-            width: (ratio * (umax - umin)).floor() as usize + 1,
-            height: (ratio * (vmax - vmin)).floor() as usize + 1,
+            width: pixels(ratio, umin, umax),
+            height: pixels(ratio, vmin, vmax),
             slab_length,
             to_world,
             forward,

@@ -436,7 +436,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                             continue;
                         }
                     }
-                    if let Some(variant) = variant.filter(|&v| leaping != Leaping::None && block_clear(bx, v)) {
+                    if let Some(variant) = variant.filter(|&v| block_clear(bx, v)) {
                         // Leap this block and the transparent blocks after it (one bit
                         // scan with the overlapped map's mask, one test per block for
                         // the multi-scanline baseline), then find the next live pixel.

@@ -34,7 +34,6 @@ use glam::{DVec3, Vec3};
 pub(super) struct FrameShading<'a> {
     lighting: ParallelLighting,
     fac: &'a Factorization,
-    perspective: bool,
 }
 
 impl<'a> FrameShading<'a> {
@@ -49,14 +48,14 @@ impl<'a> FrameShading<'a> {
         // for them takes permuted gradients to world.
         let Some(shader) = Shader::new(shading, lights, fac.to_world)? else { return Ok(None) };
         let lighting = ParallelLighting::new(&shader, fac.forward, (value_range.1 - value_range.0) / 65535.0);
-        Ok(Some(FrameShading { lighting, fac, perspective: fac.is_perspective() }))
+        Ok(Some(FrameShading { lighting, fac }))
     }
 
     /// The shaded premultiplied colour of a segment with table entry (c, a), gradient `g`
     /// (quanta per permuted voxel) and middle point `p` (permuted voxel coordinates).
     #[inline]
     pub(super) fn shade(&self, c: [f32; 3], a: f32, g: Vec3, p: DVec3) -> [f32; 3] {
-        let (d, s) = if self.perspective {
+        let (d, s) = if self.fac.is_perspective() {
             let at = self.fac.to_world.transform_point3(p);
             self.lighting.lighting_seen_from(g, at, (self.fac.eye - at).normalize_or_zero().as_vec3())
         } else {
