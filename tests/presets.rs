@@ -1,7 +1,8 @@
-//! Transfer-function presets named in scene files (3D Slicer's names and points), the
-//! `modality` key for files that do not say it, and the preset's shading: a preset renders
-//! exactly as its points written out would; an MR angiogram's preset shows the vessels and
-//! leaves the noise clear.
+//! Volume node keys beyond the data: transfer-function presets named in scene files (3D
+//! Slicer's names and points), the `modality` key for files that do not say it, and the
+//! preset's shading: a preset renders exactly as its points written out would; an MR
+//! angiogram's preset shows the vessels and leaves the noise clear. And cropping: the
+//! `crop` box and `[[node.clip]]` planes, checked at load and honoured by both renderers.
 
 mod common;
 
@@ -191,4 +192,62 @@ fn mr_angio_shows_vessels_not_noise() {
     assert!(visible(&default, false) > 0.2, "MR-Default is the one that shows tissue");
     // Slicer's shading for its MR presets.
     assert_eq!(Preset::MrAngio.shading().unwrap().ambient, 0.2);
+}
+
+/// Crop keys are checked at load with one-line errors naming the node.
+#[test]
+fn crop_keys_are_checked_at_load() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &ct()).unwrap();
+    for (node, want) in [
+        ("crop = { min = [0.0, 0.0, 5.0], max = [1.0, 1.0, 2.0] }", "crop.min[2] = 5 lies above crop.max[2] = 2"),
+        ("crop = { min = [0.0, 0.0, 0.0], max = [1.0, 1.0, 1.0], size = 2 }", "unknown field `size`"),
+        ("[[node.clip]]\norigin = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 0.0]", "non-zero normal"),
+        ("[[node.clip]]\norigin = [0.0, 0.0, 0.0]", "missing field `normal`"),
+    ] {
+        let e = load_error(dir.path(), node);
+        assert!(e.contains(want) && (e.contains("node 'v'") || e.contains("s.toml")), "{node}: {e}");
+        assert_eq!(e.lines().count(), 1, "{e}");
+    }
+}
+
+/// Through a scene, with either renderer: a crop box round the whole volume changes
+/// nothing; a clipping plane x ≥ 0 (node coordinates) empties the half of the image left
+/// of the eye (which sits on x = 0) and leaves the right half as it was; moving the node
+/// moves the plane with it.
+#[test]
+fn crop_box_and_clipping_planes_through_a_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &ct()).unwrap();
+    let tf = "transfer_function = { scalar_opacity = [[-200.0, 0.0], [1200.0, 0.6]], color = [[-200.0, 1.0, 0.8, 0.7], [1200.0, 1.0, 1.0, 1.0]] }";
+    for renderer in ["shear-warp", "reference"] {
+        let draw = |extra: &str| {
+            let s = load(dir.path(), &format!("renderer = \"{renderer}\"\n{tf}\n{extra}")).unwrap();
+            render::render_scene(&s, None).unwrap()
+        };
+        let whole = draw("");
+        let covered = whole.rgba.iter().filter(|p| p[3] > 0.05).count();
+        assert!(covered > 300, "{renderer}: the volume covers {covered} pixels");
+        let all = draw("crop = { min = [-100.0, -100.0, -100.0], max = [100.0, 100.0, 100.0] }");
+        let worst = whole.rgba.iter().zip(&all.rgba).flat_map(|(p, q)| (0..4).map(move |c| (p[c] - q[c]).abs())).fold(0.0, f32::max);
+        assert!(worst < 1e-6, "{renderer}: a crop box round everything changed a pixel by {worst}");
+        let clip = "[[node.clip]]\norigin = [0.0, 0.0, 0.0]\nnormal = [1.0, 0.0, 0.0]";
+        let half = draw(clip);
+        let (w, h) = (40, 40);
+        for y in 0..h {
+            for x in 0..w {
+                let (p, q) = (half.rgba[y * w + x], whole.rgba[y * w + x]);
+                if x + 2 < w / 2 {
+                    assert!(p[3] == 0.0, "{renderer}: pixel ({x}, {y}) left of the plane has opacity {}", p[3]);
+                } else if x > w / 2 + 1 {
+                    assert!((p[3] - q[3]).abs() < 0.02, "{renderer}: pixel ({x}, {y}) right of the plane: {} against {}", p[3], q[3]);
+                }
+            }
+        }
+        // The node moved 6 mm to +x takes the plane with it: columns between the eye's
+        // plane and x = 6 mm are now empty as well.
+        let moved = draw(&format!("transform = {{ translate = [6.0, 0.0, 0.0] }}\n{clip}"));
+        let lit = |f: &render::Frame, x: usize| (0..h).filter(|&y| f.rgba[y * w + x][3] > 0.05).count();
+        assert!(lit(&half, w / 2 + 3) > 5 && lit(&moved, w / 2 + 3) == 0, "{renderer}: the plane did not move with the node");
+    }
 }

@@ -214,7 +214,7 @@ fn input<'a>(
     tf: &'a TransferFunction,
     blend: BlendMode,
 ) -> reference_volume::VolumeInput<'a> {
-    reference_volume::VolumeInput { volume, node_to_world, tf, blend, shading: None, lights: &[] }
+    reference_volume::VolumeInput { volume, node_to_world, tf, blend, shading: None, lights: &[], crop: &[] }
 }
 
 fn constant_volume(n: usize, spacing: f64, value: u8) -> Volume {

@@ -72,13 +72,20 @@ fn render(
     let to_world = glam::DMat4::IDENTITY;
     match renderer {
         Reference => {
-            let input = VolumeInput { volume: v, node_to_world: to_world, tf, blend: BlendMode::Composite, shading, lights };
+            let input = VolumeInput { volume: v, node_to_world: to_world, tf, blend: BlendMode::Composite, shading, lights, crop: &[] };
             reference_volume::render(&input, &rays, &Settings::default()).unwrap()
         }
         ShearWarp => {
             let prepared = shear_warp::Prepared::new(v, &Default::default()).unwrap();
-            let input =
-                shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend: BlendMode::Composite, shading, lights };
+            let input = shear_warp::Input {
+                prepared: &prepared,
+                node_to_world: to_world,
+                tf,
+                blend: BlendMode::Composite,
+                shading,
+                lights,
+                crop: &[],
+            };
             shear_warp::render(&input, &rays, &shear_warp::Settings::default()).unwrap()
         }
     }
@@ -357,6 +364,7 @@ fn shaded_shear_warp_does_not_depend_on_leaping() {
         blend: BlendMode::Composite,
         shading: Some(&shading),
         lights: &[],
+        crop: &[],
     };
     let rays = Camera { parallel_scale: 26.0, ..camera_from([35.0, 90.0, 25.0]) }.rays(80, 80);
     let frames: Vec<Frame> = [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped]

@@ -116,7 +116,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     let t = Instant::now();
     let mut frame = match (settings, data) {
         (NodeSettings::Reference(s), NodeData::Volume(vol)) => {
-            let (tf, shading) = (scene.transfer_function(node)?, scene.shading(node));
+            let (tf, shading, crop) = (scene.transfer_function(node)?, scene.shading(node), scene.crop_region(node));
             let input = reference_volume::VolumeInput {
                 volume: &vol,
                 node_to_world,
@@ -124,12 +124,13 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 blend: desc.blend,
                 shading: shading.as_ref(),
                 lights: &scene.file.lights,
+                crop: &crop,
             };
             reference_volume::render(&input, &rays, s)?
         }
         (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
             let prepared = timed(&mut prepare, || cache.shear_warp(&vol, scene.limits()))?;
-            let (tf, shading) = (scene.transfer_function(node)?, scene.shading(node));
+            let (tf, shading, crop) = (scene.transfer_function(node)?, scene.shading(node), scene.crop_region(node));
             let input = shear_warp::Input {
                 prepared: &prepared,
                 node_to_world,
@@ -137,6 +138,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 blend: desc.blend,
                 shading: shading.as_ref(),
                 lights: &scene.file.lights,
+                crop: &crop,
             };
             shear_warp::render(&input, &rays, s)?
         }

@@ -33,6 +33,8 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         preset_shift: 0.0,
         modality: None,
         shading: None,
+        crop: None,
+        clip: Vec::new(),
         blend: Default::default(),
         png: None,
         texture: None,

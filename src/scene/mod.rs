@@ -6,10 +6,12 @@
 
 pub mod auto;
 pub mod camera;
+pub mod crop;
 pub mod presets;
 pub mod transfer;
 
 pub use camera::{Camera, Ray, RayGenerator};
+pub use crop::{ClipPlane, CropBox, HalfSpace};
 pub use transfer::{TransferFunction, VolumeShading};
 
 use crate::render::registry::{self, NodeSettings, RendererDecl};
@@ -143,6 +145,12 @@ pub struct NodeDesc {
     pub modality: Option<String>,
     /// Gradient shading of a volume (vtkVolumeProperty's `shade`, `ambient`, …).
     pub shading: Option<VolumeShading>,
+    /// The cropping box (millimetres, the node's own coordinates): only what lies inside
+    /// is drawn (vtkVolumeMapper's cropping region).
+    pub crop: Option<CropBox>,
+    /// Clipping planes (node coordinates), each keeping the side its normal points to.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub clip: Vec<ClipPlane>,
     #[serde(default)]
     pub blend: BlendMode,
     // --- heightfields
@@ -476,6 +484,15 @@ impl Scene {
                 }
                 s.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
             }
+            if n.kind != NodeKind::Volume && (n.crop.is_some() || !n.clip.is_empty()) {
+                bail!("{src}: node '{}': crop and clip apply to volume nodes only", n.name);
+            }
+            if let Some(c) = &n.crop {
+                c.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
+            }
+            for c in &n.clip {
+                c.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
+            }
         }
         // Each node's renderer and settings, checked before any data file is read.
         let mut renderers = Vec::with_capacity(file.nodes.len());
@@ -721,6 +738,13 @@ impl Scene {
         let NodeData::Volume(v) = self.data(node)? else { bail!("node '{}' is not a volume", n.name) };
         let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
         Ok(preset.shifted(&*self.value_stats(node)?, unit, n.preset_shift))
+    }
+
+    /// The region volume node `node` keeps (its crop box and clipping planes) as
+    /// half-spaces in its own coordinates; empty: all of it.
+    pub fn crop_region(&self, node: usize) -> Vec<HalfSpace> {
+        let n = &self.file.nodes[node];
+        crop::region(n.crop.as_ref(), &n.clip)
     }
 
     /// The shading of volume node `node`: its own `[node.shading]`, else the shading of its

@@ -130,7 +130,15 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
                     Err(_) => {
                         eprintln!("rendering the reference for view {v} ({blend:?}{tag}), cached in {}", path.display());
                         let shading = shade.then_some(&shading);
-                        let input = reference_volume::VolumeInput { volume: &volume, node_to_world: to_world, tf, blend, shading, lights };
+                        let input = reference_volume::VolumeInput {
+                            volume: &volume,
+                            node_to_world: to_world,
+                            tf,
+                            blend,
+                            shading,
+                            lights,
+                            crop: &[],
+                        };
                         let f = reference_volume::render(&input, &cam.rays(w, h), &Default::default())?;
                         let img = f.to_image([0.0; 3]);
                         volterra_formats::exr_io::write_exr(&path, &img)?;
@@ -153,7 +161,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         let ViewSet { cams, refs, refs_mip, refs_shaded, .. } = set;
         let shading = shade.then_some(&shading);
-        let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend, shading, lights };
+        let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend, shading, lights, crop: &[] };
         let (mut ms, mut err, mut psnr, mut mpix) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (v, cam) in cams.iter().enumerate() {
             let rays = cam.rays(w, h);

@@ -9,6 +9,7 @@ use super::prepare::Axis;
 use super::scanline::{next_live, rows, Gradients, SliceRows};
 use super::shading::{FrameShading, SliceGradient};
 use super::MAX_SLAB_SAMPLES;
+use crate::scene::HalfSpace;
 use glam::{DVec3, Vec3};
 use std::cell::OnceCell;
 
@@ -74,6 +75,48 @@ pub(super) struct Slab<'a> {
     pub(super) fac: &'a Factorization,
     /// None: unshaded.
     pub(super) shading: Option<SlabShading<'a>>,
+    /// The crop region as half-spaces in permuted voxel coordinates (empty: none).
+    pub(super) crop: &'a [HalfSpace],
+}
+
+/// The part of [w0, w1] of the segment from `front` (w = 0) to `back` (w = 1), permuted
+/// voxel coordinates, inside every half-space of `crop` (None: none of it).
+pub(super) fn crop_interval(crop: &[HalfSpace], front: DVec3, back: DVec3, (mut w0, mut w1): (f64, f64)) -> Option<(f64, f64)> {
+    for h in crop {
+        // Linear along the segment: h(front) at w = 0, h(back) at w = 1.
+        let (vf, vb) = (h.at(front), h.at(back));
+        if vf == vb {
+            if vf < 0.0 {
+                return None;
+            }
+        } else if vb > vf {
+            w0 = w0.max(vf / (vf - vb));
+        } else {
+            w1 = w1.min(vf / (vf - vb));
+        }
+    }
+    (w0 <= w1).then_some((w0, w1))
+}
+
+/// The trilinear value (quantised units) at (x, y) on the ray between slice zp (w = 0)
+/// and slice z (w = 1), at fraction w.
+pub(super) fn between_slices(axis: &Axis, (zp, z): (usize, usize), x: f64, y: f64, w: f64) -> f32 {
+    let (r0, r1, rw) = rows(y, axis.dims[1]);
+    let (a, b) = (SliceRows::new(axis, zp, r0, r1, rw).at(x), SliceRows::new(axis, z, r0, r1, rw).at(x));
+    a + w as f32 * (b - a)
+}
+
+/// The interval of u where a + b·u ≥ 0 (empty: lo > hi).
+fn half_line(a: f64, b: f64) -> (f64, f64) {
+    if b > 0.0 {
+        (-a / b, f64::INFINITY)
+    } else if b < 0.0 {
+        (f64::NEG_INFINITY, -a / b)
+    } else if a >= 0.0 {
+        (f64::NEG_INFINITY, f64::INFINITY)
+    } else {
+        (f64::INFINITY, f64::NEG_INFINITY)
+    }
 }
 
 /// A table entry (premultiplied colour, opacity) for a segment `length` times the table's:
@@ -226,7 +269,9 @@ impl Slab<'_> {
     /// Composites the pixels of `span` (pixels on this row whose ray meets the slab)
     /// that `composite_run` does not: those whose back sample lies outside the volume,
     /// where the ray leaves it (or only grazes it) between these slices through a side
-    /// face. `back_span`: the pixels whose back sample is inside, if the back row is.
+    /// face, and with a crop region those whose segment it cuts. `back_span`: the pixels
+    /// whose back sample is inside, if the back row is; `run_span`: those among them
+    /// `composite_run` composited (all of them without a crop region).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn composite_exits(
         &self,
@@ -239,17 +284,19 @@ impl Slab<'_> {
         depth: &mut [f32],
         span: (usize, usize),
         back_span: Option<(usize, usize)>,
+        run_span: Option<(usize, usize)>,
         n_samples: &mut u64,
     ) {
         let mut uu = next_live(links, span.0);
         while uu <= span.1 {
-            if back_span.is_some_and(|(a, b)| (a..=b).contains(&uu)) {
-                uu = next_live(links, back_span.unwrap().1 + 1);
+            if run_span.is_some_and(|(a, b)| (a..=b).contains(&uu)) {
+                uu = next_live(links, run_span.unwrap().1 + 1);
                 continue;
             }
             let ray = (self.xb(uu), self.dxo(uu));
             let xb = ray.0;
-            if let Some((w0, w1)) = self.inside(ray).filter(|&(_, w1)| w1 < 1.0) {
+            let back_inside = back_span.is_some_and(|(a, b)| (a..=b).contains(&uu));
+            if let Some((w0, w1)) = self.inside(ray).filter(|&(_, w1)| w1 < 1.0 || back_inside) {
                 let xf = xb + ray.1;
                 let front_inside = w0 == 0.0 && self.front.is_some();
                 let f0 = match &self.front {
@@ -272,9 +319,35 @@ impl Slab<'_> {
         }
     }
 
+    /// The crop region on this slab's row, for pixels u: where both the front and the
+    /// back sample lie inside it (the whole segment then does: the region is convex), and
+    /// a range outside which no part of a segment does (conservative). Real-valued ends.
+    pub(super) fn crop_ranges(&self) -> ((f64, f64), (f64, f64)) {
+        let (mut whole, mut any) = ((f64::NEG_INFINITY, f64::INFINITY), (f64::NEG_INFINITY, f64::INFINITY));
+        let (s, x0) = (self.back_map.scale, self.back_map.x0);
+        for h in self.crop {
+            let n = h.normal;
+            let back = half_line(n.x * x0 + n.y * self.y + n.z * self.z as f64 + h.offset, n.x * s);
+            let front =
+                half_line(n.x * (x0 + self.dxo0) + n.y * (self.y + self.dyo) + n.z * self.zp as f64 + h.offset, n.x * (s + self.ddxo));
+            whole = (whole.0.max(back.0).max(front.0), whole.1.min(back.1).min(front.1));
+            // Either end inside: the union of two half-lines, narrowed only where it is one.
+            let empty = |r: (f64, f64)| r.0 > r.1;
+            let either = match (empty(back), empty(front)) {
+                (true, true) => (f64::INFINITY, f64::NEG_INFINITY),
+                (true, false) => front,
+                (false, true) => back,
+                _ if back.0 <= front.1 && front.0 <= back.1 => (back.0.min(front.0), back.1.max(front.1)),
+                _ => (f64::NEG_INFINITY, f64::INFINITY),
+            };
+            any = (any.0.max(either.0), any.1.min(either.1));
+        }
+        (whole, any)
+    }
+
     /// The part of a pixel's ray (back sample at x = xb, front at xb + dxo) inside the
-    /// volume's box within this slab, as fractions [w0, w1] from the front sample (0) to
-    /// the back one (1).
+    /// volume's box and its crop region within this slab, as fractions [w0, w1] from the
+    /// front sample (0) to the back one (1).
     fn inside(&self, (xb, dxo): (f64, f64)) -> Option<(f64, f64)> {
         let (mut w0, mut w1) = (0.0f64, 1.0f64);
         // At fraction w the ray is at x = xb + dxo·(1 − w), y = y + dyo·(1 − w).
@@ -290,6 +363,10 @@ impl Slab<'_> {
             w0 = w0.max(t0.min(t1));
             w1 = w1.min(t0.max(t1));
         }
+        if !self.crop.is_empty() {
+            let back = DVec3::new(xb, self.y, self.z as f64);
+            (w0, w1) = crop_interval(self.crop, DVec3::new(xb + dxo, self.y + self.dyo, self.zp as f64), back, (w0, w1))?;
+        }
         (w0 < w1).then_some((w0, w1))
     }
 
@@ -297,10 +374,7 @@ impl Slab<'_> {
     /// xb + dxo) at fraction w of the slab.
     fn value_at(&self, (xb, dxo): (f64, f64), w: f64) -> f32 {
         let t = 1.0 - w;
-        let (x, y) = (xb + dxo * t, self.y + self.dyo * t);
-        let (r0, r1, rw) = rows(y, self.axis.dims[1]);
-        let (a, b) = (SliceRows::new(self.axis, self.zp, r0, r1, rw).at(x), SliceRows::new(self.axis, self.z, r0, r1, rw).at(x));
-        (a + w as f32 * (b - a)) * self.q_to_level
+        between_slices(self.axis, (self.zp, self.z), xb + dxo * t, self.y + self.dyo * t, w) * self.q_to_level
     }
 
     /// Composites the piece [w0, w1] of the slab (values f0, f1 at its ends) for pixel

@@ -34,7 +34,7 @@ use super::frame::{Frame, FrameStats};
 use super::registry::{NodeSettings, RendererDecl};
 use super::settings::{Bounds, Control, Preview, Widget};
 use crate::scene::NodeKind;
-use crate::scene::{BlendMode, Light, RayGenerator, TransferFunction, VolumeShading};
+use crate::scene::{BlendMode, HalfSpace, Light, RayGenerator, TransferFunction, VolumeShading};
 use anyhow::Result;
 use factor::{Factorization, SliceMap};
 use glam::DMat4;
@@ -114,6 +114,9 @@ pub struct Input<'a> {
     pub shading: Option<&'a VolumeShading>,
     /// The scene's lights for shading (none: a headlight).
     pub lights: &'a [Light],
+    /// The region drawn (`Scene::crop_region`: half-spaces in node coordinates; empty:
+    /// the whole volume).
+    pub crop: &'a [HalfSpace],
 }
 
 /// The intermediate image.
@@ -136,6 +139,18 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let perspective = fac.is_perspective();
     let axis = prep.axis(fac.perm)?;
     let [nx, ny, nz] = axis.dims;
+    // The crop region in permuted voxel coordinates (permuted axis a is index axis perm[a]).
+    let crop: Vec<HalfSpace> = input
+        .crop
+        .iter()
+        .map(|h| {
+            // A plane through voxel centres keeps the samples on it whatever the rounding
+            // (1e-7 voxel of slack): dropping a row of them would fray the cut's edge.
+            let hi = h.pulled_back(prep.affine);
+            HalfSpace { normal: glam::DVec3::from(fac.perm.map(|a| hi.normal[a])), offset: hi.offset + 1e-7 * hi.normal.length() }
+        })
+        .collect();
+    let kept = |p: glam::DVec3| crop.iter().all(|h| h.at(p) >= 0.0);
     let n_levels = if settings.table_levels >= 2 { settings.table_levels.min(4096) } else { preint::level_count(tf, prep.lo, prep.hi) };
     // A one-slice stack has no slab between slices: its slab is the slice itself, one
     // voxel thick, and nothing lies between slices.
@@ -223,6 +238,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 let slice = SliceRows::new(axis, 0, y0, y1, wy);
                 for u in ua..=ub {
                     let x = x_of(u, &maps[0]);
+                    if !kept(glam::DVec3::new(x, y, 0.0)) {
+                        continue;
+                    }
                     let s = slice.at(x) * q_to_level;
                     n_samples += 1;
                     if mip {
@@ -315,17 +333,45 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         }
                         for uu in u..run_end {
                             let xb = x_of(uu, back_map);
-                            let s = back_slice.at(xb) * q_to_level;
-                            n_samples += 1;
+                            let s = if crop.is_empty() || kept(glam::DVec3::new(xb, y, z as f64)) {
+                                n_samples += 1;
+                                back_slice.at(xb) * q_to_level
+                            } else {
+                                f32::NEG_INFINITY
+                            };
                             if s > max_level[uu] {
                                 max_level[uu] = s;
                                 max_z[uu] = z as f32;
                             }
-                            if let Some((zp, dxo0, ddxo, _, _, _, pairs)) = &between {
+                            // Where the crop region cuts the ray between the slices, its
+                            // value where it enters and leaves the region are samples too
+                            // (the maximum often lies on a cut face).
+                            if let Some((zp, dxo0, ddxo, dyo)) = front.filter(|_| !crop.is_empty()) {
+                                let dxo = dxo0 + uu as f64 * ddxo;
+                                let (fp, bp) = (glam::DVec3::new(xb + dxo, y + dyo, zp as f64), glam::DVec3::new(xb, y, z as f64));
+                                if let Some((w0, w1)) =
+                                    composite::crop_interval(&crop, fp, bp, (0.0, 1.0)).filter(|&(a, b)| a > 0.0 || b < 1.0)
+                                {
+                                    for w in [w0, w1].into_iter().filter(|&w| w > 0.0 && w < 1.0) {
+                                        let (xj, yj) = (xb + dxo * (1.0 - w), y + dyo * (1.0 - w));
+                                        if xj < x_lo || xj > x_hi || yj < y_lo || yj > y_hi {
+                                            continue;
+                                        }
+                                        let s = composite::between_slices(axis, (zp, z), xj, yj, w) * q_to_level;
+                                        n_samples += 2;
+                                        if s > max_level[uu] {
+                                            max_level[uu] = s;
+                                            max_z[uu] = (zp as f64 + w * (z as f64 - zp as f64)) as f32;
+                                        }
+                                    }
+                                }
+                            }
+                            if let Some((zp, dxo0, ddxo, dyo, _, _, pairs)) = &between {
                                 let dxo = dxo0 + uu as f64 * ddxo;
                                 for (w, fs, bs) in pairs.iter().flatten() {
                                     let xj = xb + dxo * (1.0 - w);
-                                    if xj < x_lo || xj > x_hi {
+                                    let zj = *zp as f64 + w * (z as f64 - *zp as f64);
+                                    if xj < x_lo || xj > x_hi || !kept(glam::DVec3::new(xj, y + dyo * (1.0 - w), zj)) {
                                         continue;
                                     }
                                     let (a, b) = (fs.at(xj), bs.at(xj));
@@ -333,7 +379,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                                     n_samples += 2;
                                     if s > max_level[uu] {
                                         max_level[uu] = s;
-                                        max_z[uu] = (*zp as f64 + w * (z as f64 - *zp as f64)) as f32;
+                                        max_z[uu] = zj as f32;
                                     }
                                 }
                             }
@@ -376,7 +422,19 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     termination,
                     fac: &fac,
                     shading: slab_shading,
+                    crop: &crop,
                 };
+                // With a crop region, composite_run takes the pixels whose whole segment
+                // it keeps; composite_exits the ones it cuts (between `reach`'s ends).
+                let (ua, ub, reach) = if crop.is_empty() {
+                    (ua, ub, None)
+                } else {
+                    let (whole, any) = slab.crop_ranges();
+                    let (a, b) = (whole.0.ceil().max(ua as f64), whole.1.floor().min(ub as f64));
+                    let (ua, ub) = if a <= b { (a as usize, b as usize) } else { (1, 0) };
+                    (ua, ub, Some(any))
+                };
+                let run_span = (ua <= ub).then_some((ua, ub));
                 let row_start = if dyo < 0.0 { y0 as isize - 1 } else { y0 as isize };
                 let mask_rows = [0, 1].map(|variant| clear_mask.map(|m| m.row(zs, row_start, variant)));
                 let block_clear = |bx: usize, variant: usize| match leaping {
@@ -471,8 +529,15 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 }
                 // The rays that leave the volume through a side face between the slices.
                 let spans = [runs.span, slice_runs[zp].span].into_iter().flatten();
-                if let Some(span) = spans.reduce(|a, b| (a.0.min(b.0), a.1.max(b.1))).filter(|_| !table.all_clear()) {
-                    slab.composite_exits(k, links, prev, stamp, grads, row, depth, span, back_span, &mut n_samples);
+                let span = spans.reduce(|a, b| (a.0.min(b.0), a.1.max(b.1))).and_then(|(a, b)| match reach {
+                    None => Some((a, b)),
+                    Some((lo, hi)) => {
+                        let (a, b) = (lo.floor().max(a as f64), hi.ceil().min(b as f64));
+                        (a <= b).then_some((a as usize, b as usize))
+                    }
+                });
+                if let Some(span) = span.filter(|_| !table.all_clear()) {
+                    slab.composite_exits(k, links, prev, stamp, grads, row, depth, span, back_span, run_span, &mut n_samples);
                 }
             }
         }
