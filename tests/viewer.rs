@@ -203,6 +203,75 @@ fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
     assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
 }
 
+/// Cropping in the viewer: the crop box switched on starts round the whole volume (the
+/// image stays as it was), a face handle dragged in the 3-D view moves that face (and not
+/// the camera), a clipping plane is added from the panel; the saved scene carries both and
+/// renders as the viewer drew it.
+#[test]
+fn a_crop_box_dragged_in_the_viewer_is_rendered_and_saved() {
+    let dir = samples();
+    let mut viewer = Viewer::new(LoadOptions::default());
+    viewer.open(&dir.path().join("angio_shear_warp.toml")).unwrap();
+    let mut h = harness(viewer);
+    settle(&mut h);
+    let whole = h.state().current_full_frame().unwrap().clone();
+    h.get_by_label("Crop box").scroll_to_me();
+    h.run_steps(3);
+    h.get_by_label("Crop box").click();
+    h.run_steps(3);
+    settle(&mut h);
+    let full_box = h.state().scene().unwrap().nodes()[0].crop.expect("the node has a crop box");
+    assert!((full_box.max[0] - full_box.min[0] - 127.0 * 0.6).abs() < 1e-4, "the box of voxel centres: {full_box:?}");
+    let same = h.state().current_full_frame().unwrap();
+    let worst = whole.rgba.iter().zip(&same.rgba).flat_map(|(p, q)| (0..4).map(move |c| (p[c] - q[c]).abs())).fold(0.0f32, f32::max);
+    assert!(worst < 1e-6, "a crop box round the volume changed a pixel by {worst}");
+
+    // Drag the +z face's handle down, toward the -z face's.
+    let camera = h.state().camera().clone();
+    let (top, bottom) = (h.state().crop_handle(5).unwrap(), h.state().crop_handle(4).unwrap());
+    let to = top + (bottom - top) * 0.4;
+    h.drag_at(top);
+    h.run_steps(1);
+    for k in 1..=4 {
+        h.hover_at(top + (to - top) * (k as f32 / 4.0));
+        h.run_steps(1);
+    }
+    h.drop_at(to);
+    h.run_steps(1);
+    settle(&mut h);
+    assert_eq!(h.state().camera().position, camera.position, "dragging a handle does not move the camera");
+    let cropped = h.state().scene().unwrap().nodes()[0].crop.unwrap();
+    let moved = full_box.max[2] - cropped.max[2];
+    assert!(moved > 0.2 * (full_box.max[2] - full_box.min[2]) && cropped.min == full_box.min, "{full_box:?} → {cropped:?}");
+    let after = mean_rgba(h.state().current_full_frame().unwrap());
+    assert!(after[3] < 0.9 * mean_rgba(&whole)[3], "less is drawn: {:?} → {after:?}", mean_rgba(&whole));
+
+    h.get_by_label("Add a clipping plane").scroll_to_me();
+    h.run_steps(3);
+    h.get_by_label("Add a clipping plane").click();
+    h.run_steps(3);
+    settle(&mut h);
+    assert_eq!(h.state().scene().unwrap().nodes()[0].clip.len(), 1);
+    let frame = h.state().current_full_frame().unwrap().clone();
+    let out = tempfile::tempdir().unwrap();
+    let scene_path = out.path().join("cropped.toml");
+    h.get_by_label("Save as").focus();
+    h.run_steps(1);
+    h.get_by_label("Save as").set_text_value_accesskit(&scene_path.display().to_string());
+    h.run_steps(1);
+    h.get_by_label("Save").click();
+    h.run_steps(2);
+    let text = std::fs::read_to_string(&scene_path).unwrap();
+    assert!(text.contains("[node.crop]") && text.contains("[[node.clip]]"), "{text}");
+    let cli = out.path().join("cli.exr");
+    let st = Command::new(common::volterra_bin()).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
+    assert!(st.success());
+    let b = exr_io::read_exr(&cli, &Default::default()).unwrap();
+    let a = b.channel("A").unwrap();
+    let diff = frame.rgba.iter().zip(a).map(|(p, q)| (p[3] - q).abs()).fold(0.0f32, f32::max);
+    assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
+}
+
 #[test]
 fn opening_a_data_file_frames_it_and_measures_the_error() {
     let dir = samples();

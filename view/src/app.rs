@@ -131,6 +131,8 @@ pub struct Viewer {
     frames_shown: [usize; 3],
     /// A file being read in the background.
     opening: Option<(PathBuf, std::sync::mpsc::Receiver<Result<Opened>>)>,
+    /// The crop box face whose handle is being dragged in the 3-D view.
+    crop_drag: Option<usize>,
 }
 
 #[derive(Default, PartialEq)]
@@ -180,6 +182,7 @@ impl Viewer {
             dialog: FileDialog::new(start_dir(None)),
             save_path: String::new(),
             mode: NavMode::Orbit,
+            crop_drag: None,
             eye_height: 1.7,
             show_steps: false,
             load,
@@ -424,6 +427,15 @@ impl Viewer {
         egui::CentralPanel::no_frame().show(ui, |ui| self.viewport(ui));
         self.schedule(&ctx);
         self.screenshot_step(&ctx);
+    }
+
+    /// Where the selected volume's crop box handle of face `face` (axis face / 2; min face
+    /// when face % 2 = 0) is drawn in the window, if it has a crop box.
+    pub fn crop_handle(&self, face: usize) -> Option<Pos2> {
+        let (i, rect) = (self.selected_volume()?, self.viewport_rect?);
+        let doc = self.doc.as_ref()?;
+        let c = doc.scene.nodes()[i].crop?;
+        super::crop::handle_position(&c, face, doc.scene.world_transform(i), |p| project(&self.camera, rect, p))
     }
 
     fn selected_volume(&self) -> Option<usize> {
@@ -766,6 +778,15 @@ impl Viewer {
         ui.separator();
         self.modality_control(ui, i, n.modality.as_deref());
         self.shading_controls(ui, i, drawn_shading.unwrap_or_default(), mip);
+        ui.separator();
+        if let Some(v) = volume {
+            if let Some(e) = super::crop::controls(ui, n.crop, &n.clip, super::crop::volume_box(&v)) {
+                self.edit(e.moving, |f| {
+                    f.nodes[i].crop = e.crop;
+                    f.nodes[i].clip = e.clip;
+                });
+            }
+        }
     }
 
     /// The modality of data whose file does not say it (NIfTI): it picks the preset.
@@ -1027,7 +1048,36 @@ impl Viewer {
                 painter.line_segment([p - Vec2::new(0.0, 8.0), p + Vec2::new(0.0, 8.0)], egui::Stroke::new(1.5, c));
             }
         }
-        self.navigate(ui, &resp, rect);
+        if !self.crop_handles(&resp, &painter, rect) {
+            self.navigate(ui, &resp, rect);
+        }
+    }
+
+    /// The selected volume's crop box over the 3-D view, a handle on each face; a drag
+    /// that starts on a handle moves that face (previews while it moves). True while
+    /// such a drag goes on (the camera stays put).
+    fn crop_handles(&mut self, resp: &egui::Response, painter: &egui::Painter, rect: Rect) -> bool {
+        let Some(i) = self.selected_volume() else { return false };
+        let Some(doc) = &self.doc else { return false };
+        let Some(mut c) = doc.scene.nodes()[i].crop else { return false };
+        let to_world = doc.scene.world_transform(i);
+        let cam = self.camera.clone();
+        let project = |p: DVec3| project(&cam, rect, p);
+        super::crop::draw(painter, &c, to_world, project);
+        if resp.drag_started_by(egui::PointerButton::Primary) {
+            self.crop_drag =
+                resp.ctx.input(|inp| inp.pointer.press_origin()).and_then(|pos| super::crop::handle_at(&c, to_world, pos, project));
+        }
+        let Some(face) = self.crop_drag else { return false };
+        if resp.dragged() && resp.drag_delta() != Vec2::ZERO {
+            super::crop::drag_face(&mut c, face, resp.drag_delta(), to_world, project);
+            self.edit(true, |f| f.nodes[i].crop = Some(c));
+        }
+        if resp.drag_stopped() || !resp.dragged() {
+            self.crop_drag = None;
+            self.bump(false); // the full frame, now that the face is let go
+        }
+        true
     }
 
     fn navigate(&mut self, ui: &mut egui::Ui, resp: &egui::Response, rect: Rect) {
