@@ -230,7 +230,12 @@ fn reference_caster_matches_closed_form_through_a_homogeneous_cube() {
     let vol = constant_volume(n, spacing, 100);
     let alpha = 0.1;
     let unit = 1.5;
-    let tf = TransferFunction { scalar_opacity: vec![[0.0, alpha]], color: vec![[0.0, 0.2, 0.6, 1.0]], scalar_opacity_unit_distance: unit };
+    let tf = TransferFunction {
+        scalar_opacity: vec![[0.0, alpha]],
+        color: vec![[0.0, 0.2, 0.6, 1.0]],
+        scalar_opacity_unit_distance: unit,
+        gradient_opacity: Vec::new(),
+    };
     let cam = Camera {
         position: [0.0, 0.0, 100.0],
         focal_point: [0.0; 3],
@@ -263,7 +268,12 @@ fn reference_caster_matches_closed_form_through_a_homogeneous_cube() {
 #[test]
 fn node_transform_moves_the_volume() {
     let vol = constant_volume(5, 1.0, 10);
-    let tf = TransferFunction { scalar_opacity: vec![[0.0, 0.5]], color: vec![[0.0, 1.0, 1.0, 1.0]], scalar_opacity_unit_distance: 1.0 };
+    let tf = TransferFunction {
+        scalar_opacity: vec![[0.0, 0.5]],
+        color: vec![[0.0, 1.0, 1.0, 1.0]],
+        scalar_opacity_unit_distance: 1.0,
+        gradient_opacity: Vec::new(),
+    };
     let cam = Camera {
         position: [0.0, 0.0, 50.0],
         focal_point: [0.0; 3],

@@ -46,6 +46,7 @@ fn tf_ramp(lo: f64, hi: f64, a: f64) -> TransferFunction {
         scalar_opacity: vec![[lo, 0.0], [hi, a]],
         color: vec![[lo, 1.0, 0.3, 0.1], [hi, 0.9, 0.9, 1.0]],
         scalar_opacity_unit_distance: 1.0,
+        gradient_opacity: Vec::new(),
     }
 }
 
@@ -188,6 +189,7 @@ fn an_all_transparent_transfer_function_leaps_everything() {
         scalar_opacity: vec![[0.0, 0.0], [255.0, 0.0]],
         color: vec![[0.0, 1.0, 1.0, 1.0]],
         scalar_opacity_unit_distance: 1.0,
+        gradient_opacity: Vec::new(),
     };
     let (sw, _) = render_both(&v, &tf, &camera([0.2, 1.0, 0.1], 20.0), 64, BlendMode::Composite, &Default::default());
     assert!(sw.rgba.iter().all(|p| *p == [0.0; 4]));
@@ -231,6 +233,7 @@ fn hard_cases_stay_close_to_the_reference() {
         scalar_opacity: vec![[0.0, 0.0], [99.9, 0.0], [100.0, 1.0], [255.0, 1.0]],
         color: vec![[0.0, 1.0, 0.5, 0.2]],
         scalar_opacity_unit_distance: 1.0,
+        gradient_opacity: Vec::new(),
     };
     let (sw, rf) = render_both(&v, &step, &camera([0.4, 1.0, 0.3], 20.0), 64, BlendMode::Composite, &Default::default());
     // An opaque iso-surface: the images differ only along its silhouette, where the
@@ -260,7 +263,12 @@ fn hard_cases_stay_close_to_the_reference() {
 fn rays_through_the_side_faces_are_covered_to_the_edge() {
     let dims = [24, 20, 16];
     let v = volume(dims, [1.0, 1.2, 1.5], VoxelData::U8(vec![100; 24 * 20 * 16]), Rescale::IDENTITY);
-    let tf = TransferFunction { scalar_opacity: vec![[0.0, 0.04]], color: vec![[0.0, 0.9, 0.8, 0.7]], scalar_opacity_unit_distance: 1.0 };
+    let tf = TransferFunction {
+        scalar_opacity: vec![[0.0, 0.04]],
+        color: vec![[0.0, 0.9, 0.8, 0.7]],
+        scalar_opacity_unit_distance: 1.0,
+        gradient_opacity: Vec::new(),
+    };
     let measured: Vec<_> = [[0.45, 0.8, 0.3], [1.0, 1.0, 0.0], [-0.3, 0.35, 0.9]]
         .into_iter()
         .map(|dir| {

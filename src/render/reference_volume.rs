@@ -2,7 +2,7 @@
 //! VTK) are measured against. Trilinear interpolation of the scalar field at every sample,
 //! a step of at most 0.05 voxel by default, f64 accumulation, opacity corrected for the
 //! step exactly as vtkVolumeProperty defines it, no pre-integration, no empty-space
-//! skipping; gradient shading at every sample; each ray cut to the exact interval it
+//! skipping; gradient shading and gradient opacity at every sample; each ray cut to the exact interval it
 //! spends inside the node's crop region.
 
 use super::frame::{Frame, FrameStats};
@@ -84,6 +84,8 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
     let dt = settings.step * min_spacing;
     let field = Field::new(volume);
     let shader = super::volume_shading::Shader::new(shading, lights, index_to_world)?;
+    let (g_to_world, gradient_opacity) = (super::volume_shading::gradient_to_world(index_to_world), !tf.gradient_opacity.is_empty());
+    use super::volume_shading::gradient;
     let hi = DVec3::new((volume.dims[0] - 1) as f64, (volume.dims[1] - 1) as f64, (volume.dims[2] - 1) as f64);
     // A single-slice axis has zero thickness: give it half a voxel either side.
     let pad = DVec3::new(
@@ -129,12 +131,18 @@ pub fn render(input: &VolumeInput, rays: &RayGenerator, settings: &Settings) -> 
                             }
                         }
                         BlendMode::Composite => {
-                            let alpha = tf.opacity_for_step(v, len);
+                            // The gradient, where the gradient opacity or shading reads it.
+                            let mut g = None;
+                            let mut grad = || *g.get_or_insert_with(|| gradient(volume.dims, o + d * t, &g_to_world, |q| field.sample(q)));
+                            let alpha = if gradient_opacity && tf.opacity(v) > 0.0 {
+                                tf.scaled_opacity_for_step(v, len, tf.gradient_factor(grad().length()))
+                            } else {
+                                tf.opacity_for_step(v, len)
+                            };
                             if alpha > 0.0 {
                                 let mut col = tf.color(v);
                                 if let Some(sh) = &shader {
-                                    let g = sh.gradient(volume.dims, o + d * t, |q| field.sample(q));
-                                    col = sh.shade(col, g, ray.origin + ray.dir * t, ray.dir);
+                                    col = sh.shade(col, grad(), ray.origin + ray.dir * t, ray.dir);
                                 }
                                 let w = (1.0 - a) * alpha;
                                 for k in 0..3 {

@@ -61,26 +61,13 @@ impl Shader {
                 })
                 .collect::<Result<Vec<_>>>()?
         };
-        let linear = DMat3::from_mat4(index_to_world);
-        Ok(Some(Shader { coeffs, lights, gradient_to_world: linear.inverse().transpose() }))
+        Ok(Some(Shader { coeffs, lights, gradient_to_world: gradient_to_world(index_to_world) }))
     }
 
     /// The gradient of the trilinear field `f` (continuous voxel index → value) at `p`,
     /// in world units, by the rule in the module's doc.
     pub fn gradient(&self, dims: [usize; 3], p: DVec3, f: impl Fn(DVec3) -> f64) -> DVec3 {
-        let mut g = DVec3::ZERO;
-        for a in 0..3 {
-            let max = (dims[a] - 1) as f64;
-            let x = p[a].clamp(0.0, max);
-            let (up, down) = ((max - x).min(1.0), x.min(1.0));
-            if up + down > 0.0 {
-                let (mut hi, mut lo) = (p, p);
-                hi[a] = x + up;
-                lo[a] = x - down;
-                g[a] = (f(hi) - f(lo)) / (up + down);
-            }
-        }
-        self.gradient_to_world * g
+        gradient(dims, p, &self.gradient_to_world, f)
     }
 
     /// The shaded colour of a sample of colour `colour` at world point `at` with world
@@ -120,6 +107,31 @@ impl Shader {
         }
         Lighting { diffuse: d, specular: s }
     }
+}
+
+/// Voxel-index gradients → world gradients for a volume placed by `index_to_world`: the
+/// inverse transpose of its linear part.
+pub fn gradient_to_world(index_to_world: DMat4) -> DMat3 {
+    DMat3::from_mat4(index_to_world).inverse().transpose()
+}
+
+/// The gradient of the trilinear field `f` (continuous voxel index → value) at `p`, by
+/// the rule in the module's doc, taken to world units by `to_world`
+/// (`gradient_to_world`). Shading and the gradient opacity both use it.
+pub fn gradient(dims: [usize; 3], p: DVec3, to_world: &DMat3, f: impl Fn(DVec3) -> f64) -> DVec3 {
+    let mut g = DVec3::ZERO;
+    for a in 0..3 {
+        let max = (dims[a] - 1) as f64;
+        let x = p[a].clamp(0.0, max);
+        let (up, down) = ((max - x).min(1.0), x.min(1.0));
+        if up + down > 0.0 {
+            let (mut hi, mut lo) = (p, p);
+            hi[a] = x + up;
+            lo[a] = x - down;
+            g[a] = (f(hi) - f(lo)) / (up + down);
+        }
+    }
+    *to_world * g
 }
 
 /// The same formula in f32 for a renderer whose rays all run along one direction (a

@@ -282,7 +282,7 @@ impl Preset {
                 (clamp(vec![[lo - shift, 0.0], [m(0.0), 0.0], [m(0.3), 0.15], [m(1.0), 0.8]]), clamp4(colours))
             }
         };
-        TransferFunction { scalar_opacity: opacity, color, scalar_opacity_unit_distance: unit_distance }
+        TransferFunction { scalar_opacity: opacity, color, scalar_opacity_unit_distance: unit_distance, gradient_opacity: Vec::new() }
     }
 }
 

@@ -1,7 +1,10 @@
 //! Transfer functions with vtkVolumeProperty's semantics: piecewise-linear colour and
 //! scalar opacity over the real-world scalar value (clamped outside the given points), and
 //! `scalar_opacity_unit_distance`: opacity is per that distance in world units, so a step
-//! Δ uses α' = 1 − (1 − α)^(Δ / unit_distance).
+//! Δ uses α' = 1 − (1 − α)^(Δ / unit_distance). An optional gradient opacity (VTK's
+//! `SetGradientOpacity`) multiplies the scalar opacity per unit distance by a
+//! piecewise-linear factor of the gradient magnitude |∇f| (value units per millimetre,
+//! the gradient shading uses) before the step correction: α' = 1 − (1 − α·g(|∇f|))^(Δ/unit).
 
 use serde::{Deserialize, Serialize};
 
@@ -15,6 +18,10 @@ pub struct TransferFunction {
     pub color: Vec<[f64; 4]>,
     #[serde(default = "one")]
     pub scalar_opacity_unit_distance: f64,
+    /// (gradient magnitude in value units per mm, factor in [0, 1]) points, magnitudes
+    /// increasing; empty: none (every factor 1). MIP ignores it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gradient_opacity: Vec<[f64; 2]>,
 }
 
 fn default_color() -> Vec<[f64; 4]> {
@@ -49,6 +56,14 @@ impl TransferFunction {
         if self.scalar_opacity.iter().any(|p| !(0.0..=1.0).contains(&p[1])) {
             anyhow::bail!("transfer_function.scalar_opacity opacities must lie in [0, 1]");
         }
+        if !self.gradient_opacity.iter().all(|p| p[0].is_finite() && (0.0..=1.0).contains(&p[1])) {
+            anyhow::bail!("transfer_function.gradient_opacity points are (gradient magnitude, factor in [0, 1])");
+        }
+        for w in self.gradient_opacity.windows(2) {
+            if w[1][0] < w[0][0] {
+                anyhow::bail!("transfer_function.gradient_opacity magnitudes must increase ({} then {})", w[0][0], w[1][0]);
+            }
+        }
         if !(self.scalar_opacity_unit_distance > 0.0 && self.scalar_opacity_unit_distance.is_finite()) {
             anyhow::bail!("transfer_function.scalar_opacity_unit_distance must be positive");
         }
@@ -64,9 +79,25 @@ impl TransferFunction {
         [piecewise(&self.color, v, |p| p[1]), piecewise(&self.color, v, |p| p[2]), piecewise(&self.color, v, |p| p[3])]
     }
 
+    /// The gradient opacity factor at gradient magnitude `g` (value units per mm); 1
+    /// without a gradient opacity.
+    pub fn gradient_factor(&self, g: f64) -> f64 {
+        if self.gradient_opacity.is_empty() {
+            1.0
+        } else {
+            piecewise(&self.gradient_opacity, g, |p| p[1])
+        }
+    }
+
     /// Opacity for a step of length `step` in world units.
     pub fn opacity_for_step(&self, v: f64, step: f64) -> f64 {
-        let a = self.opacity(v);
+        self.scaled_opacity_for_step(v, step, 1.0)
+    }
+
+    /// Opacity for a step of length `step` with the opacity per unit distance scaled by
+    /// `factor` (the gradient opacity's).
+    pub fn scaled_opacity_for_step(&self, v: f64, step: f64, factor: f64) -> f64 {
+        let a = self.opacity(v) * factor;
         if a >= 1.0 {
             1.0
         } else {
@@ -105,6 +136,7 @@ mod tests {
             scalar_opacity: vec![[10.0, 0.0], [20.0, 0.5]],
             color: vec![[0.0, 1.0, 0.0, 0.0], [100.0, 0.0, 0.0, 1.0]],
             scalar_opacity_unit_distance: 2.0,
+            gradient_opacity: Vec::new(),
         };
         assert_eq!(tf.opacity(5.0), 0.0);
         assert_eq!(tf.opacity(15.0), 0.25);

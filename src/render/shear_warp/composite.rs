@@ -225,8 +225,8 @@ impl Slab<'_> {
                     if f.max(b) >= table.clear_below {
                         let (c, a) = for_length(table.lookup(f, b), length);
                         if a > 0.0 {
-                            let c = match &self.shading {
-                                None => c,
+                            let (c, a) = match &self.shading {
+                                None => (c, a),
                                 Some(sh) => {
                                     let gb = *g_back.get_or_insert_with(|| sh.back().at(xb));
                                     let gf = *g_front.get_or_insert_with(|| match sh.front() {
@@ -235,7 +235,7 @@ impl Slab<'_> {
                                         None => gb,
                                     });
                                     let w = (j as f32 + 0.5) / K as f32;
-                                    self.shade(sh, c, a, gf + (gb - gf) * w, (xb, dxo), w as f64)
+                                    self.shade(sh, c, a, gf + (gb - gf) * w, (xb, dxo), w as f64, length)
                                 }
                             };
                             let seg = (j as f64 / K as f64, (j + 1) as f64 / K as f64);
@@ -404,11 +404,12 @@ impl Slab<'_> {
             if f.max(b) >= self.table.clear_below {
                 // The table is for a whole segment, 1/k of the slab: this one is r of it.
                 let r = ((sb - sa) * k as f64) as f32;
-                let (c, a) = for_length(self.table.lookup(f, b), r * self.length(uu));
+                let length = r * self.length(uu);
+                let (c, a) = for_length(self.table.lookup(f, b), length);
                 if a > 0.0 {
-                    let c = match (&self.shading, g) {
-                        (Some(sh), Some(g)) => self.shade(sh, c, a, g, ray, 0.5 * (sa + sb)),
-                        _ => c,
+                    let (c, a) = match (&self.shading, g) {
+                        (Some(sh), Some(g)) => self.shade(sh, c, a, g, ray, 0.5 * (sa + sb), length),
+                        _ => (c, a),
                     };
                     if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, a, (sa, sb)) {
                         return true;
@@ -420,14 +421,16 @@ impl Slab<'_> {
         false
     }
 
-    /// The shaded colour of a segment (premultiplied colour c, opacity a, gradient g)
-    /// whose middle lies at fraction w of the slab on the ray whose back sample is at xb
-    /// (front at xb + dxo).
+    /// The shaded colour and the opacity (gradient opacity applied) of a segment
+    /// (premultiplied colour c, opacity a, gradient g, `length` times the table's) whose
+    /// middle lies at fraction w of the slab on the ray whose back sample is at xb (front
+    /// at xb + dxo).
+    #[allow(clippy::too_many_arguments)]
     #[inline]
-    fn shade(&self, sh: &SlabShading, c: [f32; 3], a: f32, g: Vec3, (xb, dxo): (f64, f64), w: f64) -> [f32; 3] {
+    fn shade(&self, sh: &SlabShading, c: [f32; 3], a: f32, g: Vec3, (xb, dxo): (f64, f64), w: f64, length: f32) -> ([f32; 3], f32) {
         let t = 1.0 - w;
         let mid = DVec3::new(xb + dxo * t, self.y + self.dyo * t, self.z as f64 + (self.zp as f64 - self.z as f64) * t);
-        sh.frame.shade(c, a, g, mid)
+        sh.frame.shade(c, a, g, mid, length)
     }
 
     /// Composites one segment (premultiplied colour c, opacity a) spanning fractions

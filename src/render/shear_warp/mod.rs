@@ -159,7 +159,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let q_to_level = (n_levels - 1) as f32 / 65535.0;
     let level_to_value = |l: f32| prep.lo + (prep.hi - prep.lo) * l as f64 / (n_levels - 1) as f64;
     let mip = input.blend == BlendMode::Mip;
-    let shading = if mip { None } else { FrameShading::new(input.shading, input.lights, &fac, (prep.lo, prep.hi))? };
+    // Shading and the gradient opacity read the gradient at the segments they touch.
+    let seg_units = (fac.slab_length / k as f64 / tf.scalar_opacity_unit_distance) as f32;
+    let shading = if mip { None } else { FrameShading::new(input.shading, input.lights, &fac, (prep.lo, prep.hi), tf, seg_units)? };
     let leaping = if mip && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
     let n = settings.block;
     let clear = table.clear_quanta(q_to_level);
@@ -248,9 +250,11 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     } else {
                         let length = lengths[r].get(u).copied().unwrap_or(1.0);
                         let (c, a) = composite::for_length(table.lookup(s, s), length);
-                        let c = match &shading {
-                            Some(sh) if a > 0.0 => sh.shade(c, a, SliceGradient::new(axis, 0, y).at(x), glam::DVec3::new(x, y, 0.0)),
-                            _ => c,
+                        let (c, a) = match &shading {
+                            Some(sh) if a > 0.0 => {
+                                sh.shade(c, a, SliceGradient::new(axis, 0, y).at(x), glam::DVec3::new(x, y, 0.0), length)
+                            }
+                            _ => (c, a),
                         };
                         row[u] = [c[0], c[1], c[2], a];
                         if a >= 0.5 {

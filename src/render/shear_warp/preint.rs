@@ -299,6 +299,7 @@ mod tests {
             scalar_opacity: points,
             color: vec![[0.0, 1.0, 0.5, 0.25], [100.0, 0.0, 0.5, 1.0]],
             scalar_opacity_unit_distance: unit,
+            gradient_opacity: Vec::new(),
         }
     }
 

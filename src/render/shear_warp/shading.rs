@@ -1,5 +1,6 @@
-//! Gradient shading in shear-warp, by the reference ray caster's rule and formula
-//! (`render::volume_shading`), combined with pre-integrated classification.
+//! Gradient shading and gradient opacity in shear-warp, by the reference ray caster's
+//! rule and formula (`render::volume_shading`), combined with pre-integrated
+//! classification.
 //!
 //! Gradients are computed on the fly at the slice samples, never stored: central
 //! differences of the trilinear field one voxel either side along each axis, one-sided at
@@ -22,47 +23,85 @@
 use super::factor::Factorization;
 use super::prepare::Axis;
 use super::scanline::{rows, SliceRows};
-use crate::render::volume_shading::{ParallelLighting, Shader};
-use crate::scene::{Light, VolumeShading};
+use crate::render::volume_shading::{gradient_to_world, ParallelLighting, Shader};
+use crate::scene::{Light, TransferFunction, VolumeShading};
 use anyhow::Result;
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Mat3, Vec3};
 
-/// What shading needs for one frame: the lights for this view direction, with gradients
-/// in quanta per permuted voxel going straight to world, and where samples are. In
-/// perspective each ray has its own direction toward the eye (and the headlight lies along
-/// it, as in the reference ray caster).
+/// What shading and the gradient opacity need for one frame: the lights for this view
+/// direction, with gradients in quanta per permuted voxel going straight to world, and
+/// where samples are. In perspective each ray has its own direction toward the eye (and
+/// the headlight lies along it, as in the reference ray caster).
 pub(super) struct FrameShading<'a> {
-    lighting: ParallelLighting,
+    /// None: unshaded (the gradient opacity alone).
+    lighting: Option<ParallelLighting>,
+    opacity: Option<GradientOpacity>,
     fac: &'a Factorization,
 }
 
+/// The transfer function's gradient opacity for shear-warp's segments.
+struct GradientOpacity {
+    tf: TransferFunction,
+    /// Gradient in quanta per permuted voxel → world (value units per mm).
+    to_world: Mat3,
+    /// The table's segment length in unit distances.
+    seg_units: f32,
+}
+
 impl<'a> FrameShading<'a> {
-    /// None when the node does not shade.
+    /// None when the node neither shades nor has a gradient opacity. `seg_units`: the
+    /// pre-integration table's segment length in unit distances.
     pub(super) fn new(
         shading: Option<&VolumeShading>,
         lights: &[Light],
         fac: &'a Factorization,
         value_range: (f64, f64),
+        tf: &TransferFunction,
+        seg_units: f32,
     ) -> Result<Option<FrameShading<'a>>> {
         // Permuted voxel coordinates are an index space of their own: the shader made
         // for them takes permuted gradients to world.
-        let Some(shader) = Shader::new(shading, lights, fac.to_world)? else { return Ok(None) };
-        let lighting = ParallelLighting::new(&shader, fac.forward, (value_range.1 - value_range.0) / 65535.0);
-        Ok(Some(FrameShading { lighting, fac }))
+        let value_scale = (value_range.1 - value_range.0) / 65535.0;
+        let lighting = Shader::new(shading, lights, fac.to_world)?.map(|shader| ParallelLighting::new(&shader, fac.forward, value_scale));
+        let opacity = (!tf.gradient_opacity.is_empty()).then(|| GradientOpacity {
+            tf: tf.clone(),
+            to_world: (gradient_to_world(fac.to_world) * value_scale).as_mat3(),
+            seg_units,
+        });
+        if lighting.is_none() && opacity.is_none() {
+            return Ok(None);
+        }
+        Ok(Some(FrameShading { lighting, opacity, fac }))
     }
 
-    /// The shaded premultiplied colour of a segment with table entry (c, a), gradient `g`
-    /// (quanta per permuted voxel) and middle point `p` (permuted voxel coordinates).
+    /// The shaded premultiplied colour and the opacity of a segment with table entry
+    /// (c, a) for `length` times the table's segment, gradient `g` (quanta per permuted
+    /// voxel) and middle point `p` (permuted voxel coordinates). The gradient opacity
+    /// scales the opacity per unit distance as the reference does — exact for a segment
+    /// of constant value: α per unit is recovered from the segment's, scaled, and taken
+    /// back to the segment's length; the colour follows the opacity.
     #[inline]
-    pub(super) fn shade(&self, c: [f32; 3], a: f32, g: Vec3, p: DVec3) -> [f32; 3] {
+    pub(super) fn shade(&self, c: [f32; 3], a: f32, g: Vec3, p: DVec3, length: f32) -> ([f32; 3], f32) {
+        let (mut c, mut a) = (c, a);
+        if let Some(go) = &self.opacity {
+            let factor = go.tf.gradient_factor((go.to_world * g).length() as f64) as f32;
+            if factor < 1.0 {
+                let units = go.seg_units * length;
+                let per_unit = 1.0 - (1.0 - a).max(0.0).powf(1.0 / units);
+                let scaled = 1.0 - (1.0 - factor * per_unit).powf(units);
+                let k = if a > 0.0 { scaled / a } else { 0.0 };
+                (c, a) = (c.map(|v| v * k), scaled);
+            }
+        }
+        let Some(lighting) = &self.lighting else { return (c, a) };
         let (d, s) = if self.fac.is_perspective() {
             let at = self.fac.to_world.transform_point3(p);
-            self.lighting.lighting_seen_from(g, at, (self.fac.eye - at).normalize_or_zero().as_vec3())
+            lighting.lighting_seen_from(g, at, (self.fac.eye - at).normalize_or_zero().as_vec3())
         } else {
-            let at = if self.lighting.needs_position() { self.fac.to_world.transform_point3(p) } else { DVec3::ZERO };
-            self.lighting.lighting(g, at)
+            let at = if lighting.needs_position() { self.fac.to_world.transform_point3(p) } else { DVec3::ZERO };
+            lighting.lighting(g, at)
         };
-        (Vec3::from(c) * d + s * a).to_array()
+        ((Vec3::from(c) * d + s * a).to_array(), a)
     }
 }
 
