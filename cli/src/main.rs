@@ -280,6 +280,22 @@ enum BenchCommand {
         #[command(flatten)]
         common: BenchCommon,
     },
+    /// A clinical-size CT (512 × 512 × N int16 phantom) opened as a radiologist would
+    /// (CT-AAA, shaded, perspective, 512²): the first frame from the file and further
+    /// frames, and peak memory, against VTK's fixed-point mapper (nibabel + numpy).
+    Clinical {
+        /// N, the number of slices.
+        #[arg(long, default_value_t = 400)]
+        slices: usize,
+        /// Frames after the first, each from another direction.
+        #[arg(long, default_value_t = 4)]
+        frames: usize,
+        /// Print the results as JSON.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
     /// The GPU ray-caster's traversals on 256²..4096² DEMs, fly- and walk-through, with
     /// steps per ray and depth error against the f64 reference.
     Terrain {
@@ -442,6 +458,9 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
                 json,
                 plot,
             })
+        }
+        BenchCommand::Clinical { slices, frames, json, common } => {
+            b::clinical::run(&b::clinical::ClinicalBench { env: common.resolve(limits)?, slices, frames, json })
         }
         BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
             std::fs::create_dir_all(&common.work_dir)?;

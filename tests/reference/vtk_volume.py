@@ -8,6 +8,10 @@ Usage: vtk_volume.py OUT_DIR SCENE.toml...
        vtk_volume.py --bench SPEC.json   (for `volterra bench shear-warp`: renders each view
        of one scene `runs` times after a warm-up, prints {"ms": [[per-run ms]...]} and
        writes the images to the spec's paths)
+       vtk_volume.py --clinical SPEC.json   (for `volterra bench clinical`: the first view's
+       frame timed from reading the file — nibabel + numpy into vtkImageData — to the end of
+       its first render, then each further view rendered once, timed; prints
+       {"first_ms", "further_ms", "peak_bytes", "vtk"})
 """
 import json
 import time
@@ -22,7 +26,8 @@ import vtk
 from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 
 
-def render(scene_path, out_path, views=None, runs=0, shading=None):
+def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=False):
+    start = time.perf_counter()
     with open(scene_path, "rb") as f:
         scene = tomllib.load(f)
     node = scene["node"][0]
@@ -120,6 +125,16 @@ def render(scene_path, out_path, views=None, runs=0, shading=None):
     if views is None:
         views = [{"position": c["position"], "image": out_path}]
     timings = []
+    if first_frame:
+        # As a user opens a volume and turns it: no warm-up, one render per view.
+        for k, view in enumerate(views):
+            cam.SetPosition(*view["position"])
+            ren.ResetCameraClippingRange()
+            t = time.perf_counter()
+            win.Render()
+            timings.append(1000 * (time.perf_counter() - (start if k == 0 else t)))
+            write_image(win, w, h, view["image"])
+        return timings
     for view in views:
         path = view["image"]
         cam.SetPosition(*view["position"])
@@ -139,15 +154,28 @@ def render(scene_path, out_path, views=None, runs=0, shading=None):
             win.Render()
             ms.append(1000 * (time.perf_counter() - t))
         timings.append(ms)
-        buf = vtk.vtkFloatArray()
-        win.GetRGBAPixelData(0, 0, w - 1, h - 1, 1, buf)
-        rgba = vtk_to_numpy(buf).reshape(h, w, 4)[::-1].astype(np.float32)  # row 0 at the top
-        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-        OpenEXR.File(header, {"RGBA": np.ascontiguousarray(rgba)}).write(path)
+        write_image(win, w, h, path)
     return timings
 
 
+def write_image(win, w, h, path):
+    buf = vtk.vtkFloatArray()
+    win.GetRGBAPixelData(0, 0, w - 1, h - 1, 1, buf)
+    rgba = vtk_to_numpy(buf).reshape(h, w, 4)[::-1].astype(np.float32)  # row 0 at the top
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, {"RGBA": np.ascontiguousarray(rgba)}).write(path)
+
+
 def main():
+    if sys.argv[1] == "--clinical":
+        import resource
+
+        with open(sys.argv[2]) as f:
+            spec = json.load(f)
+        ms = render(spec["scene"], None, spec["views"], first_frame=True)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        print(json.dumps({"first_ms": ms[0], "further_ms": ms[1:], "peak_bytes": peak, "vtk": vtk.vtkVersion.GetVTKVersion()}))
+        return
     if sys.argv[1] == "--bench":
         with open(sys.argv[2]) as f:
             spec = json.load(f)

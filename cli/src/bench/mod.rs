@@ -1,6 +1,7 @@
 //! `volterra bench …`: speed against error, side by side with the peers (pydicom/nibabel,
 //! VTK, Mitsuba) in one run. Each benchmark is its own subcommand with its own flags.
 
+pub mod clinical;
 pub mod formats;
 pub mod shear_warp;
 pub mod smoke;

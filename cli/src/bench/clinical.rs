@@ -1,0 +1,160 @@
+//! `volterra bench clinical`: a clinical-size CT (512 × 512 × N int16, the CT phantom of
+//! `samples::ct_phantom`, written once as NIfTI) drawn as a radiologist opens it —
+//! CT-AAA with Slicer's shading, perspective 30°, 512² — by shear-warp and by VTK's
+//! fixed-point mapper in the same run. The first frame counts everything from the file:
+//! ours reading the NIfTI, preparing and rendering; VTK's nibabel + numpy into a
+//! vtkImageData and its first render (which builds its gradient tables). Further frames
+//! orbit the camera (each a new view). Peak memory of each side after the phantom is
+//! written (ours: the process's resident peak from there; VTK's: its process's peak).
+
+use super::median;
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use volterra::render::{render_node_with, RenderCache};
+use volterra::scene::presets::{Preset, ValueStats};
+use volterra::scene::{Camera, Scene};
+
+pub struct ClinicalBench {
+    pub env: super::BenchEnv,
+    /// Slices (N of 512 × 512 × N).
+    pub slices: usize,
+    /// Frames after the first (each from another direction).
+    pub frames: usize,
+    pub json: bool,
+}
+
+/// The camera directions of the frames: the first from the front (anterior, +y) and
+/// right, then round; the table lies behind the patient.
+fn view(k: usize, dist: f64) -> Camera {
+    let a = (35.0 + 47.0 * k as f64).to_radians();
+    let d = glam::DVec3::new(a.cos(), a.sin(), 0.35 + 0.1 * (k % 3) as f64).normalize() * dist;
+    Camera {
+        position: d.to_array(),
+        focal_point: [0.0; 3],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 30.0,
+        parallel_projection: false,
+        parallel_scale: 1.0,
+    }
+}
+
+/// This process's peak resident memory since the last reset, bytes (Linux).
+fn peak_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kb: u64 = s.lines().find(|l| l.starts_with("VmHWM:"))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+pub fn run(b: &ClinicalBench) -> Result<()> {
+    if b.slices < 2 || b.slices > 2000 {
+        bail!("--slices {} must lie in 2..=2000", b.slices);
+    }
+    std::fs::create_dir_all(&b.env.work_dir)?;
+    let dims = [512usize, 512, b.slices];
+    let nii = b.env.work_dir.join(format!("ct_phantom_512x512x{}.nii", b.slices));
+    let stored_mib = (dims[0] * dims[1] * dims[2] * 2) as f64 / (1u64 << 20) as f64;
+    let (tf, shading) = {
+        let ct = volterra::samples::ct_phantom(dims[0], dims[1], dims[2]);
+        if !nii.exists() {
+            eprintln!("writing the {}×{}×{} CT phantom to {}", dims[0], dims[1], dims[2], nii.display());
+            volterra_formats::nifti::write_nifti(&nii, &ct)?;
+        }
+        let preset = Preset::from_name("CT-AAA").map_err(anyhow::Error::msg)?;
+        (preset.transfer_function(&ValueStats::of(&ct), 0.7), preset.shading().context("CT-AAA has shading")?)
+    };
+    // The scene both sides draw: the preset's points and shading written out.
+    let dist = 1.15 * 260.0 / (15f64.to_radians().tan());
+    let cam = view(0, dist);
+    let scene_text = format!(
+        "[image]\nwidth = 512\nheight = 512\n\n[camera]\n{}\n[[node]]\nname = \"ct\"\nkind = \"volume\"\nfile = \"{}\"\nrenderer = \"shear-warp\"\n\n[node.transfer_function]\n{}\n[node.shading]\n{}",
+        toml::to_string(&cam)?,
+        nii.file_name().unwrap().to_string_lossy(),
+        toml::to_string(&tf)?,
+        toml::to_string(&shading)?
+    );
+    let scene_path = b.env.work_dir.join(format!("ct_phantom_{}.toml", b.slices));
+    std::fs::write(&scene_path, scene_text)?;
+
+    // Ours: from the file to the first frame, then the further frames, in this process.
+    // The resident peak is reset first (Linux: clear_refs 5), so it counts from here.
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    let t = Instant::now();
+    let scene = Scene::load(&scene_path, &[])?.with_limits(b.env.limits);
+    let cache = RenderCache::default();
+    let first = render_node_with(&scene, 0, &cam, (512, 512), &cache)?.context("the node draws nothing")?;
+    let first_ms = 1000.0 * t.elapsed().as_secs_f64();
+    let mut further = Vec::new();
+    for k in 1..=b.frames {
+        let t = Instant::now();
+        render_node_with(&scene, 0, &view(k, dist), (512, 512), &cache)?;
+        further.push(1000.0 * t.elapsed().as_secs_f64());
+    }
+    let ours_peak = peak_rss();
+    let covered = first.rgba.iter().filter(|p| p[3] > 0.5).count();
+    drop((scene, cache, first));
+
+    // VTK in its own process.
+    let spec = serde_json::json!({
+        "scene": std::fs::canonicalize(&scene_path)?,
+        "views": (0..=b.frames).map(|k| serde_json::json!({"position": view(k, dist).position,
+            "image": b.env.work_dir.join(format!("vtk_clinical_{k}.exr"))})).collect::<Vec<_>>(),
+    });
+    let spec_path = b.env.work_dir.join("vtk_clinical.json");
+    std::fs::write(&spec_path, spec.to_string())?;
+    let vtk = run_vtk(&b.env.python, &b.env.scripts, &spec_path);
+
+    let mut further_sorted = further.clone();
+    let ours_further = median(&mut further_sorted);
+    let mib = |b: Option<u64>| b.map(|v| format!("{:.0} MiB", v as f64 / (1u64 << 20) as f64)).unwrap_or_else(|| "-".into());
+    let report = serde_json::json!({
+        "volume": format!("{}×{}×{} int16, {:.0} MiB stored", dims[0], dims[1], dims[2], stored_mib),
+        "ours": {"first_ms": first_ms, "further_ms": further, "further_median_ms": ours_further, "peak_bytes": ours_peak,
+                 "pixels_opaque": covered},
+        "vtk": vtk.as_ref().map_err(|e| format!("{e:#}")).ok(),
+        "vtk_error": vtk.as_ref().err().map(|e| format!("{e:#}")),
+    });
+    if b.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!(
+        "{}×{}×{} int16 CT phantom ({stored_mib:.0} MiB), CT-AAA shaded, perspective 30°, 512², {} threads",
+        dims[0],
+        dims[1],
+        dims[2],
+        rayon::current_num_threads()
+    );
+    println!("{:<44} {:>12} {:>14} {:>10}", "", "first frame", "further (med.)", "peak");
+    println!("{:<44} {:>9.0} ms {:>11.0} ms {:>10}", "volterra shear-warp (read + prepare + render)", first_ms, ours_further, mib(ours_peak));
+    match &vtk {
+        Ok(v) => {
+            let (vf, mut vfur) = (v["first_ms"].as_f64().unwrap_or(f64::NAN), v["further_ms"].as_array().cloned().unwrap_or_default());
+            let mut vfur: Vec<f64> = vfur.drain(..).filter_map(|x| x.as_f64()).collect();
+            let vmed = median(&mut vfur);
+            println!(
+                "{:<44} {:>9.0} ms {:>11.0} ms {:>10}",
+                format!("VTK {} fixed-point (nibabel + render)", v["vtk"].as_str().unwrap_or("")),
+                vf,
+                vmed,
+                mib(v["peak_bytes"].as_u64())
+            );
+            println!("ratios: first frame {:.2}× faster, further frames {:.2}× faster", vf / first_ms, vmed / ours_further);
+        }
+        Err(e) => println!("VTK skipped: {e:#}"),
+    }
+    Ok(())
+}
+
+fn run_vtk(python: &Path, scripts: &Path, spec: &PathBuf) -> Result<serde_json::Value> {
+    let out = std::process::Command::new(python)
+        .arg(scripts.join("vtk_volume.py"))
+        .arg("--clinical")
+        .arg(spec)
+        .output()
+        .with_context(|| format!("cannot run {}", python.display()))?;
+    if !out.status.success() {
+        bail!("vtk_volume.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+    }
+    Ok(serde_json::from_slice(&out.stdout)?)
+}
