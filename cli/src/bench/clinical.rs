@@ -126,7 +126,13 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
         rayon::current_num_threads()
     );
     println!("{:<44} {:>12} {:>14} {:>10}", "", "first frame", "further (med.)", "peak");
-    println!("{:<44} {:>9.0} ms {:>11.0} ms {:>10}", "volterra shear-warp (read + prepare + render)", first_ms, ours_further, mib(ours_peak));
+    println!(
+        "{:<44} {:>9.0} ms {:>11.0} ms {:>10}",
+        "volterra shear-warp (read + prepare + render)",
+        first_ms,
+        ours_further,
+        mib(ours_peak)
+    );
     match &vtk {
         Ok(v) => {
             let (vf, mut vfur) = (v["first_ms"].as_f64().unwrap_or(f64::NAN), v["further_ms"].as_array().cloned().unwrap_or_default());

@@ -41,26 +41,25 @@ pub struct OverlappedMap {
 fn row_blocks(data: &[u16], dims: [usize; 3], n: usize, nbx: usize) -> Vec<MinMax> {
     let [nx, ny, nz] = dims;
     let mut out = vec![EMPTY; nz * ny * 2 * nbx];
-    for z in 0..nz {
-        for y in 0..ny {
-            let row = &data[(z * ny + y) * nx..(z * ny + y + 1) * nx];
-            for variant in 0..2 {
-                for bx in 0..nbx {
-                    let start = (n * bx) as isize - variant as isize;
-                    let lo = start.max(0) as usize;
-                    let hi = ((start + n as isize + 1) as usize).min(nx - 1);
-                    let mut mm = EMPTY;
-                    if lo <= hi && lo < nx {
-                        for &q in &row[lo..=hi] {
-                            mm.min = mm.min.min(q);
-                            mm.max = mm.max.max(q);
-                        }
+    // One chunk per (slice, row): both variants' blocks.
+    out.par_chunks_mut(2 * nbx).enumerate().for_each(|(zy, blocks)| {
+        let row = &data[zy * nx..(zy + 1) * nx];
+        for variant in 0..2 {
+            for bx in 0..nbx {
+                let start = (n * bx) as isize - variant as isize;
+                let lo = start.max(0) as usize;
+                let hi = ((start + n as isize + 1) as usize).min(nx - 1);
+                let mut mm = EMPTY;
+                if lo <= hi && lo < nx {
+                    for &q in &row[lo..=hi] {
+                        mm.min = mm.min.min(q);
+                        mm.max = mm.max.max(q);
                     }
-                    out[((z * ny + y) * 2 + variant) * nbx + bx] = mm;
                 }
+                blocks[variant * nbx + bx] = mm;
             }
         }
-    }
+    });
     out
 }
 
@@ -71,7 +70,8 @@ impl OverlappedMap {
         let rows = row_blocks(data, dims, n, nbx);
         let slabs = nz.saturating_sub(1).max(1);
         let mut entries = vec![EMPTY; slabs * (ny + 1) * 2 * nbx];
-        for zs in 0..slabs {
+        // One chunk per slab, in parallel (512 × 512 × 400, 2 cores: 0.82 s serial).
+        entries.par_chunks_mut((ny + 1) * 2 * nbx).enumerate().for_each(|(zs, slab)| {
             let z1 = (zs + 1).min(nz - 1);
             for start in -1..ny as isize {
                 for variant in 0..2 {
@@ -83,11 +83,11 @@ impl OverlappedMap {
                                 mm = merge(mm, rows[((z * ny + y) * 2 + variant) * nbx + bx]);
                             }
                         }
-                        entries[((zs * (ny + 1) + (start + 1) as usize) * 2 + variant) * nbx + bx] = mm;
+                        slab[((start + 1) as usize * 2 + variant) * nbx + bx] = mm;
                     }
                 }
             }
-        }
+        });
         OverlappedMap { n, dims, nbx, entries }
     }
 

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex, OnceLock};
-use volterra_formats::{Limits, Volume};
+use volterra_formats::{Limits, Volume, VoxelData};
 
 /// The volume resampled for one principal axis: permuted so that axis is z, x fastest,
 /// values as u16 quanta of the volume's value range; with its min-max maps, built on
@@ -96,7 +96,13 @@ impl Prepared {
     /// Voxel i's value as a u16 quantum of [lo, hi].
     #[inline]
     fn quantum(&self, i: usize) -> u16 {
-        ((self.volume.value(i) - self.lo) * (65535.0 / (self.hi - self.lo))).round().clamp(0.0, 65535.0) as u16
+        self.quantum_of(self.volume.data.stored(i))
+    }
+
+    /// The quantum of stored value `stored` (before the rescale).
+    #[inline]
+    fn quantum_of(&self, stored: f64) -> u16 {
+        ((self.volume.rescale.apply(stored) - self.lo) * (65535.0 / (self.hi - self.lo))).round().clamp(0.0, 65535.0) as u16
     }
 
     /// The slices along `perm[2]`, quantised and permuted once and kept (checked against
@@ -108,19 +114,77 @@ impl Prepared {
         Ok(self.axes[perm[2]].get_or_init(|| {
             let d = self.dims;
             let pd = [d[perm[0]], d[perm[1]], d[perm[2]]];
-            let stride = [1, d[0], d[0] * d[1]];
-            let (sx, sy, sz) = (stride[perm[0]], stride[perm[1]], stride[perm[2]]);
-            let mut data = vec![0u16; self.volume.voxel_count()];
-            data.par_chunks_mut(pd[0] * pd[1]).enumerate().for_each(|(z, slice)| {
-                for y in 0..pd[1] {
-                    for x in 0..pd[0] {
-                        slice[y * pd[0] + x] = self.quantum(x * sx + y * sy + z * sz);
-                    }
+            // 8- and 16-bit integers (most scans) through a table of every stored value's
+            // quantum; other types voxel by voxel.
+            let table = |n: usize, stored: &dyn Fn(usize) -> f64| -> Vec<u16> { (0..n).map(|s| self.quantum_of(stored(s))).collect() };
+            let data = match &self.volume.data {
+                VoxelData::U8(v) => {
+                    let t = table(256, &|s| s as f64);
+                    permuted(d, perm, |i| t[v[i] as usize])
                 }
-            });
+                VoxelData::I8(v) => {
+                    let t = table(256, &|s| s as u8 as i8 as f64);
+                    permuted(d, perm, |i| t[v[i] as u8 as usize])
+                }
+                VoxelData::U16(v) => {
+                    let t = table(65536, &|s| s as f64);
+                    permuted(d, perm, |i| t[v[i] as usize])
+                }
+                VoxelData::I16(v) => {
+                    let t = table(65536, &|s| s as u16 as i16 as f64);
+                    permuted(d, perm, |i| t[v[i] as u16 as usize])
+                }
+                _ => permuted(d, perm, |i| self.quantum(i)),
+            };
             Axis { dims: pd, data, overlapped: Mutex::default(), clear_masks: Mutex::default(), scanline: Mutex::default() }
         }))
     }
+}
+
+/// The voxels of a volume of `dims` (x fastest) permuted so that index axis perm[a] is
+/// axis a (x fastest), each through `q` (linear index → quantum). The loops read the
+/// source as sequentially as the permutation allows: with the principal axis along x
+/// (source stride 1 across slices), 32 slices are written at once from each run of 32
+/// neighbouring voxels; otherwise each slice is walked along its smaller source stride.
+/// 512 × 512 × 400 int16 (the CT phantom), 2 cores: principal axis x 1.93 → 0.36 s, y
+/// 0.41 → 0.14 s, z 0.13 s, against voxel by voxel through `Volume::value` in slice order.
+fn permuted(dims: [usize; 3], perm: [usize; 3], q: impl Fn(usize) -> u16 + Sync) -> Vec<u16> {
+    let pd = [dims[perm[0]], dims[perm[1]], dims[perm[2]]];
+    let stride = [1, dims[0], dims[0] * dims[1]];
+    let (sx, sy, sz) = (stride[perm[0]], stride[perm[1]], stride[perm[2]]);
+    let slice = pd[0] * pd[1];
+    let mut data = vec![0u16; slice * pd[2]];
+    if sz == 1 {
+        const T: usize = 32;
+        data.par_chunks_mut(slice * T).enumerate().for_each(|(c, chunk)| {
+            let (z0, nt) = (c * T, chunk.len() / slice);
+            for y in 0..pd[1] {
+                for x in 0..pd[0] {
+                    let (src, dst) = (x * sx + y * sy + z0, y * pd[0] + x);
+                    for t in 0..nt {
+                        chunk[t * slice + dst] = q(src + t);
+                    }
+                }
+            }
+        });
+    } else {
+        data.par_chunks_mut(slice).enumerate().for_each(|(z, s)| {
+            if sx <= sy {
+                for y in 0..pd[1] {
+                    for x in 0..pd[0] {
+                        s[y * pd[0] + x] = q(x * sx + y * sy + z * sz);
+                    }
+                }
+            } else {
+                for x in 0..pd[0] {
+                    for y in 0..pd[1] {
+                        s[y * pd[0] + x] = q(x * sx + y * sy + z * sz);
+                    }
+                }
+            }
+        });
+    }
+    data
 }
 
 #[cfg(test)]
@@ -150,6 +214,12 @@ mod tests {
         }
         // Kept: the same slices the second time.
         assert!(std::ptr::eq(a, p.axis([1, 2, 0]).unwrap()));
+        // Principal axis y: permuted (z, x, y).
+        let a = p.axis([2, 0, 1]).unwrap();
+        assert_eq!(a.dims, [2, 4, 3]);
+        for (x, y, z) in [(0, 0, 0), (3, 2, 1), (1, 2, 0), (2, 0, 1)] {
+            assert_eq!(a.data[z + 2 * (x + 4 * y)], q(x, y, z), "({x}, {y}, {z})");
+        }
         let z = p.axis([0, 1, 2]).unwrap();
         assert_eq!(z.data, (0..24).map(|i| p.quantum(i)).collect::<Vec<_>>());
     }
