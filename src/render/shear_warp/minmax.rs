@@ -37,13 +37,12 @@ pub struct OverlappedMap {
     entries: Vec<MinMax>,
 }
 
-/// Per (slice, row) x-block min/max for both variants: [z][y][variant][bx].
-fn row_blocks(data: &[u16], dims: [usize; 3], n: usize, nbx: usize) -> Vec<MinMax> {
-    let [nx, ny, nz] = dims;
-    let mut out = vec![EMPTY; nz * ny * 2 * nbx];
-    // One chunk per (slice, row): both variants' blocks.
-    out.par_chunks_mut(2 * nbx).enumerate().for_each(|(zy, blocks)| {
-        let row = &data[zy * nx..(zy + 1) * nx];
+/// One slice's x-block min/max per row, for both variants: [y][variant][bx].
+fn slice_blocks(data: &[u16], dims: [usize; 3], n: usize, nbx: usize, z: usize) -> Vec<MinMax> {
+    let [nx, ny, _] = dims;
+    let mut out = vec![EMPTY; ny * 2 * nbx];
+    for (y, blocks) in out.chunks_mut(2 * nbx).enumerate() {
+        let row = &data[(z * ny + y) * nx..(z * ny + y + 1) * nx];
         for variant in 0..2 {
             for bx in 0..nbx {
                 let start = (n * bx) as isize - variant as isize;
@@ -59,7 +58,7 @@ fn row_blocks(data: &[u16], dims: [usize; 3], n: usize, nbx: usize) -> Vec<MinMa
                 blocks[variant * nbx + bx] = mm;
             }
         }
-    });
+    }
     out
 }
 
@@ -67,21 +66,22 @@ impl OverlappedMap {
     pub fn new(data: &[u16], dims: [usize; 3], n: usize) -> OverlappedMap {
         let [_, ny, nz] = dims;
         let nbx = dims[0] / n + 2;
-        let rows = row_blocks(data, dims, n, nbx);
         let slabs = nz.saturating_sub(1).max(1);
         let mut entries = vec![EMPTY; slabs * (ny + 1) * 2 * nbx];
-        // One chunk per slab, in parallel (512 × 512 × 400, 2 cores: 0.82 s serial).
+        // One chunk per slab, in parallel, from the row blocks of its two slices (each
+        // slice's are made twice, for the slabs either side, rather than kept for the
+        // whole volume: that would cost as much memory as the map itself). 512 × 512 ×
+        // 400, 2 cores: 0.82 s serially with the blocks kept, 0.30 s in parallel.
         entries.par_chunks_mut((ny + 1) * 2 * nbx).enumerate().for_each(|(zs, slab)| {
             let z1 = (zs + 1).min(nz - 1);
+            let (front, back) = (slice_blocks(data, dims, n, nbx, zs), slice_blocks(data, dims, n, nbx, z1));
             for start in -1..ny as isize {
                 for variant in 0..2 {
                     for bx in 0..nbx {
                         let mut mm = EMPTY;
                         for y in start.max(0)..=(start + 2).min(ny as isize - 1) {
-                            let y = y as usize;
-                            for z in [zs, z1] {
-                                mm = merge(mm, rows[((z * ny + y) * 2 + variant) * nbx + bx]);
-                            }
+                            let i = (y as usize * 2 + variant) * nbx + bx;
+                            mm = merge(merge(mm, front[i]), back[i]);
                         }
                         slab[((start + 1) as usize * 2 + variant) * nbx + bx] = mm;
                     }

@@ -137,7 +137,8 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let ratio = (settings.supersampling > 0.0).then_some(settings.supersampling);
     let fac = Factorization::new(index_to_world, prep.dims, rays, ratio).map_err(|e| anyhow::anyhow!("{}: {e}", RENDERER.name))?;
     let perspective = fac.is_perspective();
-    let axis = prep.axis(fac.perm)?;
+    let axis_copy = prep.axis(fac.perm)?;
+    let axis = &*axis_copy;
     let [nx, ny, nz] = axis.dims;
     // The crop region in permuted voxel coordinates (permuted axis a is index axis perm[a]).
     let crop: Vec<HalfSpace> = input
