@@ -4,8 +4,9 @@
 //! fixed-point mapper in the same run. The first frame counts everything from the file:
 //! ours reading the NIfTI, preparing and rendering; VTK's nibabel + numpy into a
 //! vtkImageData and its first render (which builds its gradient tables). Further frames
-//! orbit the camera (each a new view). Peak memory of each side after the phantom is
-//! written (ours: the process's resident peak from there; VTK's: its process's peak).
+//! orbit the camera (each a new view), and the viewer's previews while it moves (128²,
+//! preview settings). Peak memory of each side after the phantom is written (ours: the
+//! process's resident peak from there; VTK's: its process's peak).
 
 use super::median;
 use anyhow::{bail, Context, Result};
@@ -90,9 +91,30 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
         render_node_with(&scene, 0, &view(k, dist), (512, 512), &cache)?;
         further.push(1000.0 * t.elapsed().as_secs_f64());
     }
+    // The viewer's previews while the camera moves: a quarter of the size per side, each
+    // renderer's preview settings (shear-warp: no supersampling, one sample per slab).
+    let mut file = scene.file.clone();
+    for (i, n) in file.nodes.iter_mut().enumerate() {
+        if let Some(r) = scene.renderer(i) {
+            volterra::render::settings::apply_preview(r.settings, &mut n.settings);
+        }
+    }
+    let preview_scene = scene.edited(file)?;
+    let mut previews = Vec::new();
+    for k in 0..=b.frames {
+        for step in 0..3 {
+            // Small steps round each view, as a drag makes them.
+            let mut c = view(k, dist);
+            let p = glam::DMat3::from_rotation_z((2.0 * step as f64).to_radians()) * glam::DVec3::from(c.position);
+            c.position = p.to_array();
+            let t = Instant::now();
+            render_node_with(&preview_scene, 0, &c, (128, 128), &cache)?;
+            previews.push(1000.0 * t.elapsed().as_secs_f64());
+        }
+    }
     let ours_peak = peak_rss();
     let covered = first.rgba.iter().filter(|p| p[3] > 0.5).count();
-    drop((scene, cache, first));
+    drop((scene, preview_scene, cache, first));
 
     // VTK in its own process.
     let spec = serde_json::json!({
@@ -110,6 +132,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     let report = serde_json::json!({
         "volume": format!("{}×{}×{} int16, {:.0} MiB stored", dims[0], dims[1], dims[2], stored_mib),
         "ours": {"first_ms": first_ms, "further_ms": further, "further_median_ms": ours_further, "peak_bytes": ours_peak,
+                 "preview_128_ms": previews,
                  "pixels_opaque": covered},
         "vtk": vtk.as_ref().map_err(|e| format!("{e:#}")).ok(),
         "vtk_error": vtk.as_ref().err().map(|e| format!("{e:#}")),
@@ -132,6 +155,13 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
         first_ms,
         ours_further,
         mib(ours_peak)
+    );
+    let mut sorted = previews.clone();
+    println!(
+        "{:<44} previews at 128² while moving (the viewer's): median {:.0} ms, slowest {:.0} ms (a turn to a new principal axis)",
+        "",
+        median(&mut sorted),
+        previews.iter().cloned().fold(0.0, f64::max)
     );
     match &vtk {
         Ok(v) => {
