@@ -290,6 +290,10 @@ enum BenchCommand {
         /// Frames after the first, each from another direction.
         #[arg(long, default_value_t = 4)]
         frames: usize,
+        /// Override a key of the scene our side draws (node "ct"), as `render --set`:
+        /// e.g. node.ct.settings.supersampling=1.
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
         /// Print the results as JSON.
         #[arg(long)]
         json: bool,
@@ -459,8 +463,8 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
                 plot,
             })
         }
-        BenchCommand::Clinical { slices, frames, json, common } => {
-            b::clinical::run(&b::clinical::ClinicalBench { env: common.resolve(limits)?, slices, frames, json })
+        BenchCommand::Clinical { slices, frames, json, sets, common } => {
+            b::clinical::run(&b::clinical::ClinicalBench { env: common.resolve(limits)?, slices, frames, json, sets })
         }
         BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
             std::fs::create_dir_all(&common.work_dir)?;

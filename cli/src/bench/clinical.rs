@@ -23,6 +23,9 @@ pub struct ClinicalBench {
     /// Frames after the first (each from another direction).
     pub frames: usize,
     pub json: bool,
+    /// Scene overrides for our side (`--set node.ct.settings.supersampling=1`), to see
+    /// speed against quality at this size.
+    pub sets: Vec<String>,
 }
 
 /// The camera directions of the frames: the first from the front (anterior, +y) and
@@ -81,7 +84,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     // The resident peak is reset first (Linux: clear_refs 5), so it counts from here.
     let _ = std::fs::write("/proc/self/clear_refs", "5");
     let t = Instant::now();
-    let scene = Scene::load(&scene_path, &[])?.with_limits(b.env.limits);
+    let scene = Scene::load(&scene_path, &b.sets)?.with_limits(b.env.limits);
     let cache = RenderCache::default();
     let first = render_node_with(&scene, 0, &cam, (512, 512), &cache)?.context("the node draws nothing")?;
     let first_ms = 1000.0 * t.elapsed().as_secs_f64();
