@@ -272,6 +272,33 @@ fn a_crop_box_dragged_in_the_viewer_is_rendered_and_saved() {
     assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
 }
 
+/// A camera inside the volume (as zooming in puts it): shear-warp refuses the view, and
+/// the viewer draws it with the reference ray caster instead of showing the refusal, and
+/// says so; the scene keeps shear-warp.
+#[test]
+fn a_camera_inside_the_volume_is_drawn_by_the_reference() {
+    let dir = samples();
+    let text = std::fs::read_to_string(dir.path().join("angio_preset.toml")).unwrap();
+    // In the trunk of the vessel tree, looking up it.
+    let inside = text
+        .replace("position = [110.0, 122.0, 36.5]", "position = [0.0, 0.0, -25.0]")
+        .replace("focal_point = [0.0, 0.0, 0.0]", "focal_point = [0.0, 0.0, 10.0]")
+        .replace("view_up = [0.0, 0.0, 1.0]", "view_up = [0.0, 1.0, 0.0]");
+    assert_ne!(inside, text);
+    std::fs::write(dir.path().join("inside.toml"), inside).unwrap();
+    let mut viewer = Viewer::new(LoadOptions::default());
+    viewer.open(&dir.path().join("inside.toml")).unwrap();
+    let mut h = Harness::builder().with_size([900.0, 420.0]).build_ui_state(|ui, v: &mut Viewer| v.ui(ui), viewer);
+    settle(&mut h);
+    let frame = h.state().current_full_frame().unwrap();
+    assert_eq!(frame.stats.renderer, "reference");
+    let most = frame.rgba.iter().map(|p| p[3]).fold(0.0f32, f32::max);
+    assert!(most > 0.05, "the vessels around the eye are drawn: {most}, {:?} {}x{}", frame.stats, frame.width, frame.height);
+    assert_eq!(h.state().message(), Some(volterra_view::worker::EYE_INSIDE_NOTE));
+    assert!(h.state().last_error().is_none());
+    assert_eq!(h.state().scene().unwrap().nodes()[0].renderer, None, "the scene keeps its renderer");
+}
+
 #[test]
 fn opening_a_data_file_frames_it_and_measures_the_error() {
     let dir = samples();

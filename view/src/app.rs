@@ -478,6 +478,9 @@ impl Viewer {
             }
         }
         self.render_error = None;
+        if frame.stats.notes.iter().any(|n| n == super::worker::EYE_INSIDE_NOTE) {
+            self.message = Some(super::worker::EYE_INSIDE_NOTE.into());
+        }
         let bg = self.doc.as_ref().map(|d| d.scene.file.image.background).unwrap_or([0.0; 3]);
         let texture = ctx.load_texture("view", frame_image(&frame, bg), egui::TextureOptions::LINEAR);
         let steps = frame

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Instant;
-use volterra::render::{self, Frame, RenderCache};
+use volterra::render::{self, shear_warp, Frame, RenderCache};
 use volterra::scene::{Camera, Scene};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -172,6 +172,20 @@ fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn
             Quality::Preview => preview_of(&job.scene).and_then(|s| render::render_view(&s, &job.camera, job.size, &cache)),
             Quality::Full => render::render_view(&job.scene, &job.camera, job.size, &cache),
         };
+        // Shear-warp refuses a camera inside a volume (one principal axis cannot hold rays
+        // leaving the eye every way): the viewer draws that view with the reference ray
+        // caster instead of showing the refusal, and says so — at its preview step (0.25
+        // voxel) for full frames too, which keeps a full frame to seconds.
+        let result = match result {
+            Err(e) if job.quality != Quality::Reference && format!("{e:#}").contains(shear_warp::factor::EYE_INSIDE) => {
+                let scene = volume_references(&job.scene).and_then(|s| preview_of(&s));
+                scene.and_then(|s| render::render_view(&s, &job.camera, job.size, &cache)).map(|mut f| {
+                    f.stats.notes.push(EYE_INSIDE_NOTE.into());
+                    f
+                })
+            }
+            r => r,
+        };
         // A cancelled frame is stale: the job that cancelled it is already queued.
         let cancelled = result.as_ref().is_err_and(|e| e.root_cause().is::<render::driver::Cancelled>());
         let result = result.map_err(|e| format!("{e:#}"));
@@ -197,6 +211,26 @@ fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
     for (i, n) in file.nodes.iter_mut().enumerate() {
         if let Some(r) = scene.renderer(i) {
             volterra::render::settings::apply_preview(r.settings, &mut n.settings);
+        }
+    }
+    scene.edited(file)
+}
+
+/// What the status bar says of a view drawn by the reference because the eye is inside
+/// a volume.
+pub const EYE_INSIDE_NOTE: &str =
+    "the camera is inside the volume: drawn by the reference ray caster (slower; shear-warp needs the eye outside)";
+
+/// The scene with its shear-warp volume nodes drawn by the reference ray caster (their
+/// settings carried over), everything else as it is.
+fn volume_references(scene: &Scene) -> anyhow::Result<Scene> {
+    use volterra::render::registry;
+    let mut file = scene.file.clone();
+    for (i, n) in file.nodes.iter_mut().enumerate() {
+        let (Some(from), Some(to)) = (scene.renderer(i), registry::reference_for(n.kind)) else { continue };
+        if n.kind == volterra::scene::NodeKind::Volume && from.name == shear_warp::RENDERER.name {
+            n.settings = registry::carry_over(from, to, &n.settings);
+            n.renderer = Some(to.name.into());
         }
     }
     scene.edited(file)

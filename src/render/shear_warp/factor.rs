@@ -34,6 +34,10 @@ pub struct SliceMap {
     pub y0: f64,
 }
 
+/// How the refusal of a camera inside the volume begins (the viewer recognises it and
+/// draws that view with the reference ray caster instead).
+pub const EYE_INSIDE: &str = "the eye lies inside the volume";
+
 /// How rays run through the permuted volume.
 #[derive(Debug, Clone)]
 pub enum Projection {
@@ -196,7 +200,7 @@ impl Factorization {
         order.sort_by(|&a, &b| d[b].abs().total_cmp(&d[a].abs()));
         let Some(c) = order.into_iter().find(|&a| outside(a)) else {
             bail!(
-                "the eye lies inside the volume (voxel {:.1}, {:.1}, {:.1} of {}×{}×{}): perspective shear-warp needs it outside \
+                "{EYE_INSIDE} (voxel {:.1}, {:.1}, {:.1} of {}×{}×{}): perspective shear-warp needs it outside \
                  the box of voxel centres; move the camera out or use renderer = \"reference\"",
                 eye.x,
                 eye.y,
