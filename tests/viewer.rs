@@ -511,18 +511,19 @@ fn files_open_from_the_dialog_and_by_drag_and_drop_without_blocking() {
     assert_eq!(h.state().scene().unwrap().nodes()[0].renderer.as_deref(), Some("terrain"));
 }
 
-/// `volterra view SCENE --screenshot W.png` hung for ever when the first frame failed (a
-/// camera shear-warp cannot draw from: inside the volume): it prints the error and exits
-/// 1, no PNG.
+/// `volterra view SCENE --screenshot W.png` hung for ever when the first frame failed: it
+/// prints the error and exits 1, no PNG. (The frame here fails because the particle node
+/// gives no medium; a camera inside a volume, the case that found it, is now drawn by the
+/// reference ray caster.)
 #[test]
 fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
     let Some(xvfb) = xvfb_run() else { return };
     let dir = samples();
-    let text = std::fs::read_to_string(dir.path().join("angio_shear_warp.toml")).unwrap();
-    let scene = dir.path().join("perspective.toml");
-    let inside =
-        text.replace("parallel_projection = true", "parallel_projection = false").replace("[180.0, 200.0, 60.0]", "[2.0, 3.0, 1.0]");
-    std::fs::write(&scene, inside).unwrap();
+    let text = std::fs::read_to_string(dir.path().join("smoke.toml")).unwrap();
+    let scene = dir.path().join("no_medium.toml");
+    let broken: String = text.lines().filter(|l| !l.starts_with("medium =")).map(|l| format!("{l}\n")).collect();
+    assert_ne!(broken, text);
+    std::fs::write(&scene, broken).unwrap();
     let shot = dir.path().join("never.png");
     let runtime = tempfile::tempdir().unwrap();
     let mut child = Command::new(xvfb)
@@ -550,6 +551,6 @@ fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
     let mut err = String::new();
     std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
     assert_eq!(status.code(), Some(1), "{err}");
-    assert!(err.contains("inside the volume"), "the error names the cause: {err}");
+    assert!(err.contains("needs medium"), "the error names the cause: {err}");
     assert!(!shot.exists());
 }
