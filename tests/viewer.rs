@@ -53,6 +53,25 @@ fn mean_rgba(f: &volterra::render::Frame) -> [f64; 4] {
     m
 }
 
+/// Saves through the toolbar's "Save as" field and "Save" button (the extension picks a
+/// scene, EXR or PNG).
+fn save_through_toolbar(h: &mut Harness<'_, Viewer>, path: &std::path::Path) {
+    h.get_by_label("Save as").focus();
+    h.run_steps(1);
+    h.get_by_label("Save as").set_text_value_accesskit(&path.display().to_string());
+    h.run_steps(1);
+    h.get_by_label("Save").click();
+    h.run_steps(2);
+}
+
+/// `volterra render SCENE -o DIR/cli.exr`, read back.
+fn render_with_cli(scene: &std::path::Path, dir: &std::path::Path) -> exr_io::FloatImage {
+    let cli = dir.join("cli.exr");
+    let st = Command::new(common::volterra_bin()).arg("render").arg(scene).arg("-o").arg(&cli).status().unwrap();
+    assert!(st.success());
+    exr_io::read_exr(&cli, &Default::default()).unwrap()
+}
+
 #[test]
 fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     let dir = samples();
@@ -124,13 +143,7 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     let scene_path = out.path().join("saved view.toml");
     let exr_path = out.path().join("viewer.exr");
     for path in [&scene_path, &exr_path] {
-        let field = h.get_by_label("Save as");
-        field.focus();
-        h.run_steps(1);
-        h.get_by_label("Save as").set_text_value_accesskit(&path.display().to_string());
-        h.run_steps(1);
-        h.get_by_label("Save").click();
-        h.run_steps(2);
+        save_through_toolbar(&mut h, path);
         assert_eq!(h.state().last_error(), None);
         assert!(path.exists(), "{} written; status: {:?}", path.display(), h.state().message());
     }
@@ -139,10 +152,7 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     assert!(text.contains("renderer = \"shear-warp\""), "{text}");
     assert!(!text.contains(&dir.path().display().to_string()), "data path written relative: {text}");
 
-    let cli = out.path().join("cli.exr");
-    let st = Command::new(common::volterra_bin()).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
-    assert!(st.success());
-    let (a, b) = (exr_io::read_exr(&exr_path, &Default::default()).unwrap(), exr_io::read_exr(&cli, &Default::default()).unwrap());
+    let (a, b) = (exr_io::read_exr(&exr_path, &Default::default()).unwrap(), render_with_cli(&scene_path, out.path()));
     assert_eq!((a.width, a.height), (b.width, b.height));
     for ch in ["R", "G", "B", "A", "Z"] {
         let (x, y) = (a.channel(ch).unwrap(), b.channel(ch).unwrap());
@@ -186,18 +196,10 @@ fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
 
     let out = tempfile::tempdir().unwrap();
     let scene_path = out.path().join("shaded.toml");
-    h.get_by_label("Save as").focus();
-    h.run_steps(1);
-    h.get_by_label("Save as").set_text_value_accesskit(&scene_path.display().to_string());
-    h.run_steps(1);
-    h.get_by_label("Save").click();
-    h.run_steps(2);
+    save_through_toolbar(&mut h, &scene_path);
     let text = std::fs::read_to_string(&scene_path).unwrap();
     assert!(text.contains("shade = true") && text.contains("specular = 0.8"), "{text}");
-    let cli = out.path().join("cli.exr");
-    let st = Command::new(common::volterra_bin()).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
-    assert!(st.success());
-    let b = exr_io::read_exr(&cli, &Default::default()).unwrap();
+    let b = render_with_cli(&scene_path, out.path());
     let r = b.channel("R").unwrap();
     let diff = glossy.rgba.iter().zip(r).map(|(p, q)| (p[0] - q).abs()).fold(0.0f32, f32::max);
     assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
@@ -255,18 +257,10 @@ fn a_crop_box_dragged_in_the_viewer_is_rendered_and_saved() {
     let frame = h.state().current_full_frame().unwrap().clone();
     let out = tempfile::tempdir().unwrap();
     let scene_path = out.path().join("cropped.toml");
-    h.get_by_label("Save as").focus();
-    h.run_steps(1);
-    h.get_by_label("Save as").set_text_value_accesskit(&scene_path.display().to_string());
-    h.run_steps(1);
-    h.get_by_label("Save").click();
-    h.run_steps(2);
+    save_through_toolbar(&mut h, &scene_path);
     let text = std::fs::read_to_string(&scene_path).unwrap();
     assert!(text.contains("[node.crop]") && text.contains("[[node.clip]]"), "{text}");
-    let cli = out.path().join("cli.exr");
-    let st = Command::new(common::volterra_bin()).arg("render").arg(&scene_path).arg("-o").arg(&cli).status().unwrap();
-    assert!(st.success());
-    let b = exr_io::read_exr(&cli, &Default::default()).unwrap();
+    let b = render_with_cli(&scene_path, out.path());
     let a = b.channel("A").unwrap();
     let diff = frame.rgba.iter().zip(a).map(|(p, q)| (p[3] - q).abs()).fold(0.0f32, f32::max);
     assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");

@@ -135,7 +135,7 @@ pub fn draw(painter: &egui::Painter, c: &CropBox, to_world: DMat4, project: impl
         }
     }
     for f in 0..6 {
-        if let Some(p) = project(to_world.transform_point3(face_centre(c, f))) {
+        if let Some(p) = handle_position(c, f, to_world, &project) {
             painter.circle(p, HANDLE_RADIUS, Color32::from_rgba_unmultiplied(90, 200, 255, 160), stroke);
         }
     }
@@ -151,7 +151,7 @@ pub fn handle_position(c: &CropBox, f: usize, to_world: DMat4, project: impl Fn(
 /// The face whose handle lies under window position `pos`, if any.
 pub fn handle_at(c: &CropBox, to_world: DMat4, pos: Pos2, project: impl Fn(DVec3) -> Option<Pos2>) -> Option<usize> {
     (0..6)
-        .filter_map(|f| project(to_world.transform_point3(face_centre(c, f))).map(|p| (f, p.distance(pos))))
+        .filter_map(|f| handle_position(c, f, to_world, &project).map(|p| (f, p.distance(pos))))
         .filter(|&(_, d)| d <= 2.0 * HANDLE_RADIUS)
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(f, _)| f)
