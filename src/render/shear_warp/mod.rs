@@ -195,6 +195,8 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
 
     let iw = fac.width;
     let mut inter = Intermediate { width: iw, rgba: vec![[0.0; 4]; iw * fac.height], depth: vec![f32::INFINITY; iw * fac.height] };
+    // Only the intermediate pixels the warp reads are composited.
+    let footprint = warp::Footprint::new(&fac, w, h, iw, fac.height);
     let samples = AtomicU64::new(0);
     let slabs_leapt = AtomicU64::new(0);
     let termination = settings.termination as f32;
@@ -214,8 +216,21 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     const BAND: usize = 8;
     super::driver::render_bands("shear-warp", iw, BAND, &mut inter.rgba, &mut inter.depth, &mut [], |band| {
         let (band_rgba, band_depth, band_rows, v_first) = (band.rgba, band.depth, band.rows, band.y0);
-        let mut states: Vec<RowState> = (0..band_rows).map(|_| RowState::new(iw)).collect();
-        let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r));
+        let live = |r: usize| (v_clip_lo..=v_clip_hi).contains(&(v_first + r)) && footprint.row(v_first + r);
+        // Pixels the warp never reads start terminated (composite: linked past; MIP: a
+        // maximum nothing exceeds, which never blocks a leap and is never drawn).
+        let mut states: Vec<RowState> = (0..band_rows)
+            .map(|r| {
+                let mut st = RowState::new(iw);
+                if live(r) {
+                    for u in (0..iw).filter(|&u| !footprint.read(u, v_first + r)) {
+                        st.links[u] = u as u32 + 1;
+                        st.max_level[u] = f32::INFINITY;
+                    }
+                }
+                st
+            })
+            .collect();
         // Each ray's length between slices relative to the table's (perspective only).
         let lengths: Vec<Vec<f32>> = if perspective {
             (0..band_rows).map(|r| (0..iw).map(|u| fac.length_ratio(u as f64, (v_first + r) as f64) as f32).collect()).collect()
@@ -241,7 +256,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 let slice = SliceRows::new(axis, 0, y0, y1, wy);
                 for u in ua..=ub {
                     let x = x_of(u, &maps[0]);
-                    if !kept(glam::DVec3::new(x, y, 0.0)) {
+                    if !footprint.read(u, v_first + r) || !kept(glam::DVec3::new(x, y, 0.0)) {
                         continue;
                     }
                     let s = slice.at(x) * q_to_level;
@@ -337,6 +352,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                             }
                         }
                         for uu in u..run_end {
+                            if max_level[uu] == f32::INFINITY {
+                                continue; // not read by the warp
+                            }
                             let xb = x_of(uu, back_map);
                             let s = if crop.is_empty() || kept(glam::DVec3::new(xb, y, z as f64)) {
                                 n_samples += 1;
@@ -575,6 +593,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             ("runs_leapt".into(), slabs_leapt.load(Ordering::Relaxed) as f64),
             ("supersampling".into(), fac.ratio),
             ("intermediate_pixels".into(), ((u_clip_hi + 1 - u_clip_lo) * (v_clip_hi + 1 - v_clip_lo)) as f64),
+            ("intermediate_pixels_read".into(), footprint.count as f64),
             ("table_levels".into(), n_levels as f64),
             ("principal_axis".into(), fac.perm[2] as f64),
         ],
