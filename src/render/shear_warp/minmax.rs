@@ -49,8 +49,12 @@ pub struct OverlappedMap {
 struct Coarse([u8; 2]);
 
 impl Coarse {
-    fn of(mm: MinMax) -> Coarse {
-        Coarse([(mm.min >> 8) as u8, (mm.max >> 8) as u8])
+    /// No voxels: a range nothing lies in.
+    const EMPTY: Coarse = Coarse([u8::MAX, 0]);
+
+    #[inline]
+    fn merge(self, other: Coarse) -> Coarse {
+        Coarse([self.0[0].min(other.0[0]), self.0[1].max(other.0[1])])
     }
 
     /// The block's range as quanta: at least the true one.
@@ -64,55 +68,77 @@ impl Coarse {
     }
 }
 
-/// One slice's x-block min/max per row, for both variants: [y][variant][bx].
-fn slice_blocks(data: &[u16], dims: [usize; 3], n: usize, nbx: usize, z: usize) -> Vec<MinMax> {
+/// One slice's x-block min and max per row, for both variants, in 8-bit steps (a
+/// quantum's high byte: the step of the minimum is the minimum of the steps, so rounding
+/// first changes nothing): `[y][variant][bx]`. Each row's core blocks (n·bx .. n·bx + n)
+/// are reduced once, in plain loops the compiler vectorises; the variants add the one or
+/// two voxels either side.
+fn slice_blocks(data: &[u16], dims: [usize; 3], n: usize, nbx: usize, z: usize) -> Vec<Coarse> {
     let [nx, ny, _] = dims;
-    let mut out = vec![EMPTY; ny * 2 * nbx];
+    let mut out = vec![Coarse::EMPTY; ny * 2 * nbx];
+    let mut core = vec![Coarse::EMPTY; nbx];
+    let step = |q: u16| (q >> 8) as u8;
     for (y, blocks) in out.chunks_mut(2 * nbx).enumerate() {
         let row = &data[(z * ny + y) * nx..(z * ny + y + 1) * nx];
-        for variant in 0..2 {
-            for bx in 0..nbx {
-                let start = (n * bx) as isize - variant as isize;
-                let lo = start.max(0) as usize;
-                let hi = ((start + n as isize + 1) as usize).min(nx - 1);
-                let mut mm = EMPTY;
-                if lo <= hi && lo < nx {
-                    for &q in &row[lo..=hi] {
-                        mm.min = mm.min.min(q);
-                        mm.max = mm.max.max(q);
-                    }
-                }
-                blocks[variant * nbx + bx] = mm;
+        for (c, chunk) in core.iter_mut().zip(row.chunks(n)) {
+            let (mut lo, mut hi) = (u8::MAX, 0u8);
+            for &q in chunk {
+                lo = lo.min(step(q));
+                hi = hi.max(step(q));
             }
+            *c = Coarse([lo, hi]);
+        }
+        let at = |x: isize| if x >= 0 && (x as usize) < nx { Coarse([step(row[x as usize]); 2]) } else { Coarse::EMPTY };
+        let (v0, v1) = blocks.split_at_mut(nbx);
+        for bx in 0..nbx {
+            // Variant 0 covers x from n·bx to n·bx + n + 1, variant 1 from n·bx − 1 to
+            // n·bx + n (both clamped to the row).
+            let x = (n * bx) as isize;
+            let c = if n * bx < nx { core[bx] } else { Coarse::EMPTY };
+            let right = at(x + n as isize);
+            v0[bx] = c.merge(right).merge(at(x + n as isize + 1));
+            v1[bx] = c.merge(right).merge(at(x - 1));
         }
     }
     out
 }
+
+/// Slabs per task of the map's parallel build: each slice's row blocks are made once per
+/// task (and once more at the task's end) rather than twice.
+const SLABS_PER_TASK: usize = 8;
 
 impl OverlappedMap {
     pub fn new(data: &[u16], dims: [usize; 3], n: usize) -> OverlappedMap {
         let [_, ny, nz] = dims;
         let nbx = dims[0] / n + 2;
         let slabs = nz.saturating_sub(1).max(1);
-        let mut entries = vec![Coarse::of(EMPTY); slabs * (ny + 1) * 2 * nbx];
-        // One chunk per slab, in parallel, from the row blocks of its two slices (each
-        // slice's are made twice, for the slabs either side, rather than kept for the
-        // whole volume: that would cost as much memory as the map itself). 512 × 512 ×
-        // 400, 2 cores: 0.82 s serially with the blocks kept, 0.30 s in parallel.
-        entries.par_chunks_mut((ny + 1) * 2 * nbx).enumerate().for_each(|(zs, slab)| {
-            let z1 = (zs + 1).min(nz - 1);
-            let (front, back) = (slice_blocks(data, dims, n, nbx, zs), slice_blocks(data, dims, n, nbx, z1));
-            for start in -1..ny as isize {
-                for variant in 0..2 {
-                    for bx in 0..nbx {
-                        let mut mm = EMPTY;
-                        for y in start.max(0)..=(start + 2).min(ny as isize - 1) {
-                            let i = (y as usize * 2 + variant) * nbx + bx;
-                            mm = merge(merge(mm, front[i]), back[i]);
+        let slab_len = (ny + 1) * 2 * nbx;
+        let mut entries = vec![Coarse::EMPTY; slabs * slab_len];
+        // Tasks of SLABS_PER_TASK slabs, in parallel, from the row blocks of their slices
+        // (made per task rather than kept for the whole volume: that would cost as much
+        // memory as the map itself); within a slab the two slices are merged row by row
+        // first, then each row start merges three of those rows. 512 × 512 × 400, 2
+        // cores: 0.82 s serially, 0.30 s in parallel per slab with u16 blocks, 0.10 s so.
+        entries.par_chunks_mut(SLABS_PER_TASK * slab_len).enumerate().for_each(|(task, chunk)| {
+            let z0 = task * SLABS_PER_TASK;
+            let mut front = slice_blocks(data, dims, n, nbx, z0);
+            let mut pair = vec![Coarse::EMPTY; ny * 2 * nbx];
+            for (i, slab) in chunk.chunks_mut(slab_len).enumerate() {
+                let back = slice_blocks(data, dims, n, nbx, (z0 + i + 1).min(nz - 1));
+                for ((p, f), b) in pair.iter_mut().zip(&front).zip(&back) {
+                    *p = f.merge(*b);
+                }
+                for start in -1..ny as isize {
+                    let rows = start.max(0) as usize..=(start + 2).min(ny as isize - 1) as usize;
+                    let out = &mut slab[(start + 1) as usize * 2 * nbx..(start + 2) as usize * 2 * nbx];
+                    out.copy_from_slice(&pair[rows.start() * 2 * nbx..(rows.start() + 1) * 2 * nbx]);
+                    for y in rows.skip(1) {
+                        for (o, p) in out.iter_mut().zip(&pair[y * 2 * nbx..(y + 1) * 2 * nbx]) {
+                            *o = o.merge(*p);
                         }
-                        slab[((start + 1) as usize * 2 + variant) * nbx + bx] = Coarse::of(mm);
                     }
                 }
+                front = back;
             }
         });
         OverlappedMap { n, dims, nbx, entries }
