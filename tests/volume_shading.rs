@@ -345,7 +345,9 @@ fn shaded_shear_warp_matches_the_shaded_reference() {
             relative_rmse(&render(ShearWarp, &v, &tf, None, lights, &cam, size), &render(Reference, &v, &tf, None, lights, &cam, size));
         let shaded = relative_rmse(&sw, &rf);
         eprintln!("from {from:?} (parallel: {parallel}), {} lights: shaded relative RMSE {shaded:.4}, unshaded {plain:.4}", lights.len());
-        assert!(shaded < 0.035 && shaded < plain + 0.01, "from {from:?}: shaded {shaded}, unshaded {plain}");
+        // Shading's own error (the gradient linear between slices 2.5 mm apart) is at
+        // most 1.2 % here: 1.8 % shaded against 0.6 % unshaded, seen along z.
+        assert!(shaded < 0.025 && shaded < plain + 0.015, "from {from:?}: shaded {shaded}, unshaded {plain}");
         // Shading changed the picture (the comparison is not of two unshaded images).
         let unshaded_ref = render(Reference, &v, &tf, None, lights, &cam, size);
         assert!(relative_rmse(&unshaded_ref, &rf) > 0.1);

@@ -60,7 +60,7 @@ crate::declare_settings! {
     pub struct Settings {
         /// Intermediate pixels per voxel: any real ratio, such as 1.13 or 2.26.
         pub supersampling: f64 = 0.0, unit = "pixels per voxel", range = Bounds::open_closed(0.0, 16.0),
-            zero = "auto: one intermediate pixel per output pixel, clamped to 2..4", quality = true,
+            zero = "auto: intermediate pixels a quarter of an output pixel apart (only those the warp reads are composited), clamped to 2..8", quality = true,
             viewer = Control { label: "Supersampling", widget: Widget::Slider { lo: 0.0, hi: 4.0, step: 0.01 } },
             preview = Preview::AtMost(1.0);
         /// Empty-space leaping over runs of voxels the transfer function makes transparent.
