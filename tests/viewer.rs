@@ -205,6 +205,61 @@ fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
     assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
 }
 
+/// Gradient opacity in the viewer: switched on it changes nothing (factor 1 at every
+/// gradient); the factor at zero gradient lowered to 0 fades the vessels' homogeneous
+/// insides, so less is opaque; the saved scene carries the points and renders as the
+/// viewer drew it.
+#[test]
+fn gradient_opacity_edited_in_the_viewer_is_rendered_and_saved() {
+    let dir = samples();
+    let mut viewer = Viewer::new(LoadOptions::default());
+    viewer.open(&dir.path().join("angio_shear_warp.toml")).unwrap();
+    let mut h = harness(viewer);
+    settle(&mut h);
+    let plain = h.state().current_full_frame().unwrap().clone();
+    h.get_by_label("Gradient opacity").scroll_to_me();
+    h.run_steps(3);
+    h.get_by_label("Gradient opacity").click();
+    h.run_steps(3);
+    settle(&mut h);
+    let points =
+        |h: &Harness<'_, Viewer>| h.state().scene().unwrap().nodes()[0].transfer_function.as_ref().unwrap().gradient_opacity.clone();
+    let seeded = points(&h);
+    assert_eq!(seeded.len(), 2, "{seeded:?}");
+    assert!(seeded.iter().all(|p| p[1] == 1.0) && seeded[1][0] > 0.0, "{seeded:?}");
+    let same = h.state().current_full_frame().unwrap();
+    let worst = plain.rgba.iter().zip(&same.rgba).flat_map(|(p, q)| (0..4).map(move |c| (p[c] - q[c]).abs())).fold(0.0f32, f32::max);
+    assert_eq!((plain.width, plain.height), (same.width, same.height), "the view keeps its size");
+    assert!(worst < 1e-6, "gradient opacity at factor 1 changed a pixel by {worst}");
+
+    // The second point further out (the phantom's vessel walls are steep), then the
+    // factor at zero gradient down to 0.
+    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "gradient 2").scroll_to_me();
+    h.run_steps(3);
+    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "gradient 2").set_value_accesskit(400.0);
+    h.run_steps(3);
+    h.get_by_role_and_label(egui::accesskit::Role::Slider, "factor 1").scroll_to_me();
+    h.run_steps(3);
+    h.get_by_role_and_label(egui::accesskit::Role::Slider, "factor 1").set_value_accesskit(0.0);
+    h.run_steps(3);
+    settle(&mut h);
+    assert_eq!(points(&h), vec![[0.0, 0.0], [400.0, 1.0]]);
+    let faded = h.state().current_full_frame().unwrap().clone();
+    let (a0, a1) = (mean_rgba(&plain)[3], mean_rgba(&faded)[3]);
+    assert!(a1 < 0.95 * a0, "homogeneous regions fade: mean alpha {a0} → {a1}");
+    assert!(a1 > 0.05 * a0, "edges stay: mean alpha {a0} → {a1}");
+
+    let out = tempfile::tempdir().unwrap();
+    let scene_path = out.path().join("gradient.toml");
+    save_through_toolbar(&mut h, &scene_path);
+    let text = std::fs::read_to_string(&scene_path).unwrap();
+    assert!(text.contains("gradient_opacity"), "{text}");
+    let b = render_with_cli(&scene_path, out.path());
+    let a = b.channel("A").unwrap();
+    let diff = faded.rgba.iter().zip(a).map(|(p, q)| (p[3] - q).abs()).fold(0.0f32, f32::max);
+    assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
+}
+
 /// Cropping in the viewer: the crop box switched on starts round the whole volume (the
 /// image stays as it was), a face handle dragged in the 3-D view moves that face (and not
 /// the camera), a clipping plane is added from the panel; the saved scene carries both and

@@ -238,8 +238,50 @@ impl TfEditor {
                 .labelled_by(lbl.id)
                 .changed();
         });
+        changed |= gradient_opacity(ui, tf, hi - lo);
         changed
     }
+}
+
+/// VTK's gradient opacity: a factor on the opacity per unit distance by the gradient's
+/// magnitude (value units per mm), piecewise linear. Switched on it starts at 1 everywhere
+/// (the picture unchanged, as Slicer's default); lowering the factor at small gradients
+/// fades homogeneous regions and keeps edges. `range`: the data's value span, for the
+/// drag speed and the second point's place (the span over 20 mm).
+fn gradient_opacity(ui: &mut egui::Ui, tf: &mut TransferFunction, range: f64) -> bool {
+    let mut changed = false;
+    let mut on = !tf.gradient_opacity.is_empty();
+    if ui.checkbox(&mut on, "Gradient opacity").changed() {
+        tf.gradient_opacity = if on { vec![[0.0, 1.0], [range / 20.0, 1.0]] } else { Vec::new() };
+        changed = true;
+    }
+    let mut remove = None;
+    let n = tf.gradient_opacity.len();
+    for i in 0..n {
+        ui.horizontal(|ui| {
+            let lbl = ui.label(format!("gradient {}", i + 1));
+            let mut g = tf.gradient_opacity[i][0];
+            if ui.add(egui::DragValue::new(&mut g).speed(range / 2000.0).range(0.0..=f64::MAX).suffix(" /mm")).labelled_by(lbl.id).changed()
+            {
+                changed |= move_point(&mut tf.gradient_opacity, i, g, |_| {});
+            }
+            if n > 1 && ui.small_button("remove").on_hover_text("remove this gradient point").clicked() {
+                remove = Some(i);
+            }
+        });
+        // On a line of its own: the panel keeps its width.
+        changed |= ui.add(egui::Slider::new(&mut tf.gradient_opacity[i][1], 0.0..=1.0).text(format!("factor {}", i + 1))).changed();
+    }
+    if let Some(i) = remove {
+        tf.gradient_opacity.remove(i);
+        changed = true;
+    }
+    if on && ui.button("Add a gradient point").clicked() {
+        let last = *tf.gradient_opacity.last().unwrap_or(&[0.0, 1.0]);
+        tf.gradient_opacity.push([last[0] + range / 20.0, last[1]]);
+        changed = true;
+    }
+    changed
 }
 
 /// Moves point `i` to value `v`, kept between its neighbours so the values still increase;
