@@ -6,12 +6,14 @@
 //! vtkImageData and its first render (which builds its gradient tables). Further frames
 //! orbit the camera (each a new view), and the viewer's previews while it moves (128²,
 //! preview settings). Peak memory of each side after the phantom is written (ours: the
-//! process's resident peak from there; VTK's: its process's peak).
+//! process's resident peak from there; VTK's: its process's peak). With `--error`, the
+//! first view of each side against the reference ray caster's (rendered once, cached).
 
 use super::median;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use volterra::compare::{rgba_pixels, rgba_rel_rmse};
 use volterra::render::{render_node_with, RenderCache};
 use volterra::scene::presets::{Preset, ValueStats};
 use volterra::scene::{Camera, Scene};
@@ -26,6 +28,8 @@ pub struct ClinicalBench {
     /// Scene overrides for our side (`--set node.ct.settings.supersampling=1`), to see
     /// speed against quality at this size.
     pub sets: Vec<String>,
+    /// Measure the first view of each side against the reference ray caster.
+    pub error: bool,
 }
 
 /// The camera directions of the frames: the first from the front (anterior, +y) and
@@ -86,7 +90,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     let t = Instant::now();
     let scene = Scene::load(&scene_path, &b.sets)?.with_limits(b.env.limits);
     let cache = RenderCache::default();
-    let first = render_node_with(&scene, 0, &cam, (512, 512), &cache)?.context("the node draws nothing")?;
+    let mut first = render_node_with(&scene, 0, &cam, (512, 512), &cache)?.context("the node draws nothing")?;
     let first_ms = 1000.0 * t.elapsed().as_secs_f64();
     let mut further = Vec::new();
     for k in 1..=b.frames {
@@ -117,6 +121,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     }
     let ours_peak = peak_rss();
     let covered = first.rgba.iter().filter(|p| p[3] > 0.5).count();
+    let first_rgba = std::mem::take(&mut first.rgba);
     drop((scene, preview_scene, cache, first));
 
     // VTK in its own process.
@@ -129,6 +134,20 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     std::fs::write(&spec_path, spec.to_string())?;
     let vtk = run_vtk(&b.env.python, &b.env.scripts, &spec_path);
 
+    // The first view against the truth (after both sides' peaks were taken).
+    let errors = if b.error {
+        let reference = reference_image(b, &scene_path, &cam)?;
+        let vtk_first = b.env.work_dir.join("vtk_clinical_0.exr");
+        let vtk_error = vtk
+            .as_ref()
+            .ok()
+            .and_then(|_| volterra_formats::exr_io::read_exr(&vtk_first, &b.env.limits).ok())
+            .map(|img| rgba_rel_rmse(&rgba_pixels(&img), &reference));
+        Some((rgba_rel_rmse(&first_rgba, &reference), vtk_error))
+    } else {
+        None
+    };
+
     let mut further_sorted = further.clone();
     let ours_further = median(&mut further_sorted);
     let mib = |b: Option<u64>| b.map(|v| format!("{:.0} MiB", v as f64 / (1u64 << 20) as f64)).unwrap_or_else(|| "-".into());
@@ -137,6 +156,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
         "ours": {"first_ms": first_ms, "further_ms": further, "further_median_ms": ours_further, "peak_bytes": ours_peak,
                  "preview_128_ms": previews,
                  "pixels_opaque": covered},
+        "rel_rmse_first_view": errors.map(|(ours, vtk)| serde_json::json!({"ours": ours, "vtk": vtk})),
         "vtk": vtk.as_ref().map_err(|e| format!("{e:#}")).ok(),
         "vtk_error": vtk.as_ref().err().map(|e| format!("{e:#}")),
     });
@@ -182,7 +202,27 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
         }
         Err(e) => println!("VTK skipped: {e:#}"),
     }
+    if let Some((ours, vtk)) = errors {
+        let vtk = vtk.map(|e| format!("{:.2} %", 100.0 * e)).unwrap_or_else(|| "-".into());
+        println!("first view against the reference ray caster (relative RMSE): volterra {:.2} %, VTK {vtk}", 100.0 * ours);
+    }
     Ok(())
+}
+
+/// The reference ray caster's image of the bench scene's first view (RGBA), cached in the
+/// work directory by the scene's text.
+fn reference_image(b: &ClinicalBench, scene_path: &Path, cam: &Camera) -> Result<Vec<[f32; 4]>> {
+    let key = super::shear_warp::fxhash(&std::fs::read_to_string(scene_path)?);
+    let path = b.env.work_dir.join(format!("ref_clinical_{}_{key:x}.exr", b.slices));
+    if let Ok(img) = volterra_formats::exr_io::read_exr(&path, &b.env.limits) {
+        return Ok(rgba_pixels(&img));
+    }
+    eprintln!("rendering the reference for the first view, cached in {}", path.display());
+    let scene = Scene::load(scene_path, &["node.ct.renderer=reference".to_string()])?.with_limits(b.env.limits);
+    let frame = render_node_with(&scene, 0, cam, (512, 512), &RenderCache::default())?.context("the node draws nothing")?;
+    let img = frame.to_image([0.0; 3]);
+    volterra_formats::exr_io::write_exr(&path, &img)?;
+    Ok(frame.rgba)
 }
 
 fn run_vtk(python: &Path, scripts: &Path, spec: &PathBuf) -> Result<serde_json::Value> {

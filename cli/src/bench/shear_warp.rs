@@ -354,7 +354,7 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
 }
 
 /// A stable hash for cache keys.
-fn fxhash<T: std::hash::Hash>(t: &T) -> u64 {
+pub(super) fn fxhash<T: std::hash::Hash>(t: &T) -> u64 {
     use std::hash::Hasher;
     let mut h = std::collections::hash_map::DefaultHasher::new();
     t.hash(&mut h);
