@@ -96,8 +96,15 @@ fn pixels(ratio: f64, lo: f64, hi: f64) -> usize {
 }
 
 /// The most intermediate pixels a view gets, as a multiple of its final pixels (and at
-/// least 4 M): the automatic ratio is lowered to fit (memory: 20 bytes per pixel).
+/// least 4 M, at most 8 M: 160 MB at 20 bytes per pixel, whatever the output's size): the
+/// ratio is lowered to fit.
 const MAX_PIXELS_PER_FINAL_PIXEL: f64 = 8.0;
+
+/// The budget of intermediate pixels for a w × h view (see MAX_PIXELS_PER_FINAL_PIXEL).
+fn pixel_budget(w: usize, h: usize) -> f64 {
+    const M: f64 = 1024.0 * 1024.0;
+    (MAX_PIXELS_PER_FINAL_PIXEL * (w * h) as f64).clamp(4.0 * M, 8.0 * M)
+}
 
 /// The automatic ratio puts intermediate pixels at most this many final pixels apart.
 /// Only the pixels the warp reads are composited (four per final pixel), so a finer
@@ -174,7 +181,7 @@ impl Factorization {
             let (u2, v2) = uv(0.0, 1.0);
             let per_pixel = ((u1 - u0).hypot(v1 - v0)).min((u2 - u0).hypot(v2 - v0));
             let (w, h) = rays.size();
-            let budget = (MAX_PIXELS_PER_FINAL_PIXEL * (w * h) as f64).max(4.0 * 1024.0 * 1024.0);
+            let budget = pixel_budget(w, h);
             let fit = (budget / ((umax - umin + 1.0) * (vmax - vmin + 1.0))).sqrt();
             (1.0 / (AUTO_SPACING * per_pixel.max(1e-12))).clamp(AUTO_RATIO.0, AUTO_RATIO.1).min(fit.max(AUTO_RATIO.0))
         });
@@ -303,7 +310,7 @@ impl Factorization {
             }
         });
         // Within the budget of intermediate pixels.
-        let budget = (MAX_PIXELS_PER_FINAL_PIXEL * (w * h) as f64).max(4.0 * 1024.0 * 1024.0);
+        let budget = pixel_budget(w, h);
         let area = (umax - umin + 1.0) * (vmax - vmin + 1.0);
         let ratio = ratio.min((budget / area).sqrt());
         let centre = 0.5 * (plo + phi);

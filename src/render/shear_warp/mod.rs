@@ -194,6 +194,8 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let (u_clip_hi, v_clip_hi) = (u_clip_hi as usize, v_clip_hi as usize);
 
     let iw = fac.width;
+    // Colour, opacity and depth: 20 bytes per intermediate pixel.
+    prep.limits.check(std::path::Path::new("shear-warp"), "the intermediate image", &[iw as u64, fac.height as u64, 20])?;
     let mut inter = Intermediate { width: iw, rgba: filled(iw * fac.height, [0.0; 4]), depth: filled(iw * fac.height, f32::INFINITY) };
     // Only the intermediate pixels the warp reads are composited.
     let footprint = warp::Footprint::new(&fac, w, h, iw, fac.height);

@@ -67,7 +67,7 @@ pub struct Prepared {
     axes: Mutex<[Option<Arc<Axis>>; 3]>,
     pub(super) affine: DMat4,
     /// Checked before each permuted copy is made.
-    limits: Limits,
+    pub(super) limits: Limits,
 }
 
 impl Prepared {
