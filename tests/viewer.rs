@@ -53,6 +53,34 @@ fn mean_rgba(f: &volterra::render::Frame) -> [f64; 4] {
     m
 }
 
+/// The viewer on the scene or data file at `path`, its first full frame drawn.
+fn settled_on(path: &std::path::Path) -> Harness<'static, Viewer> {
+    let mut viewer = Viewer::new(LoadOptions::default());
+    viewer.open(path).unwrap();
+    let mut h = harness(viewer);
+    settle(&mut h);
+    h
+}
+
+/// Clicks the panel's control labelled `label` (scrolled into view first) and waits for
+/// the full frame that follows.
+fn click_in_panel(h: &mut Harness<'_, Viewer>, label: &str) {
+    h.get_by_label(label).scroll_to_me();
+    h.run_steps(3);
+    h.get_by_label(label).click();
+    h.run_steps(3);
+    settle(h);
+}
+
+/// Sets the panel's slider or drag value (`role`, `label`) to `value` through AccessKit,
+/// scrolled into view first.
+fn set_in_panel(h: &mut Harness<'_, Viewer>, role: egui::accesskit::Role, label: &str, value: f64) {
+    h.get_by_role_and_label(role, label).scroll_to_me();
+    h.run_steps(3);
+    h.get_by_role_and_label(role, label).set_value_accesskit(value);
+    h.run_steps(3);
+}
+
 /// Saves through the toolbar's "Save as" field and "Save" button (the extension picks a
 /// scene, EXR or PNG).
 fn save_through_toolbar(h: &mut Harness<'_, Viewer>, path: &std::path::Path) {
@@ -75,10 +103,7 @@ fn render_with_cli(scene: &std::path::Path, dir: &std::path::Path) -> exr_io::Fl
 #[test]
 fn open_edit_switch_save_and_rerender_gives_the_same_image() {
     let dir = samples();
-    let mut viewer = Viewer::new(LoadOptions::default());
-    viewer.open(&dir.path().join("angio_shear_warp.toml")).unwrap();
-    let mut h = harness(viewer);
-    settle(&mut h);
+    let mut h = settled_on(&dir.path().join("angio_shear_warp.toml"));
     let first = h.state().current_full_frame().unwrap().clone();
     let m0 = mean_rgba(&first);
     assert!(m0[3] > 0.02, "the phantom covers part of the view: mean alpha {}", m0[3]);
@@ -167,17 +192,10 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
 #[test]
 fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
     let dir = samples();
-    let mut viewer = Viewer::new(LoadOptions::default());
-    viewer.open(&dir.path().join("angio_shear_warp.toml")).unwrap();
-    let mut h = harness(viewer);
-    settle(&mut h);
+    let mut h = settled_on(&dir.path().join("angio_shear_warp.toml"));
     let plain = mean_rgba(h.state().current_full_frame().unwrap());
     // Below the transfer function editor: scrolled into view, then clicked.
-    h.get_by_label("Shading").scroll_to_me();
-    h.run_steps(3);
-    h.get_by_label("Shading").click();
-    h.run_steps(3);
-    settle(&mut h);
+    click_in_panel(&mut h, "Shading");
     let shading = h.state().scene().unwrap().nodes()[0].shading.expect("the node has [shading]");
     assert!(shading.shade);
     assert_eq!(shading, volterra::scene::VolumeShading { shade: true, ..Default::default() }, "VTK's coefficients");
@@ -185,10 +203,7 @@ fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
     assert!((shaded[3] - plain[3]).abs() < 1e-6, "shading leaves opacity alone: {plain:?} → {shaded:?}");
     assert!(shaded[0] < 0.95 * plain[0], "diffuse 0.7 + ambient 0.1 darken the picture: {plain:?} → {shaded:?}");
     // The specular slider, set through AccessKit.
-    h.get_by_role_and_label(egui::accesskit::Role::Slider, "Specular").scroll_to_me();
-    h.run_steps(3);
-    h.get_by_role_and_label(egui::accesskit::Role::Slider, "Specular").set_value_accesskit(0.8);
-    h.run_steps(3);
+    set_in_panel(&mut h, egui::accesskit::Role::Slider, "Specular", 0.8);
     settle(&mut h);
     assert_eq!(h.state().scene().unwrap().nodes()[0].shading.unwrap().specular, 0.8);
     let glossy = h.state().current_full_frame().unwrap().clone();
@@ -212,16 +227,9 @@ fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
 #[test]
 fn gradient_opacity_edited_in_the_viewer_is_rendered_and_saved() {
     let dir = samples();
-    let mut viewer = Viewer::new(LoadOptions::default());
-    viewer.open(&dir.path().join("angio_shear_warp.toml")).unwrap();
-    let mut h = harness(viewer);
-    settle(&mut h);
+    let mut h = settled_on(&dir.path().join("angio_shear_warp.toml"));
     let plain = h.state().current_full_frame().unwrap().clone();
-    h.get_by_label("Gradient opacity").scroll_to_me();
-    h.run_steps(3);
-    h.get_by_label("Gradient opacity").click();
-    h.run_steps(3);
-    settle(&mut h);
+    click_in_panel(&mut h, "Gradient opacity");
     let points =
         |h: &Harness<'_, Viewer>| h.state().scene().unwrap().nodes()[0].transfer_function.as_ref().unwrap().gradient_opacity.clone();
     let seeded = points(&h);
@@ -234,14 +242,8 @@ fn gradient_opacity_edited_in_the_viewer_is_rendered_and_saved() {
 
     // The second point further out (the phantom's vessel walls are steep), then the
     // factor at zero gradient down to 0.
-    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "gradient 2").scroll_to_me();
-    h.run_steps(3);
-    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "gradient 2").set_value_accesskit(400.0);
-    h.run_steps(3);
-    h.get_by_role_and_label(egui::accesskit::Role::Slider, "factor 1").scroll_to_me();
-    h.run_steps(3);
-    h.get_by_role_and_label(egui::accesskit::Role::Slider, "factor 1").set_value_accesskit(0.0);
-    h.run_steps(3);
+    set_in_panel(&mut h, egui::accesskit::Role::SpinButton, "gradient 2", 400.0);
+    set_in_panel(&mut h, egui::accesskit::Role::Slider, "factor 1", 0.0);
     settle(&mut h);
     assert_eq!(points(&h), vec![[0.0, 0.0], [400.0, 1.0]]);
     let faded = h.state().current_full_frame().unwrap().clone();
@@ -267,16 +269,9 @@ fn gradient_opacity_edited_in_the_viewer_is_rendered_and_saved() {
 #[test]
 fn a_crop_box_dragged_in_the_viewer_is_rendered_and_saved() {
     let dir = samples();
-    let mut viewer = Viewer::new(LoadOptions::default());
-    viewer.open(&dir.path().join("angio_shear_warp.toml")).unwrap();
-    let mut h = harness(viewer);
-    settle(&mut h);
+    let mut h = settled_on(&dir.path().join("angio_shear_warp.toml"));
     let whole = h.state().current_full_frame().unwrap().clone();
-    h.get_by_label("Crop box").scroll_to_me();
-    h.run_steps(3);
-    h.get_by_label("Crop box").click();
-    h.run_steps(3);
-    settle(&mut h);
+    click_in_panel(&mut h, "Crop box");
     let full_box = h.state().scene().unwrap().nodes()[0].crop.expect("the node has a crop box");
     assert!((full_box.max[0] - full_box.min[0] - 127.0 * 0.6).abs() < 1e-4, "the box of voxel centres: {full_box:?}");
     let same = h.state().current_full_frame().unwrap();
@@ -303,11 +298,7 @@ fn a_crop_box_dragged_in_the_viewer_is_rendered_and_saved() {
     let after = mean_rgba(h.state().current_full_frame().unwrap());
     assert!(after[3] < 0.9 * mean_rgba(&whole)[3], "less is drawn: {:?} → {after:?}", mean_rgba(&whole));
 
-    h.get_by_label("Add a clipping plane").scroll_to_me();
-    h.run_steps(3);
-    h.get_by_label("Add a clipping plane").click();
-    h.run_steps(3);
-    settle(&mut h);
+    click_in_panel(&mut h, "Add a clipping plane");
     assert_eq!(h.state().scene().unwrap().nodes()[0].clip.len(), 1);
     let frame = h.state().current_full_frame().unwrap().clone();
     let out = tempfile::tempdir().unwrap();
