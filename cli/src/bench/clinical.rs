@@ -212,7 +212,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
 /// The reference ray caster's image of the bench scene's first view (RGBA), cached in the
 /// work directory by the scene's text.
 fn reference_image(b: &ClinicalBench, scene_path: &Path, cam: &Camera) -> Result<Vec<[f32; 4]>> {
-    let key = super::shear_warp::fxhash(&std::fs::read_to_string(scene_path)?);
+    let key = super::fxhash(&std::fs::read_to_string(scene_path)?);
     let path = b.env.work_dir.join(format!("ref_clinical_{}_{key:x}.exr", b.slices));
     if let Ok(img) = volterra_formats::exr_io::read_exr(&path, &b.env.limits) {
         return Ok(rgba_pixels(&img));

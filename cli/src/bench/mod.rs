@@ -56,6 +56,15 @@ pub fn plot(python: &Path, scripts: &Path, script: &str, data: &Path, out: &Path
     }
 }
 
+/// A stable hash for the cache keys of reference images (the shear-warp and clinical
+/// benches).
+pub fn fxhash<T: std::hash::Hash>(t: &T) -> u64 {
+    use std::hash::Hasher;
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    t.hash(&mut h);
+    h.finish()
+}
+
 /// The median (sorts `v`).
 pub fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);

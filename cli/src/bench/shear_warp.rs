@@ -5,7 +5,7 @@
 //! views and the relative RMSE from the reference ray caster (cached per view, projection,
 //! blend mode and shading).
 
-use super::median;
+use super::{fxhash, median};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -351,12 +351,4 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
         ms_per_mpixel: None,
     };
     Ok(vec![row])
-}
-
-/// A stable hash for cache keys.
-pub(super) fn fxhash<T: std::hash::Hash>(t: &T) -> u64 {
-    use std::hash::Hasher;
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    t.hash(&mut h);
-    h.finish()
 }

@@ -233,9 +233,18 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 st
             })
             .collect();
-        // Each ray's length between slices relative to the table's (perspective only).
+        // Each ray's length between slices relative to the table's (perspective only; for
+        // the pixels composited, the others are never looked up).
         let lengths: Vec<Vec<f32>> = if perspective {
-            (0..band_rows).map(|r| (0..iw).map(|u| fac.length_ratio(u as f64, (v_first + r) as f64) as f32).collect()).collect()
+            (0..band_rows)
+                .map(|r| {
+                    let v = v_first + r;
+                    if !live(r) {
+                        return Vec::new();
+                    }
+                    (0..iw).map(|u| if footprint.read(u, v) { fac.length_ratio(u as f64, v as f64) as f32 } else { 1.0 }).collect()
+                })
+                .collect()
         } else {
             vec![Vec::new(); band_rows]
         };
