@@ -348,12 +348,14 @@ color = [[-1000.0, 0.3, 0.1, 0.1], [300.0, 0.9, 0.3, 0.2], [1000.0, 1.0, 1.0, 0.
     .unwrap();
     let stored = (nx * ny * nz * 2) as f64;
     let out = dir.path().join("ct.exr");
-    let render = |limit: &str| {
+    let render_with = |limit: &str, sets: &[&str]| {
         Command::new(common::volterra_bin())
             .args(["--max-memory", limit, "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap()])
+            .args(sets.iter().flat_map(|s| ["--set", s]))
             .output()
             .unwrap()
     };
+    let render = |limit: &str| render_with(limit, &[]);
     // 1.5× the stored volume: enough for reading it, not for reading and preparing it.
     let tight = format!("{}", (1.5 * stored) as u64);
     let r = render(&tight);
@@ -375,11 +377,20 @@ color = [[-1000.0, 0.3, 0.1, 0.1], [300.0, 0.9, 0.3, 0.2], [1000.0, 1.0, 1.0, 0.
     // for this 20 MiB CT (62.6 with a 16-bit map). A quantised copy kept as well needed
     // about 4×.
     std::fs::remove_file(&out).unwrap();
-    let r = render(&format!("{}", (2.5 * stored) as u64 + (12 << 20)));
+    let enough = format!("{}", (2.5 * stored) as u64 + (12 << 20));
+    let r = render(&enough);
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(r.status.success(), "{err}");
     eprintln!("{}", err.lines().find(|l| l.starts_with("memory: peak")).unwrap_or(""));
     assert!(out.exists());
+    // The automatic ratio's intermediate image (60 MiB here) does not fit beside the
+    // prepared volume: refused before it is allocated, naming it, and no output.
+    std::fs::remove_file(&out).unwrap();
+    let r = render_with(&enough, &["node.ct.settings.supersampling=0"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("the intermediate image") && err.contains("memory limit"), "{err}");
+    assert!(!out.exists(), "no output from refused work");
 }
 
 /// `info` prints values as people read them and what gdalinfo and dcm2niix users look for.
