@@ -203,3 +203,74 @@ pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
     }
     s
 }
+
+/// What `volterra info` says of one step of a time series: its time and file, its size
+/// (particles, or voxels) and the range of each scalar (a volume's values; a particle set's
+/// density, mass, h and every one-component point array).
+pub fn step_json(step: &volterra_formats::series::TimeStep, d: &Dataset, names: &ParticleArrayNames) -> Value {
+    let range = |v: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = v.filter(|x| x.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+        if lo <= hi {
+            json!([lo, hi])
+        } else {
+            Value::Null
+        }
+    };
+    let mut o = json!({"time": step.time, "file": step.file.display().to_string()});
+    if let Some(k) = step.volume_index {
+        o["volume_index"] = json!(k);
+    }
+    let mut ranges = serde_json::Map::new();
+    match d {
+        Dataset::Volume(v) => {
+            o["dims"] = json!(v.dims);
+            ranges.insert("value".into(), v.value_range().map_or(Value::Null, |(a, b)| json!([a, b])));
+        }
+        Dataset::Heightfield(h) => {
+            o["size"] = json!([h.width, h.height]);
+        }
+        Dataset::Particles(p) => {
+            o["particles"] = json!(p.len());
+            for (name, values) in [(&names.density, &p.density), (&names.mass, &p.mass), (&names.smoothing_length, &p.smoothing_length)] {
+                if let Some(v) = values {
+                    ranges.insert(name.clone(), range(&mut v.iter().map(|&x| x as f64)));
+                }
+            }
+            for a in p.arrays.iter().filter(|a| a.components == 1) {
+                ranges.insert(a.name.clone(), range(&mut a.values.iter().copied()));
+            }
+        }
+    }
+    o["ranges"] = Value::Object(ranges);
+    o
+}
+
+/// A time series as text: how it was found, then a line per step (from `step_json`).
+pub fn series_text(s: &volterra_formats::series::TimeSeries, steps: &[Value]) -> String {
+    let unit = s.time_unit.map(|u| format!(" {u}")).unwrap_or_default();
+    let mut out = format!("time series {} ({}): {} timesteps", s.source.display(), s.kind, s.steps.len());
+    if let (Some(a), Some(b)) = (s.steps.first(), s.steps.last()) {
+        out += &format!(", time {}{unit} .. {}{unit}", num(a.time), num(b.time));
+    }
+    out += "\n";
+    for (k, v) in steps.iter().enumerate() {
+        let file = std::path::Path::new(v["file"].as_str().unwrap_or("")).file_name().map(|f| f.to_string_lossy().into_owned());
+        let what = match (v.get("volume_index"), v.get("particles"), v.get("dims")) {
+            (Some(i), _, Some(d)) => format!("volume {i}, {d}"),
+            (_, Some(n), _) => format!("{n} particles"),
+            (_, _, Some(d)) => format!("{d} voxels"),
+            _ => String::new(),
+        };
+        let ranges: Vec<String> = v["ranges"]
+            .as_object()
+            .map(|m| m.iter().filter_map(|(name, r)| Some(format!("{name} {} .. {}", num(r[0].as_f64()?), num(r[1].as_f64()?)))).collect())
+            .unwrap_or_default();
+        out += &format!(
+            "  {k:>4}  t = {:<10} {:<24} {what}; {}\n",
+            format!("{}{unit}", num(v["time"].as_f64().unwrap_or(f64::NAN))),
+            file.unwrap_or_default(),
+            ranges.join(", ")
+        );
+    }
+    out
+}

@@ -25,6 +25,7 @@ pub const SCENES: &[(&str, &str)] = &[
     ("terrain_png.toml", include_str!("../samples/terrain_png.toml")),
     ("terrain_walk.toml", include_str!("../samples/terrain_walk.toml")),
     ("smoke.toml", include_str!("../samples/smoke.toml")),
+    ("smoke_series.toml", include_str!("../samples/smoke_series.toml")),
 ];
 
 pub fn write_samples(dir: &Path) -> Result<()> {
@@ -37,6 +38,7 @@ pub fn write_samples(dir: &Path) -> Result<()> {
     image::write_png_grey16(&dir.join("fractal_dem.png"), dem.width, dem.height, &grey)?;
     image::write_png_rgb8(&dir.join("fractal_dem_texture.png"), &dem_texture(&dem))?;
     write_smoke_plume(dir)?;
+    write_plume_series(&dir.join("plume_series"), 8, 12_000)?;
     for (name, text) in SCENES {
         volterra_formats::atomic::write_bytes_atomically(&dir.join(name), text.as_bytes())?;
     }
@@ -266,6 +268,43 @@ pub fn dem_texture(dem: &Heightfield) -> RgbImage {
 pub fn write_smoke_plume(dir: &Path) -> Result<()> {
     let plume = smoke_plume(20_000, 3);
     volterra_formats::vtk::write_vtp(&dir.join("smoke_plume.vtp"), &plume, &ParticleArrayNames::default())?;
+    Ok(())
+}
+
+/// A built-in time series: the plume as it rises, `steps` timesteps half a second apart,
+/// written as `plume_0000.vtp` … in `dir` with a ParaView collection `plume.pvd` listing
+/// them. Step k holds the particles emitted so far (those below the front, which climbs
+/// from a fifth of the plume's height to all of it), so counts and ranges change with time.
+pub fn write_plume_series(dir: &Path, steps: usize, count: usize) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create directory", dir.display()))?;
+    let plume = smoke_plume(count, 3);
+    let mut pvd = String::from("<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n<Collection>\n");
+    for k in 0..steps {
+        let front = 0.05 + 0.85 * (0.2 + 0.8 * (k + 1) as f64 / steps as f64);
+        let keep: Vec<usize> = (0..plume.len()).filter(|&i| plume.positions[i][2] <= front).collect();
+        let pick = |v: &Option<Vec<f32>>| v.as_ref().map(|v| keep.iter().map(|&i| v[i]).collect());
+        let step = ParticleSet {
+            positions: keep.iter().map(|&i| plume.positions[i]).collect(),
+            mass: pick(&plume.mass),
+            density: pick(&plume.density),
+            smoothing_length: pick(&plume.smoothing_length),
+            arrays: plume
+                .arrays
+                .iter()
+                .map(|a| volterra_formats::PointArray {
+                    name: a.name.clone(),
+                    components: a.components,
+                    values: keep.iter().flat_map(|&i| a.values[i * a.components..(i + 1) * a.components].iter().copied()).collect(),
+                })
+                .collect(),
+            notes: vec![],
+        };
+        let name = format!("plume_{k:04}.vtp");
+        volterra_formats::vtk::write_vtp(&dir.join(&name), &step, &ParticleArrayNames::default())?;
+        pvd += &format!("  <DataSet timestep=\"{}\" group=\"\" part=\"0\" file=\"{name}\"/>\n", 0.5 * k as f64);
+    }
+    pvd += "</Collection>\n</VTKFile>\n";
+    volterra_formats::atomic::write_bytes_atomically(&dir.join("plume.pvd"), pvd.as_bytes())?;
     Ok(())
 }
 

@@ -37,8 +37,18 @@ fn samples_are_deterministic() {
     let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     volterra::samples::write_samples(a.path()).unwrap();
     volterra::samples::write_samples(b.path()).unwrap();
-    for e in std::fs::read_dir(a.path()).unwrap() {
-        let name = e.unwrap().file_name();
+    let files = |d: &Path| -> Vec<std::path::PathBuf> {
+        let mut out = vec![];
+        for e in std::fs::read_dir(d).unwrap() {
+            let p = e.unwrap().path();
+            let sub: Vec<_> = if p.is_dir() { std::fs::read_dir(&p).unwrap().map(|e| e.unwrap().path()).collect() } else { vec![p] };
+            out.extend(sub.into_iter().map(|p| p.strip_prefix(d).unwrap().to_path_buf()));
+        }
+        out
+    };
+    let names = files(a.path());
+    assert!(names.iter().any(|n| n.ends_with("plume_series/plume.pvd")), "{names:?}");
+    for name in names {
         assert_eq!(std::fs::read(a.path().join(&name)).unwrap(), std::fs::read(b.path().join(&name)).unwrap(), "{name:?}");
     }
 }

@@ -7,7 +7,9 @@ use std::process::ExitCode;
 mod bench;
 mod progress;
 
-use volterra::{compare, info, render, scene::Scene};
+use volterra::scene::animation::{self, Shard};
+use volterra::scene::{Camera, Scene};
+use volterra::{compare, info, render};
 use volterra_formats::{self as formats, dicom, Dataset, Limits, LoadOptions};
 
 #[derive(Parser)]
@@ -119,10 +121,21 @@ enum Command {
         /// `node.NAME.settings.step=0.25` (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
-        /// Render N frames along the scene's [[keyframe]]s (fly- or walk-through) into
-        /// OUTPUT_0000.exr, OUTPUT_0001.exr, … (and PNG_0000.png, …).
-        #[arg(long, value_name = "N")]
-        frames: Option<usize>,
+        /// Render an animation into OUTPUT_0000.exr, OUTPUT_0001.exr, … (and
+        /// PNG_0000.png, …): with no N, one frame per timestep of the scene's time series
+        /// (or the [orbit]'s frames); with N, N frames over the series' time and along the
+        /// [[keyframe]]s or [orbit].
+        #[arg(long, value_name = "N", num_args = 0..=1)]
+        frames: Option<Option<usize>>,
+        /// Render only the frames i with i mod M = K (with --frames): `K/M`, `auto` (a
+        /// Slurm job array: SLURM_ARRAY_TASK_ID and its COUNT, or MIN and MAX) or `auto/M`
+        /// (a Kubernetes Indexed Job: JOB_COMPLETION_INDEX of M).
+        #[arg(long, value_name = "K/M|auto|auto/M", requires = "frames")]
+        shard: Option<String>,
+        /// Skip frames whose outputs all exist (with --frames; outputs are written
+        /// atomically, so an existing file is complete).
+        #[arg(long, requires = "frames")]
+        resume: bool,
     },
     /// Open the interactive viewer on a scene file, a data file or a DICOM folder (or on
     /// nothing: open one from the window, or drop it there).
@@ -394,7 +407,7 @@ impl Cli {
 
 fn run(cli: Cli, limits: Limits) -> Result<()> {
     match cli.command {
-        Command::Info { path, json, read } => cmd_info(&path, json, &read.options(limits)?),
+        Command::Info { path, json, read } => cmd_info(&path, json, read.volume.is_none(), &read.options(limits)?),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read, &read.options(limits)?),
         Command::Compare { a, b, json } => cmd_compare(&a, &b, json, &limits),
         Command::Renderers => {
@@ -417,9 +430,15 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             }
             Ok(())
         }
-        Command::Render { scene, output, png, sets, frames } => match frames {
+        Command::Render { scene, output, png, sets, frames, shard, resume } => match frames {
             None => cmd_render(&scene, &output, png.as_deref(), &sets, limits),
-            Some(n) => cmd_render_frames(&scene, &output, png.as_deref(), &sets, n, limits),
+            Some(count) => {
+                let shard = match shard {
+                    None => Shard::ALL,
+                    Some(s) => Shard::parse(&s, &|k| std::env::var(k).ok()).map_err(anyhow::Error::msg)?,
+                };
+                cmd_render_frames(&scene, &output, png.as_deref(), &sets, FrameJob { count, shard, resume }, limits)
+            }
         },
         Command::Samples { dir } => {
             volterra::samples::write_samples(&dir)?;
@@ -478,7 +497,30 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
     }
 }
 
-fn cmd_info(path: &Path, json: bool, opts: &LoadOptions) -> Result<()> {
+/// `whole_series`: list every step of a 4-D NIfTI (no --volume given).
+fn cmd_info(path: &Path, json: bool, whole_series: bool, opts: &LoadOptions) -> Result<()> {
+    let series = formats::series::discover(path)?.filter(|s| whole_series || s.steps[0].volume_index.is_none());
+    if let Some(series) = series {
+        // Every step read in turn (one in memory at a time) for its size and ranges.
+        let bar = crate::progress::bar(series.steps.len() as u64, "timesteps");
+        let mut steps = Vec::with_capacity(series.steps.len());
+        for step in &series.steps {
+            let mut o = opts.clone();
+            o.nifti.volume_index = step.volume_index.unwrap_or(0);
+            let data = formats::load(&step.file, &o)?;
+            steps.push(info::step_json(step, &data, &opts.particles));
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        if json {
+            let o = serde_json::json!({"series": series.source.display().to_string(), "kind": series.kind,
+                "time_unit": series.time_unit, "timesteps": steps});
+            println!("{}", serde_json::to_string_pretty(&o)?);
+        } else {
+            print!("{}", info::series_text(&series, &steps));
+        }
+        return Ok(());
+    }
     if path.is_dir() && opts.dicom.series.is_none() {
         let list = dicom::list_series(path, &opts.limits)?;
         if list.len() > 1 {
@@ -572,15 +614,15 @@ fn cmd_compare(a: &Path, b: &Path, json: bool, limits: &Limits) -> Result<()> {
 fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], limits: Limits) -> Result<()> {
     check_render_outputs(output, png)?;
     let scene = Scene::load(scene_path, sets)?.with_limits(limits);
-    write_frame(&scene, None, output, png, &render::RenderCache::default())
+    let camera = scene.camera(None)?;
+    write_frame(&scene, &camera, true, output, png, &render::RenderCache::default())
 }
 
-/// Renders one frame (or frame k of n) with what `cache` kept from earlier frames, and
-/// writes it; a single frame also prints its statistics and each node's times.
-fn write_frame(scene: &Scene, frame: Option<(usize, usize)>, output: &Path, png: Option<&Path>, cache: &render::RenderCache) -> Result<()> {
-    let camera = scene.camera(frame)?;
-    let image = render::render_view(scene, &camera, (scene.file.image.width, scene.file.image.height), cache)?;
-    if frame.is_none() {
+/// Renders one frame seen by `camera` with what `cache` kept from earlier frames, and
+/// writes it; `report` prints its statistics and each node's times.
+fn write_frame(scene: &Scene, camera: &Camera, report: bool, output: &Path, png: Option<&Path>, cache: &render::RenderCache) -> Result<()> {
+    let image = render::render_view(scene, camera, (scene.file.image.width, scene.file.image.height), cache)?;
+    if report {
         let counters: Vec<String> = image.stats.counters.iter().map(|(k, v)| format!("{k} {}", short(*v))).collect();
         eprintln!("{}: {}", image.stats.renderer, counters.join(", "));
         for n in &image.stats.notes {
@@ -645,36 +687,65 @@ fn numbered(path: &Path, k: usize) -> PathBuf {
     path.with_file_name(name)
 }
 
-fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], n: usize, limits: Limits) -> Result<()> {
-    if n == 0 {
-        bail!("--frames must be at least 1");
-    }
+/// What `render --frames` renders: the animation's frames (`count` None: one per
+/// timestep, or the orbit's), the shard's share of them, skipping finished ones.
+struct FrameJob {
+    count: Option<usize>,
+    shard: Shard,
+    resume: bool,
+}
+
+fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[String], job: FrameJob, limits: Limits) -> Result<()> {
     check_render_outputs(output, png)?;
     let scene = Scene::load(scene_path, sets)?.with_limits(limits);
-    if scene.file.keyframes.is_empty() {
-        bail!("{}: --frames needs [[keyframe]]s in the scene (a camera path)", scene_path.display());
-    }
-    let bar = crate::progress::bar(n as u64, "frames");
+    let frames = animation::frames(&scene, job.count)?;
+    let outputs = |k: usize| (numbered(output, k), png.map(|p| numbered(p, k)));
+    let mine: Vec<_> = frames.iter().filter(|f| job.shard.takes(f.index)).collect();
+    // Outputs are renamed into place when complete, so one that exists is finished.
+    let done = |k: usize| {
+        let (o, p) = outputs(k);
+        o.is_file() && p.is_none_or(|p| p.is_file())
+    };
+    let todo: Vec<_> = mine.iter().filter(|f| !(job.resume && done(f.index))).collect();
+    let shard = if job.shard == Shard::ALL { String::new() } else { format!("task {} of {}: ", job.shard.index, job.shard.of) };
+    eprintln!(
+        "{shard}{} of the animation's {} frames to render{}",
+        todo.len(),
+        frames.len(),
+        if todo.len() < mine.len() { format!(" ({} already written)", mine.len() - todo.len()) } else { String::new() }
+    );
+    let bar = crate::progress::bar(todo.len() as u64, "frames");
     // One cache for every frame: shear-warp's preparation and the terrain's pyramid are
-    // built once, not per frame.
+    // built once, not per frame; a series' steps are read as frames reach them, and what
+    // was read and prepared for a step is dropped once no frame draws it.
     let cache = render::RenderCache::default();
-    let mut seconds = Vec::with_capacity(n);
-    for k in 0..n {
+    let mut current = scene;
+    let mut seconds = Vec::with_capacity(todo.len());
+    for f in &todo {
         let t = std::time::Instant::now();
-        write_frame(&scene, Some((k, n)), &numbered(output, k), png.map(|p| numbered(p, k)).as_deref(), &cache)?;
+        if let Some(time) = f.time {
+            current = current.at_time(time);
+            cache.release_unused();
+        }
+        let camera = current.camera_at(Some(***f))?;
+        let (o, p) = outputs(f.index);
+        write_frame(&current, &camera, false, &o, p.as_deref(), &cache)?;
         seconds.push(t.elapsed().as_secs_f64());
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let first = seconds[0];
-    seconds.sort_by(f64::total_cmp);
-    eprintln!(
-        "wrote {n} frames: {} … {} (first {:.3} s, median {:.3} s per frame)",
-        numbered(output, 0).display(),
-        numbered(output, n - 1).display(),
-        first,
-        seconds[n / 2]
-    );
+    if let (Some(first), Some(last)) = (todo.first(), todo.last()) {
+        let first_s = seconds[0];
+        seconds.sort_by(f64::total_cmp);
+        eprintln!(
+            "wrote {} frames: {} … {} (first {:.3} s, median {:.3} s per frame)",
+            todo.len(),
+            outputs(first.index).0.display(),
+            outputs(last.index).0.display(),
+            first_s,
+            seconds[seconds.len() / 2]
+        );
+    }
     Ok(())
 }
 

@@ -22,6 +22,7 @@ pub mod nifti;
 pub mod particles;
 pub mod png_height;
 pub mod rng;
+pub mod series;
 pub mod sph;
 pub mod volume;
 pub mod vtk;

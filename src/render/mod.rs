@@ -45,6 +45,14 @@ type TerrainKey = (usize, usize);
 type PreparedTerrain = (Arc<Heightfield>, [u64; 16], Arc<terrain::Prepared>);
 
 impl RenderCache {
+    /// Drops what was prepared for data nobody else holds any more (the steps of a time
+    /// series an animation has moved past), so an animation's memory stays that of the
+    /// steps it draws, not of every step it drew.
+    pub fn release_unused(&self) {
+        self.prepared.lock().unwrap().retain(|_, (v, _)| Arc::strong_count(v) > 1);
+        self.terrain.lock().unwrap().retain(|_, (h, _, _)| Arc::strong_count(h) > 1);
+    }
+
     fn shear_warp(&self, volume: &Arc<Volume>, limits: &Limits) -> Result<Arc<shear_warp::Prepared>> {
         let key = Arc::as_ptr(volume) as usize;
         let mut map = self.prepared.lock().unwrap();

@@ -4,6 +4,7 @@
 //! data lazily: a node's file is read (and cached) only when a renderer asks for it, so a
 //! render loads exactly the nodes it draws.
 
+pub mod animation;
 pub mod auto;
 pub mod camera;
 pub mod crop;
@@ -23,6 +24,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 use volterra_formats::png_height::PngHeightOptions;
+use volterra_formats::series::{self, TimeSeries};
 use volterra_formats::{Dataset, Heightfield, Limits, LoadOptions, ParticleArrayNames, ParticleSet, RgbImage, Volume};
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -261,6 +263,8 @@ pub struct SceneFile {
     pub walk: Option<Walk>,
     #[serde(default, rename = "keyframe")]
     pub keyframes: Vec<Keyframe>,
+    /// A turntable camera path (instead of keyframes).
+    pub orbit: Option<animation::Orbit>,
     #[serde(default, rename = "light")]
     pub lights: Vec<Light>,
     #[serde(default, rename = "node")]
@@ -312,6 +316,11 @@ pub struct Scene {
     textures: Vec<OnceLock<Result<Arc<RgbImage>, SharedError>>>,
     /// A volume node's value statistics, for its preset (computed on first use).
     stats: Vec<OnceLock<Arc<presets::ValueStats>>>,
+    /// Each node's time series, where its `file` names one (found at load, no data read).
+    series: Vec<Option<Arc<TimeSeries>>>,
+    /// The animation time drawn (None: a still; series nodes draw their first step, a 4-D
+    /// NIfTI its `volume_index`).
+    time: Option<f64>,
     /// The memory limits handed to every reader of the scene's data and to every renderer's
     /// preparation (`--max-memory`).
     limits: Limits,
@@ -430,15 +439,21 @@ impl Scene {
             doc.try_into().map_err(|e: toml::de::Error| anyhow!("{}: after --set: {}", path.display(), one_line(e.message())))?
         };
         let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Scene::from_file_with_lines(file, base_dir, path.to_path_buf(), &lines)
+        Scene::from_file_with_lines(file, base_dir, path.to_path_buf(), &lines, None)
     }
 
     /// A scene from parsed objects (errors name no lines).
     pub fn from_file(file: SceneFile, base_dir: PathBuf, source: PathBuf) -> Result<Scene> {
-        Scene::from_file_with_lines(file, base_dir, source, &SettingLines::default())
+        Scene::from_file_with_lines(file, base_dir, source, &SettingLines::default(), None)
     }
 
-    fn from_file_with_lines(file: SceneFile, base_dir: PathBuf, source: PathBuf, lines: &SettingLines) -> Result<Scene> {
+    fn from_file_with_lines(
+        file: SceneFile,
+        base_dir: PathBuf,
+        source: PathBuf,
+        lines: &SettingLines,
+        known_series: Option<&HashMap<PathBuf, Option<Arc<TimeSeries>>>>,
+    ) -> Result<Scene> {
         let src = source.display().to_string();
         file.camera.validate().map_err(|m| anyhow!("{src}: {m}"))?;
         if file.image.width == 0 || file.image.height == 0 || file.image.width > 16384 || file.image.height > 16384 {
@@ -454,7 +469,7 @@ impl Scene {
             }
             if let Some(f) = &n.file {
                 let p = base_dir.join(f);
-                if !p.exists() {
+                if !p.exists() && !series::is_series_name(&p) {
                     bail!("{src}: node '{}': data file {} not found", n.name, p.display());
                 }
             }
@@ -516,6 +531,12 @@ impl Scene {
                 bail!("{src}: walk: eye_height {} must be a non-negative number of metres", w.eye_height);
             }
         }
+        if let Some(o) = &file.orbit {
+            o.validate().map_err(|m| anyhow!("{src}: {m}"))?;
+            if !file.keyframes.is_empty() {
+                bail!("{src}: give [[keyframe]]s or an [orbit], not both");
+            }
+        }
         for (k, key) in file.keyframes.iter().enumerate() {
             let cam = Camera { position: key.position, focal_point: key.focal_point, ..file.camera.clone() };
             cam.validate().map_err(|m| anyhow!("{src}: keyframe {}: {m}", k + 1))?;
@@ -541,6 +562,20 @@ impl Scene {
             }
             world[i] = Some(m);
         }
+        // Time series, found from their names (a directory listing, a collection's XML or
+        // a NIfTI header): no data is read.
+        let mut found = Vec::with_capacity(file.nodes.len());
+        for n in &file.nodes {
+            let s = match (&n.file, known_series) {
+                (None, _) => None,
+                (Some(f), Some(known)) if known.contains_key(f) => known[f].clone(),
+                (Some(f), _) => series::discover(&base_dir.join(f)).map_err(|e| anyhow!("{src}: node '{}': {e}", n.name))?.map(Arc::new),
+            };
+            if s.is_some() && n.kind == NodeKind::Heightfield {
+                bail!("{src}: node '{}': a heightfield cannot be a time series", n.name);
+            }
+            found.push(s);
+        }
         let n = file.nodes.len();
         Ok(Scene {
             file,
@@ -551,8 +586,73 @@ impl Scene {
             data: (0..n).map(|_| OnceLock::new()).collect(),
             textures: (0..n).map(|_| OnceLock::new()).collect(),
             stats: (0..n).map(|_| OnceLock::new()).collect(),
+            series: found,
+            time: None,
             limits: Limits::default(),
         })
+    }
+
+    /// Node `node`'s time series, if its file names one.
+    pub fn series(&self, node: usize) -> Option<&TimeSeries> {
+        self.series[node].as_deref()
+    }
+
+    /// The times of every series in the scene, merged and sorted (empty: none).
+    pub fn timeline(&self) -> Vec<f64> {
+        let mut t: Vec<f64> = self.series.iter().flatten().flat_map(|s| s.times()).collect();
+        t.sort_by(f64::total_cmp);
+        t.dedup();
+        t
+    }
+
+    /// The animation time this scene draws (None: a still).
+    pub fn time(&self) -> Option<f64> {
+        self.time
+    }
+
+    /// The step of node `node`'s series drawn now (None: the node is no series).
+    pub fn step(&self, node: usize) -> Option<usize> {
+        let s = self.series[node].as_ref()?;
+        match self.time {
+            Some(t) => Some(s.step_at(t)),
+            // A still draws a 4-D NIfTI's `volume_index` (as before series), others their
+            // first step.
+            None => Some(if s.steps[0].volume_index.is_some() { self.file.nodes[node].volume_index.min(s.steps.len() - 1) } else { 0 }),
+        }
+    }
+
+    /// This scene at animation time `t`: each series node draws its step at `t` (the
+    /// last at or before it); data already read is kept for every other node and for
+    /// series nodes whose step did not change. Dropping the old scene then frees the
+    /// steps no longer drawn, so an animation holds one or two steps of each series.
+    pub fn at_time(&self, t: f64) -> Scene {
+        let n = self.file.nodes.len();
+        let next = Scene {
+            file: self.file.clone(),
+            base_dir: self.base_dir.clone(),
+            source: self.source.clone(),
+            world: self.world.clone(),
+            renderers: self.renderers.clone(),
+            data: (0..n).map(|_| OnceLock::new()).collect(),
+            textures: (0..n).map(|_| OnceLock::new()).collect(),
+            stats: (0..n).map(|_| OnceLock::new()).collect(),
+            series: self.series.clone(),
+            time: Some(t),
+            limits: self.limits,
+        };
+        for i in 0..n {
+            let same = self.step(i) == next.step(i);
+            if let (true, Some(d)) = (same, self.data[i].get()) {
+                let _ = next.data[i].set(d.clone());
+            }
+            if let (true, Some(s)) = (same, self.stats[i].get()) {
+                let _ = next.stats[i].set(s.clone());
+            }
+            if let Some(t) = self.textures[i].get() {
+                let _ = next.textures[i].set(t.clone());
+            }
+        }
+        next
     }
 
     /// The scene with `limits` for everything it reads and prepares from now on.
@@ -579,18 +679,36 @@ impl Scene {
         self.renderers[node].as_ref().map(|r| &r.1)
     }
 
-    /// The camera to render: `[camera]`, or frame `k` of `n` along the keyframes; with
-    /// `[walk]`, its eye put `eye_height` above the ground.
+    /// The camera to render: `[camera]`, or frame `k` of `n` along the keyframes (or the
+    /// orbit); with `[walk]`, its eye put `eye_height` above the ground.
     pub fn camera(&self, frame: Option<(usize, usize)>) -> Result<Camera> {
+        if let (Some((k, n)), true) = (frame, self.file.keyframes.is_empty() && self.file.orbit.is_none()) {
+            bail!("{}: rendering frames needs [[keyframe]]s or an [orbit] in the scene (frame {k} of {n})", self.source.display());
+        }
+        self.camera_at(frame.map(|(k, n)| animation::AnimationFrame {
+            index: k,
+            count: n,
+            path: if n > 1 { k as f64 / (n - 1) as f64 } else { 0.0 },
+            time: None,
+        }))
+    }
+
+    /// The camera of an animation frame (`[camera]` for None): along the keyframes at
+    /// `frame.path`, or turned by the orbit's angle for frame `index` of `count`.
+    pub fn camera_at(&self, frame: Option<animation::AnimationFrame>) -> Result<Camera> {
         let mut cam = self.file.camera.clone();
-        if let Some((k, n)) = frame {
+        if let Some(f) = frame {
             let keys = &self.file.keyframes;
-            if keys.is_empty() {
-                bail!("{}: rendering frames needs [[keyframe]]s in the scene", self.source.display());
+            if !keys.is_empty() {
+                cam.position = catmull_rom(&keys.iter().map(|k| k.position).collect::<Vec<_>>(), f.path);
+                cam.focal_point = catmull_rom(&keys.iter().map(|k| k.focal_point).collect::<Vec<_>>(), f.path);
             }
-            let s = if n > 1 { k as f64 / (n - 1) as f64 } else { 0.0 };
-            cam.position = catmull_rom(&keys.iter().map(|k| k.position).collect::<Vec<_>>(), s);
-            cam.focal_point = catmull_rom(&keys.iter().map(|k| k.focal_point).collect::<Vec<_>>(), s);
+            if let Some(o) = &self.file.orbit {
+                let turn = glam::DQuat::from_axis_angle(DVec3::from(o.axis).normalize(), o.angle(f.index, f.count).to_radians());
+                let focal = DVec3::from(cam.focal_point);
+                cam.position = (focal + turn * (DVec3::from(cam.position) - focal)).to_array();
+                cam.view_up = (turn * DVec3::from(cam.view_up)).to_array();
+            }
         }
         if let Some(w) = &self.file.walk {
             let node = self.file.nodes.iter().position(|n| n.name == w.node).expect("checked at load");
@@ -632,11 +750,16 @@ impl Scene {
 
     fn read_node(&self, node: usize) -> Result<NodeData> {
         let n = &self.file.nodes[node];
-        let path = self.base_dir.join(n.file.as_ref().ok_or_else(|| anyhow!("node '{}' has no file", n.name))?);
+        let mut path = self.base_dir.join(n.file.as_ref().ok_or_else(|| anyhow!("node '{}' has no file", n.name))?);
         let mut opts = LoadOptions { limits: self.limits, ..LoadOptions::default() };
         opts.dicom.series = n.series.clone();
         opts.dicom.resample = n.resample;
         opts.nifti.volume_index = n.volume_index;
+        if let (Some(s), Some(k)) = (&self.series[node], self.step(node)) {
+            let step = &s.steps[k];
+            path = step.file.clone();
+            opts.nifti.volume_index = step.volume_index.unwrap_or(n.volume_index);
+        }
         if let Some(p) = &n.png {
             opts.png = p.clone();
         }
@@ -685,7 +808,13 @@ impl Scene {
     /// source), keeping the data already read for every node whose data-reading keys
     /// did not change: editing a transfer function or the camera reads nothing again.
     pub fn edited(&self, file: SceneFile) -> Result<Scene> {
-        let next = Scene::from_file(file, self.base_dir.clone(), self.source.clone())?.with_limits(self.limits);
+        // Series already found are not looked for again (the viewer edits often).
+        let known: HashMap<PathBuf, Option<Arc<TimeSeries>>> =
+            self.file.nodes.iter().zip(&self.series).filter_map(|(n, s)| Some((n.file.clone()?, s.clone()))).collect();
+        let mut next =
+            Scene::from_file_with_lines(file, self.base_dir.clone(), self.source.clone(), &SettingLines::default(), Some(&known))?
+                .with_limits(self.limits);
+        next.time = self.time;
         for (i, n) in next.file.nodes.iter().enumerate() {
             let Some(j) = self.node_index(&n.name) else { continue };
             let o = &self.file.nodes[j];
