@@ -10,9 +10,13 @@
 #   xvfb, xauth, libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0
 #                   the viewer's window (winit loads the X libraries at run time); the
 #                   test of a real window runs it under Xvfb
+#   slurmctld, slurmd, slurm-client, munge
+#                   a single-node Slurm cluster the tests start (tests/slurm.rs) to run
+#                   `volterra slurm`'s job arrays for real
+#   ffmpeg          `volterra movie` (frames to MP4/GIF)
 set -euo pipefail
 need=()
-for pkg in libcharls-dev cmake python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0; do
+for pkg in libcharls-dev cmake python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0 slurmctld slurmd slurm-client munge ffmpeg; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

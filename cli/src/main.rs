@@ -5,6 +5,8 @@ use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 mod bench;
+mod cluster;
+mod movie;
 mod progress;
 
 use volterra::scene::animation::{self, Shard};
@@ -22,6 +24,23 @@ struct Cli {
     max_memory: Option<String>,
     #[command(subcommand)]
     command: Command,
+}
+
+/// What a render draws and writes: `render` and `slurm` (whose tasks render) alike.
+#[derive(Args)]
+struct RenderArgs {
+    scene: PathBuf,
+    /// Output image: `.exr` (every channel, linear) or `.png` (sRGB preview); numbered per
+    /// frame with --frames.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Also write an sRGB PNG preview.
+    #[arg(long)]
+    png: Option<PathBuf>,
+    /// Override a scene value: `camera.view_angle=20`, `image.width=256`,
+    /// `node.NAME.settings.step=0.25` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    sets: Vec<String>,
 }
 
 #[derive(Args, Clone, Default)]
@@ -110,17 +129,8 @@ enum Command {
     /// Render a scene to EXR (colour, alpha, depth Z, extra channels) or PNG (an sRGB
     /// preview), as the output's extension says; optionally a PNG beside an EXR.
     Render {
-        scene: PathBuf,
-        /// Output image: `.exr` (every channel, linear) or `.png` (sRGB preview).
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Also write an sRGB PNG preview.
-        #[arg(long)]
-        png: Option<PathBuf>,
-        /// Override a scene value: `camera.view_angle=20`, `image.width=256`,
-        /// `node.NAME.settings.step=0.25` (repeatable).
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        sets: Vec<String>,
+        #[command(flatten)]
+        what: RenderArgs,
         /// Render an animation into OUTPUT_0000.exr, OUTPUT_0001.exr, … (and
         /// PNG_0000.png, …): with no N, one frame per timestep of the scene's time series
         /// (or the [orbit]'s frames); with N, N frames over the series' time and along the
@@ -146,6 +156,49 @@ enum Command {
         screenshot: Option<PathBuf>,
         #[command(flatten)]
         read: ReadArgs,
+    },
+    /// Write a Slurm job-array batch script that renders an animation's frames over M
+    /// array tasks (each `render --frames --shard auto`), and with --submit submit it.
+    Slurm {
+        #[command(flatten)]
+        what: RenderArgs,
+        /// The frames, as `render --frames [N]`.
+        #[arg(long, value_name = "N", num_args = 0..=1, required = true)]
+        frames: Option<Option<usize>>,
+        /// Array tasks (M); at most one per frame.
+        #[arg(long, value_name = "M")]
+        tasks: usize,
+        /// CPUs (render threads) per task.
+        #[arg(long, default_value_t = 1)]
+        cpus_per_task: usize,
+        /// Each task's time limit (sbatch --time, e.g. 30:00).
+        #[arg(long)]
+        time: Option<String>,
+        #[arg(long)]
+        partition: Option<String>,
+        /// Tasks skip frames already written (resubmit after a failure).
+        #[arg(long)]
+        resume: bool,
+        /// Where the script goes (default: OUTPUT's folder, volterra-SCENE.sbatch).
+        #[arg(long)]
+        script: Option<PathBuf>,
+        /// Submit it with sbatch (prints the job id).
+        #[arg(long)]
+        submit: bool,
+        /// Wait for the whole array to finish (sbatch --wait); fails if a task failed.
+        #[arg(long, requires = "submit")]
+        wait: bool,
+    },
+    /// Encode rendered PNG frames ('out/f_*.png' or out/f_####.png) into an MP4 (H.264)
+    /// or GIF movie through the system's ffmpeg.
+    Movie {
+        frames: PathBuf,
+        /// OUT.mp4 or OUT.gif.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Frames per second.
+        #[arg(long, default_value_t = 24.0)]
+        fps: f64,
     },
     /// Write the built-in sample data and a scene for each into DIR.
     Samples { dir: PathBuf },
@@ -406,6 +459,7 @@ impl Cli {
 }
 
 fn run(cli: Cli, limits: Limits) -> Result<()> {
+    let max_memory = cli.max_memory.clone();
     match cli.command {
         Command::Info { path, json, read } => cmd_info(&path, json, read.volume.is_none(), &read.options(limits)?),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read, &read.options(limits)?),
@@ -430,7 +484,7 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             }
             Ok(())
         }
-        Command::Render { scene, output, png, sets, frames, shard, resume } => match frames {
+        Command::Render { what: RenderArgs { scene, output, png, sets }, frames, shard, resume } => match frames {
             None => cmd_render(&scene, &output, png.as_deref(), &sets, limits),
             Some(count) => {
                 let shard = match shard {
@@ -440,6 +494,34 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
                 cmd_render_frames(&scene, &output, png.as_deref(), &sets, FrameJob { count, shard, resume }, limits)
             }
         },
+        Command::Slurm {
+            what: RenderArgs { scene, output, png, sets },
+            frames,
+            tasks,
+            cpus_per_task,
+            time,
+            partition,
+            resume,
+            script,
+            submit,
+            wait,
+        } => cluster::run(&cluster::SlurmJob {
+            max_memory: max_memory.as_deref(),
+            scene: &scene,
+            output: &output,
+            png: png.as_deref(),
+            sets: &sets,
+            frames: frames.flatten(),
+            tasks,
+            cpus_per_task,
+            time: time.as_deref(),
+            partition: partition.as_deref(),
+            resume,
+            script: script.as_deref(),
+            submit,
+            wait,
+        }),
+        Command::Movie { frames, output, fps } => movie::run(&frames, &output, fps),
         Command::Samples { dir } => {
             volterra::samples::write_samples(&dir)?;
             eprintln!("wrote samples and scenes into {}", dir.display());

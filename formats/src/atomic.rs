@@ -75,6 +75,22 @@ where
     result
 }
 
+/// For outputs another program writes (ffmpeg): `write` is given the temporary path to
+/// write, which is renamed to `path` when it returns Ok, removed otherwise — and removed
+/// by the signal handler if the process is interrupted meanwhile.
+pub fn write_via_temp_path<F>(path: &Path, write: F) -> Result<()>
+where
+    F: FnOnce(&Path) -> Result<()>,
+{
+    let tmp = temp_path(path);
+    let _pending = Pending::register(&tmp);
+    let result = write(&tmp).and_then(|()| std::fs::rename(&tmp, path).map_err(|e| FormatError::io(path, e)));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
 /// Convenience for writers that produce the whole file in memory first.
 pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomically(path, |w| w.write_all(bytes).map_err(|e| FormatError::io(path, e)))

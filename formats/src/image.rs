@@ -26,6 +26,15 @@ pub struct PngSamples {
     pub palette: bool,
 }
 
+/// A PNG's width and height, from its header alone.
+pub fn png_size(path: &Path) -> Result<(usize, usize)> {
+    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
+    let reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .map_err(|e| FormatError::invalid(path, format!("invalid PNG: {e}")))?;
+    Ok((reader.info().width as usize, reader.info().height as usize))
+}
+
 pub fn decode_png(path: &Path, limits: &Limits) -> Result<PngSamples> {
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
     let mut dec = png::Decoder::new(std::io::BufReader::new(file));
