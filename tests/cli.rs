@@ -142,3 +142,54 @@ fn render_frames_writes_a_numbered_sequence() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("keyframe"));
 }
+
+/// `[image] exposure` brightens the PNG preview by 2^exposure and leaves the EXR linear.
+#[test]
+fn exposure_scales_the_png_preview_and_not_the_exr() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra::samples::write_samples(dir.path()).unwrap();
+    let scene = dir.path().join("smoke_series.toml");
+    let render = |exposure: &str, name: &str| {
+        let (exr, png) = (dir.path().join(format!("{name}.exr")), dir.path().join(format!("{name}.png")));
+        let out = volterra(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            exr.to_str().unwrap(),
+            "--png",
+            png.to_str().unwrap(),
+            "--set",
+            &format!("image.exposure={exposure}"),
+            "--set",
+            "image.width=40",
+            "--set",
+            "image.height=40",
+        ]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        (std::fs::read(&exr).unwrap(), volterra_formats::image::decode_png(&png, &Default::default()).unwrap())
+    };
+    let (exr0, png0) = render("0.0", "plain");
+    let (exr1, png1) = render("1.0", "bright");
+    assert_eq!(exr0, exr1, "the EXR stays linear");
+    let linear = |v: u16| {
+        let c = v as f64 / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let mut compared = 0;
+    for (a, b) in png0.samples.iter().zip(&png1.samples) {
+        let (a, b) = (linear(*a), linear(*b));
+        // Unclipped, away from the 8-bit steps near black: twice as bright.
+        if a > 0.02 && 2.0 * a < 0.95 {
+            assert!((b / a - 2.0).abs() < 0.12, "{a} → {b}");
+            compared += 1;
+        }
+    }
+    assert!(compared > 100, "{compared} samples compared");
+    let bad =
+        volterra(&["render", scene.to_str().unwrap(), "-o", dir.path().join("x.exr").to_str().unwrap(), "--set", "image.exposure=99"]);
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("exposure 99 must be a number of stops"));
+}

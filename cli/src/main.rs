@@ -714,13 +714,13 @@ fn write_frame(scene: &Scene, camera: &Camera, report: bool, output: &Path, png:
             eprintln!("node '{}' ({}): load {:.3} s, preparation {:.3} s, render {:.3} s", t.node, t.renderer, t.load, t.prepare, t.render);
         }
     }
-    let bg = scene.file.image.background;
+    let (bg, exposure) = (scene.file.image.background, scene.file.image.exposure);
     match output_format(output)? {
         OutputFormat::Exr => formats::exr_io::write_exr(output, &image.to_image(bg))?,
-        OutputFormat::Png => formats::image::write_png_preview(output, image.width, image.height, &image.preview_rgba(bg))?,
+        OutputFormat::Png => formats::image::write_png_preview(output, image.width, image.height, &image.preview_rgba(bg, exposure))?,
     }
     if let Some(p) = png {
-        formats::image::write_png_preview(p, image.width, image.height, &image.preview_rgba(bg))?;
+        formats::image::write_png_preview(p, image.width, image.height, &image.preview_rgba(bg, exposure))?;
     }
     Ok(())
 }
@@ -814,6 +814,11 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         write_frame(&current, &camera, false, &o, p.as_deref(), &cache)?;
         seconds.push(t.elapsed().as_secs_f64());
         bar.inc(1);
+        if !crate::progress::on_terminal() {
+            // A log (a Slurm task's): a line per frame.
+            let time = f.time.map(|t| format!(" (time {})", info::num(t))).unwrap_or_default();
+            eprintln!("frame {}{time}: {} in {:.2} s", f.index, o.display(), seconds[seconds.len() - 1]);
+        }
     }
     bar.finish_and_clear();
     if let (Some(first), Some(last)) = (todo.first(), todo.last()) {

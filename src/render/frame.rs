@@ -95,12 +95,15 @@ impl Frame {
     }
 
     /// Interleaved RGBA for a PNG preview (colour over the background, alpha 1).
-    pub fn preview_rgba(&self, background: [f64; 3]) -> Vec<f32> {
+    /// `exposure`: stops (the composited colour times 2^exposure, background included, as a
+    /// camera's exposure); the EXR stays linear and unscaled.
+    pub fn preview_rgba(&self, background: [f64; 3], exposure: f64) -> Vec<f32> {
+        let k = exposure.exp2() as f32;
         self.rgba
             .iter()
             .flat_map(|p| {
                 let t = 1.0 - p[3];
-                [p[0] + t * background[0] as f32, p[1] + t * background[1] as f32, p[2] + t * background[2] as f32, 1.0]
+                [k * (p[0] + t * background[0] as f32), k * (p[1] + t * background[1] as f32), k * (p[2] + t * background[2] as f32), 1.0]
             })
             .collect()
     }

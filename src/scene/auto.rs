@@ -67,7 +67,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
             node.arrays = Some(opts.particles.clone());
             // An optically moderate medium for particles in metres with SPH densities
             // near 1 kg/m³ (the SPH defaults): about one mean free path across 0.1 m.
-            node.medium = Some(Medium { c_ext: 10.0, albedo: 0.9, g: 0.3 });
+            node.medium = Some(Medium { c_ext: None, albedo: 0.9, g: 0.3 });
             image.background = [0.02, 0.02, 0.03];
             lights.push(Light {
                 kind: LightKind::Directional,

@@ -37,6 +37,9 @@ pub struct ImageSettings {
     /// Linear RGB.
     #[serde(default)]
     pub background: [f64; 3],
+    /// The PNG preview's exposure in stops (×2^exposure); EXR outputs stay linear.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub exposure: f64,
 }
 
 fn default_size() -> usize {
@@ -45,7 +48,7 @@ fn default_size() -> usize {
 
 impl Default for ImageSettings {
     fn default() -> Self {
-        ImageSettings { width: 512, height: 512, background: [0.0; 3] }
+        ImageSettings { width: 512, height: 512, background: [0.0; 3], exposure: 0.0 }
     }
 }
 
@@ -102,8 +105,10 @@ impl Transform {
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Medium {
-    /// σ_t = c_ext · ρ (m² per kg when ρ is in kg/m³).
-    pub c_ext: f64,
+    /// σ_t = c_ext · ρ (m² per kg when ρ is in kg/m³). Not given: chosen from the data so
+    /// that the densest column has optical depth 2 (`render::smoke::extinction`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub c_ext: Option<f64>,
     /// Single-scattering albedo σ_s / σ_t.
     pub albedo: f64,
     /// Henyey–Greenstein asymmetry g in (−1, 1).
@@ -456,6 +461,9 @@ impl Scene {
     ) -> Result<Scene> {
         let src = source.display().to_string();
         file.camera.validate().map_err(|m| anyhow!("{src}: {m}"))?;
+        if !(file.image.exposure.is_finite() && file.image.exposure.abs() <= 30.0) {
+            bail!("{src}: image exposure {} must be a number of stops in -30..30", file.image.exposure);
+        }
         if file.image.width == 0 || file.image.height == 0 || file.image.width > 16384 || file.image.height > 16384 {
             bail!("{src}: image size {}×{} must be between 1 and 16384", file.image.width, file.image.height);
         }

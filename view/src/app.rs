@@ -376,12 +376,12 @@ impl Viewer {
     pub fn save_image(&self, path: &Path) -> Result<()> {
         let doc = self.doc.as_ref().ok_or_else(|| anyhow!("nothing is open"))?;
         let (_, frame) = self.last_full.as_ref().ok_or_else(|| anyhow!("no full-quality frame yet"))?;
-        let bg = doc.scene.file.image.background;
+        let (bg, exposure) = (doc.scene.file.image.background, doc.scene.file.image.exposure);
         let lower = path.to_string_lossy().to_ascii_lowercase();
         if lower.ends_with(".exr") {
             volterra_formats::exr_io::write_exr(path, &frame.to_image(bg))?;
         } else if lower.ends_with(".png") {
-            volterra_formats::image::write_png_preview(path, frame.width, frame.height, &frame.preview_rgba(bg))?;
+            volterra_formats::image::write_png_preview(path, frame.width, frame.height, &frame.preview_rgba(bg, exposure))?;
         } else {
             return Err(anyhow!("{}: save images as .exr or .png", path.display()));
         }
@@ -481,8 +481,9 @@ impl Viewer {
         if frame.stats.notes.iter().any(|n| n == super::worker::EYE_INSIDE_NOTE) {
             self.message = Some(super::worker::EYE_INSIDE_NOTE.into());
         }
-        let bg = self.doc.as_ref().map(|d| d.scene.file.image.background).unwrap_or([0.0; 3]);
-        let texture = ctx.load_texture("view", frame_image(&frame, bg), egui::TextureOptions::LINEAR);
+        let (bg, exposure) =
+            self.doc.as_ref().map(|d| (d.scene.file.image.background, d.scene.file.image.exposure)).unwrap_or(([0.0; 3], 0.0));
+        let texture = ctx.load_texture("view", frame_image(&frame, bg, exposure), egui::TextureOptions::LINEAR);
         let steps = frame
             .extra
             .iter()
@@ -910,10 +911,18 @@ impl Viewer {
                 }
             });
             ui.horizontal(|ui| {
-                let lbl = ui.label("C_ext (m²/kg)");
-                let r = ui.add(egui::Slider::new(&mut m.c_ext, 0.01..=1000.0).logarithmic(true)).labelled_by(lbl.id);
-                if r.changed() {
-                    changed = Some(r.dragged());
+                // Automatic: optical depth 2 through the densest column, in any units.
+                let mut auto = m.c_ext.is_none();
+                if ui.checkbox(&mut auto, "Automatic C_ext").changed() {
+                    m.c_ext = if auto { None } else { Some(10.0) };
+                    changed = Some(false);
+                }
+                if let Some(c) = m.c_ext.as_mut() {
+                    let lbl = ui.label("C_ext (m²/kg)");
+                    let r = ui.add(egui::Slider::new(c, 0.01..=1000.0).logarithmic(true)).labelled_by(lbl.id);
+                    if r.changed() {
+                        changed = Some(r.dragged());
+                    }
                 }
             });
             ui.horizontal(|ui| {
@@ -1283,8 +1292,8 @@ fn project(cam: &Camera, rect: Rect, p: DVec3) -> Option<Pos2> {
 }
 
 /// sRGB pixels of a frame over its background.
-fn frame_image(frame: &Frame, bg: [f64; 3]) -> egui::ColorImage {
-    let rgba = frame.preview_rgba(bg);
+fn frame_image(frame: &Frame, bg: [f64; 3], exposure: f64) -> egui::ColorImage {
+    let rgba = frame.preview_rgba(bg, exposure);
     let to8 = |v: f32| (volterra_formats::image::linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0).round() as u8;
     let pixels = rgba.chunks_exact(4).map(|p| Color32::from_rgb(to8(p[0]), to8(p[1]), to8(p[2]))).collect();
     egui::ColorImage::new([frame.width, frame.height], pixels)

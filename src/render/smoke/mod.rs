@@ -13,6 +13,7 @@
 //! - `grid`: lazily filled grids (irradiance map, transmittance grid); `march`: the camera.
 
 pub mod cache;
+pub mod extinction;
 pub mod grid;
 pub mod lights;
 pub mod march;
@@ -127,8 +128,8 @@ pub struct SmokeInput<'a> {
 
 /// Checks the medium's parameters.
 pub fn check_medium(m: &MediumParams) -> Result<()> {
-    if !(m.c_ext.is_finite() && m.c_ext >= 0.0) {
-        bail!("medium c_ext = {} must be a non-negative number", m.c_ext);
+    if let Some(c) = m.c_ext.filter(|c| !(c.is_finite() && *c >= 0.0)) {
+        bail!("medium c_ext = {c} must be a non-negative number");
     }
     if !(0.0..=1.0).contains(&m.albedo) {
         bail!("medium albedo = {} must be between 0 and 1", m.albedo);
@@ -165,6 +166,8 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     check_medium(input.medium)?;
     s.validate().map_err(|e| anyhow::anyhow!("{}: {e}", RENDERER.name))?;
     let start = Instant::now();
+    // Each phase reported as it runs (photon tracing and ray marching count their own).
+    let phase = crate::render::driver::Task::begin("smoke: the SPH medium", 1);
     let medium = build_medium(input, s.kernel)?;
     let (lo, hi) = medium::Medium::bounds(&medium);
     let mut emitters = lights::Emitter::from_scene(input.lights, lo, hi)?;
@@ -174,12 +177,29 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     let h = median_h(&medium);
     let step = s.step * h;
     let cell = if s.irradiance_cell > 0.0 { s.irradiance_cell } else { h };
-    let (c_ext, albedo, g) = (input.medium.c_ext, input.medium.albedo, input.medium.g);
+    let mut notes = Vec::new();
+    // No c_ext given: the one that gives the densest column an optical depth of 2.
+    let c_ext = match input.medium.c_ext {
+        Some(c) => c,
+        None => {
+            let auto = extinction::auto_extinction(&medium)
+                .ok_or_else(|| anyhow::anyhow!("the particles have no mass: there is no smoke to render"))?;
+            notes.push(format!(
+                "c_ext chosen from the data: {:.6e} (optical depth {} through the densest column, {:.6e} mass per area)",
+                auto.c_ext,
+                extinction::TARGET_DEPTH,
+                auto.column
+            ));
+            auto.c_ext
+        }
+    };
+    let (albedo, g) = (input.medium.albedo, input.medium.g);
     let setup = start.elapsed().as_secs_f64();
+    phase.advance(1);
+    drop(phase);
 
     // Photons: view-independent, traced once per render here (cached across views later).
     let t = Instant::now();
-    let mut notes = Vec::new();
     let mut cache_hit = false;
     let traced = if s.store == Store::None || albedo == 0.0 {
         None
@@ -221,6 +241,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     };
     let trace_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
+    let phase = crate::render::driver::Task::begin("smoke: storing photons", 1);
     let particle_map = match (&traced, s.store) {
         (Some(tr), Store::ParticleMap) => Some(store::ParticleMap::build(&medium, &tr.photons)),
         _ => None,
@@ -233,6 +254,8 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
         _ => None,
     };
     let store_s = t.elapsed().as_secs_f64();
+    phase.advance(1);
+    drop(phase);
 
     let source = |x: DVec3, out: DVec3| -> [f64; 3] {
         if let Some(pm) = &particle_map {
@@ -299,6 +322,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     let mut counters = vec![
         ("particles".to_string(), medium.len() as f64),
         ("median h".into(), h),
+        ("c_ext".into(), c_ext),
         ("setup s".into(), setup),
         ("photon tracing s".into(), trace_s),
         ("photon store s".into(), store_s),
