@@ -807,7 +807,7 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         let t = std::time::Instant::now();
         if let Some(time) = f.time {
             current = current.at_time(time);
-            cache.release_unused();
+            cache.keep_only_for(&current);
         }
         let camera = current.camera_at(Some(***f))?;
         let (o, p) = outputs(f.index);

@@ -45,12 +45,21 @@ type TerrainKey = (usize, usize);
 type PreparedTerrain = (Arc<Heightfield>, [u64; 16], Arc<terrain::Prepared>);
 
 impl RenderCache {
-    /// Drops what was prepared for data nobody else holds any more (the steps of a time
-    /// series an animation has moved past), so an animation's memory stays that of the
-    /// steps it draws, not of every step it drew.
-    pub fn release_unused(&self) {
-        self.prepared.lock().unwrap().retain(|_, (v, _)| Arc::strong_count(v) > 1);
-        self.terrain.lock().unwrap().retain(|_, (h, _, _)| Arc::strong_count(h) > 1);
+    /// Keeps only what was prepared for data `scene` holds now, dropping the rest (the
+    /// steps of a time series an animation has moved past), so an animation's memory stays
+    /// that of the steps it draws, not of every step it drew. (Reference counts cannot
+    /// tell: a preparation holds its own data.)
+    pub fn keep_only_for(&self, scene: &Scene) {
+        let held: std::collections::HashSet<usize> = scene
+            .loaded_data()
+            .map(|d| match d {
+                NodeData::Volume(v) => Arc::as_ptr(&v) as usize,
+                NodeData::Heightfield(h) => Arc::as_ptr(&h) as usize,
+                NodeData::Particles(p) => Arc::as_ptr(&p) as usize,
+            })
+            .collect();
+        self.prepared.lock().unwrap().retain(|k, _| held.contains(k));
+        self.terrain.lock().unwrap().retain(|k, _| held.contains(&k.0));
     }
 
     fn shear_warp(&self, volume: &Arc<Volume>, limits: &Limits) -> Result<Arc<shear_warp::Prepared>> {

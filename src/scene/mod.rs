@@ -901,6 +901,11 @@ impl Scene {
         let _ = self.data[node].set(Ok(data));
     }
 
+    /// The data read so far, node by node (for caches that keep work per data set).
+    pub fn loaded_data(&self) -> impl Iterator<Item = NodeData> + '_ {
+        self.data.iter().filter_map(|c| c.get().and_then(|r| r.as_ref().ok()).cloned())
+    }
+
     /// True if the node's data has been read (for tests of lazy loading).
     pub fn is_loaded(&self, node: usize) -> bool {
         self.data[node].get().is_some()
