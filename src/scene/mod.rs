@@ -631,8 +631,9 @@ impl Scene {
 
     /// This scene at animation time `t`: each series node draws its step at `t` (the
     /// last at or before it); data already read is kept for every other node and for
-    /// series nodes whose step did not change. Dropping the old scene then frees the
-    /// steps no longer drawn, so an animation holds one or two steps of each series.
+    /// series nodes whose step did not change. Dropping the old scene (and
+    /// `RenderCache::keep_only_for` the new one) frees the steps no longer drawn, so an
+    /// animation holds the step of each series it draws.
     pub fn at_time(&self, t: f64) -> Scene {
         let n = self.file.nodes.len();
         let next = Scene {
