@@ -26,6 +26,7 @@ pub const SCENES: &[(&str, &str)] = &[
     ("terrain_walk.toml", include_str!("../samples/terrain_walk.toml")),
     ("smoke.toml", include_str!("../samples/smoke.toml")),
     ("smoke_series.toml", include_str!("../samples/smoke_series.toml")),
+    ("plume_points.toml", include_str!("../samples/plume_points.toml")),
 ];
 
 pub fn write_samples(dir: &Path) -> Result<()> {

@@ -532,7 +532,7 @@ fn files_open_from_the_dialog_and_by_drag_and_drop_without_blocking() {
     h.run_steps(1);
     wait_loaded(&mut h);
     let scene = h.state().scene().expect("opened from the dialog");
-    assert_eq!(scene.nodes()[0].renderer.as_deref(), Some("smoke"));
+    assert_eq!(scene.nodes()[0].renderer.as_deref(), Some("points"), "particles open as points, smoke a click away");
     assert_eq!(scene.particles(0).unwrap().positions.len(), 20_000);
     // Drag and drop a DEM: it replaces the particles.
     h.input_mut().dropped_files.push(std::sync::Arc::new(Dropped(dir.path().join("fractal_dem.tif"))));

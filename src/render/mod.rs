@@ -5,6 +5,8 @@
 pub mod driver;
 pub mod frame;
 pub mod geometry;
+pub mod gpu;
+pub mod points;
 pub mod reference_volume;
 pub mod registry;
 pub mod settings;
@@ -119,7 +121,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             .ok_or_else(|| anyhow!("node '{}': a particle node needs medium = {{ c_ext = …, albedo = …, g = … }}", desc.name))
     };
     // What the node's description lacks is an error before its data is read.
-    if desc.kind == crate::scene::NodeKind::Particles {
+    if matches!(settings, NodeSettings::Smoke(_)) {
         medium()?;
     }
     // Reading the data (once per scene: the scene keeps it), preparing what the renderer
@@ -182,6 +184,11 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 limits: *scene.limits(),
             };
             smoke::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
+        }
+        (NodeSettings::Points(s), NodeData::Particles(particles)) => {
+            let input =
+                points::PointsInput { particles: &particles, node_to_world, color_by: desc.color_by.as_deref(), range: desc.color_range };
+            points::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
         }
         _ => unreachable!("the scene checked that the node's data is of its kind and its renderer draws that kind"),
     };

@@ -5,7 +5,7 @@
 //! benches, the settings tables in docs/scene-format.md — reads it from here.
 
 use super::settings::{SettingDecl, SettingError};
-use super::{reference_volume, shear_warp, smoke, terrain};
+use super::{points, reference_volume, shear_warp, smoke, terrain};
 use crate::scene::{NodeDesc, NodeKind};
 
 /// One renderer.
@@ -29,12 +29,13 @@ pub enum NodeSettings {
     Terrain(terrain::Settings),
     TerrainReference(terrain::ReferenceSettings),
     Smoke(smoke::Settings),
+    Points(points::Settings),
 }
 
 /// Every renderer. For each node kind the first listed is the one a node that names no
 /// renderer gets.
 pub const RENDERERS: &[RendererDecl] =
-    &[shear_warp::RENDERER, reference_volume::RENDERER, terrain::RENDERER, terrain::REFERENCE_RENDERER, smoke::RENDERER];
+    &[shear_warp::RENDERER, reference_volume::RENDERER, terrain::RENDERER, terrain::REFERENCE_RENDERER, points::RENDERER, smoke::RENDERER];
 
 pub fn find(name: &str) -> Option<&'static RendererDecl> {
     RENDERERS.iter().find(|r| r.name == name)

@@ -40,8 +40,11 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         texture: None,
         arrays: None,
         medium: None,
+        color_by: None,
+        color_range: None,
     };
-    // The fast renderer for the kind (shear-warp, the GPU terrain ray-caster, smoke).
+    // The fast renderer for the kind (shear-warp, the GPU terrain ray-caster, points;
+    // smoke is a click away: the node keeps a medium and a light for it).
     node.renderer = crate::render::registry::fast_for(kind).map(|r| r.name.to_string());
     let mut image = ImageSettings::default();
     let mut lights = Vec::new();

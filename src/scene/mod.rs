@@ -167,6 +167,10 @@ pub struct NodeDesc {
     // --- particles
     pub arrays: Option<ParticleArrayNames>,
     pub medium: Option<Medium>,
+    /// The point array the `points` renderer colours by (default: density).
+    pub color_by: Option<String>,
+    /// The values at the colour map's ends (default: the array's range).
+    pub color_range: Option<[f64; 2]>,
 }
 
 fn yes() -> bool {
@@ -506,6 +510,14 @@ impl Scene {
                     bail!("{src}: node '{}': shading applies to volume nodes only", n.name);
                 }
                 s.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
+            }
+            if n.kind != NodeKind::Particles && (n.color_by.is_some() || n.color_range.is_some()) {
+                bail!("{src}: node '{}': color_by and color_range apply to particle nodes only", n.name);
+            }
+            if let Some([lo, hi]) = n.color_range {
+                if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                    bail!("{src}: node '{}': color_range [{lo}, {hi}] must be two finite values, the first smaller", n.name);
+                }
             }
             if n.kind != NodeKind::Volume && (n.crop.is_some() || !n.clip.is_empty()) {
                 bail!("{src}: node '{}': crop and clip apply to volume nodes only", n.name);

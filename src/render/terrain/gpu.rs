@@ -13,7 +13,7 @@ use std::sync::OnceLock;
 use std::time::Instant;
 use volterra_formats::RgbImage;
 
-/// One device for the process, opened on first use and shared by every render.
+/// The shared device (`render::gpu`) with the terrain's pipelines.
 pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
@@ -38,33 +38,9 @@ pub fn gpu() -> Result<&'static Gpu> {
 }
 
 fn open() -> Result<Gpu> {
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-    desc.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
-    let instance = wgpu::Instance::new(desc);
-    let ask = |fallback: bool| {
-        pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: fallback,
-            compatible_surface: None,
-            ..Default::default()
-        }))
-    };
-    let adapter = ask(false).or_else(|_| ask(true)).map_err(|e| {
-        anyhow!(
-            "no GPU adapter for the terrain ray-caster ({e}); without a GPU, install a software \
-             Vulkan driver (Debian/Ubuntu: apt install mesa-vulkan-drivers)"
-        )
-    })?;
-    // Ask for everything the adapter offers: big heightfields need big textures.
-    let limits = adapter.limits();
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-        label: Some("volterra"),
-        required_limits: limits,
-        ..Default::default()
-    }))
-    .map_err(|e| anyhow!("cannot open the GPU '{}': {e}", adapter.get_info().name))?;
-    let pipelines = Pipelines::new(&device);
-    Ok(Gpu { device, queue, info: adapter.get_info(), pipelines })
+    let shared = crate::render::gpu::device()?;
+    let pipelines = Pipelines::new(&shared.device);
+    Ok(Gpu { device: shared.device.clone(), queue: shared.queue.clone(), info: shared.info.clone(), pipelines })
 }
 
 fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
@@ -514,19 +490,8 @@ impl StepStats {
 
 /// Runs `f` inside GPU error scopes (they are per thread), so that out-of-memory and
 /// validation errors are returned, naming `what`.
-fn guarded<T>(gpu: &Gpu, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
-    let oom = gpu.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-    let invalid = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let result = f();
-    let invalid = pollster::block_on(invalid.pop());
-    let oom = pollster::block_on(oom.pop());
-    if let Some(e) = oom {
-        bail!("{what}: the GPU '{}' is out of memory ({e})", gpu.info.name);
-    }
-    if let Some(e) = invalid {
-        bail!("{what}: {e}");
-    }
-    result
+fn guarded<T>(_gpu: &Gpu, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    crate::render::gpu::device()?.guarded(what, f)
 }
 
 fn uniform_buffer(gpu: &Gpu, bytes: &[u8]) -> wgpu::Buffer {
@@ -564,23 +529,6 @@ fn colour_texture(gpu: &Gpu, img: &RgbImage, max_dim: usize) -> Result<wgpu::Tex
     Ok(tex)
 }
 
-fn read_buffer<T: bytemuck::Pod>(gpu: &Gpu, src: &wgpu::Buffer) -> Result<Vec<T>> {
-    let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("read-back"),
-        size: src.size(),
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    enc.copy_buffer_to_buffer(src, 0, &staging, 0, src.size());
-    gpu.queue.submit([enc.finish()]);
-    let (tx, rx) = std::sync::mpsc::channel();
-    staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    gpu.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
-    rx.recv()?.map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
-    let view = staging.slice(..).get_mapped_range().map_err(|e| anyhow!("GPU read-back failed: {e:?}"))?;
-    let out = bytemuck::cast_slice::<u8, T>(&view).to_vec();
-    Ok(out)
+fn read_buffer<T: bytemuck::Pod>(_gpu: &Gpu, src: &wgpu::Buffer) -> Result<Vec<T>> {
+    crate::render::gpu::device()?.read_buffer(src)
 }

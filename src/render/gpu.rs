@@ -1,0 +1,89 @@
+//! The process's one GPU device (wgpu), opened on first use and shared by the GPU renderers
+//! (terrain, points); each builds its own pipelines on it. Also what they share: running
+//! work with wgpu's errors turned into ours, and reading a buffer back.
+
+use crate::shared_error::SharedError;
+use anyhow::{anyhow, bail, Result};
+use std::sync::OnceLock;
+
+pub struct Device {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+}
+
+static DEVICE: OnceLock<Result<Device, SharedError>> = OnceLock::new();
+
+/// The shared device, or why there is none (asked once per process).
+pub fn device() -> Result<&'static Device> {
+    DEVICE.get_or_init(|| open().map_err(SharedError::new)).as_ref().map_err(|e| anyhow::Error::new(e.clone()))
+}
+
+fn open() -> Result<Device> {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
+    let instance = wgpu::Instance::new(desc);
+    let ask = |fallback: bool| {
+        pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: fallback,
+            compatible_surface: None,
+            ..Default::default()
+        }))
+    };
+    let adapter = ask(false).or_else(|_| ask(true)).map_err(|e| {
+        anyhow!(
+            "no GPU adapter for the GPU renderers (terrain, points) ({e}); without a GPU, install a \
+             software Vulkan driver (Debian/Ubuntu: apt install mesa-vulkan-drivers)"
+        )
+    })?;
+    // Ask for everything the adapter offers: big heightfields need big textures.
+    let limits = adapter.limits();
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("volterra"),
+        required_limits: limits,
+        ..Default::default()
+    }))
+    .map_err(|e| anyhow!("cannot open the GPU '{}': {e}", adapter.get_info().name))?;
+    Ok(Device { device, queue, info: adapter.get_info() })
+}
+
+impl Device {
+    /// Runs `f`, turning the GPU's out-of-memory and validation errors into errors that say
+    /// `what` failed.
+    pub fn guarded<T>(&self, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let invalid = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let result = f();
+        let invalid = pollster::block_on(invalid.pop());
+        let oom = pollster::block_on(oom.pop());
+        if let Some(e) = oom {
+            bail!("{what}: the GPU '{}' is out of memory ({e})", self.info.name);
+        }
+        if let Some(e) = invalid {
+            bail!("{what}: {e}");
+        }
+        result
+    }
+
+    /// Copies `src` into a mappable buffer and reads it back.
+    pub fn read_buffer<T: bytemuck::Pod>(&self, src: &wgpu::Buffer) -> Result<Vec<T>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read-back"),
+            size: src.size(),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(src, 0, &staging, 0, src.size());
+        self.queue.submit([enc.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        rx.recv()?.map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        let view = staging.slice(..).get_mapped_range().map_err(|e| anyhow!("GPU read-back failed: {e:?}"))?;
+        Ok(bytemuck::cast_slice::<u8, T>(&view).to_vec())
+    }
+}

@@ -1,0 +1,201 @@
+//! The points renderer on the GPU (lavapipe where there is no hardware) against its
+//! brute-force f64 CPU version: coverage, colour and the distance along every pixel's ray,
+//! in perspective and in parallel, with overlapping spheres; colours from the colour map at
+//! the data's range; depth compositing with another node.
+
+mod common;
+
+use glam::DMat4;
+use volterra::render::points::{self, Colormap, PointsInput, Settings};
+use volterra::scene::camera::Camera;
+use volterra_formats::rng::SplitMix64;
+use volterra_formats::{ParticleSet, PointArray};
+
+fn cloud(n: usize) -> ParticleSet {
+    let mut rng = SplitMix64(11);
+    let mut positions = vec![];
+    let (mut h, mut temperature) = (vec![], vec![]);
+    for _ in 0..n {
+        positions.push([rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)]);
+        h.push(rng.range(0.08, 0.3) as f32);
+        temperature.push(rng.range(250.0, 400.0));
+    }
+    ParticleSet {
+        positions,
+        mass: Some(vec![1.0; n]),
+        density: None,
+        smoothing_length: Some(h),
+        arrays: vec![PointArray { name: "temperature".into(), components: 1, values: temperature }],
+        notes: vec![],
+    }
+}
+
+fn camera(parallel: bool) -> Camera {
+    Camera {
+        position: [3.0, -6.0, 2.5],
+        focal_point: [0.0, 0.0, 0.0],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 30.0,
+        parallel_projection: parallel,
+        parallel_scale: 1.6,
+    }
+}
+
+#[test]
+fn spheres_on_the_gpu_match_the_f64_reference_in_colour_coverage_and_distance() {
+    if common::gpu().is_none() {
+        return;
+    }
+    let set = cloud(60);
+    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None };
+    let s = Settings { colormap: Colormap::Magma, ..Default::default() };
+    let (spheres, range) = points::spheres(&input, &s).unwrap();
+    let (name, [lo, hi]) = range.unwrap();
+    assert_eq!(name, "temperature");
+    let t = &set.arrays[0].values;
+    assert_eq!((lo, hi), (t.iter().cloned().fold(f64::INFINITY, f64::min), t.iter().cloned().fold(f64::NEG_INFINITY, f64::max)));
+    for parallel in [false, true] {
+        let rays = camera(parallel).rays(96, 72);
+        let gpu = points::render(&input, &rays, &s).unwrap();
+        let cpu = points::render_reference(&spheres, &rays);
+        let (mut both, mut mismatched, mut worst_colour, mut worst_depth) = (0, 0, 0.0f32, 0.0f64);
+        for i in 0..96 * 72 {
+            let (g, c) = (gpu.rgba[i], cpu.rgba[i]);
+            if (g[3] > 0.0) != (c[3] > 0.0) {
+                mismatched += 1;
+                continue;
+            }
+            if c[3] == 0.0 {
+                assert!(gpu.depth[i].is_infinite());
+                continue;
+            }
+            both += 1;
+            // Where two spheres meet within f32's reach, either may be nearest.
+            let rel = ((gpu.depth[i] - cpu.depth[i]) / cpu.depth[i]).abs() as f64;
+            if rel > 1e-4 {
+                mismatched += 1;
+                continue;
+            }
+            worst_depth = worst_depth.max(rel);
+            worst_colour = worst_colour.max((0..3).map(|k| (g[k] - c[k]).abs()).fold(0.0, f32::max));
+        }
+        eprintln!("parallel {parallel}: {both} pixels agree, {mismatched} differ; worst colour {worst_colour:e}, depth {worst_depth:e}");
+        assert!(both > 1000, "the cloud covers much of the view: {both}");
+        // Only silhouette pixels, where the ray grazes a sphere, may differ.
+        assert!(mismatched <= both / 200, "{mismatched} of {both} pixels differ");
+        assert!(worst_depth < 2e-6, "distance along the ray: relative error {worst_depth:e}");
+        assert!(worst_colour < 1e-4, "colour error {worst_colour:e}");
+    }
+}
+
+#[test]
+fn the_nearer_sphere_wins_and_the_colour_map_spans_the_values() {
+    if common::gpu().is_none() {
+        return;
+    }
+    // Two spheres on the line of sight, the far one larger; values 0 and 10.
+    let set = ParticleSet {
+        positions: vec![[0.0, 2.0, 0.0], [0.0, 0.0, 0.0]],
+        mass: None,
+        density: None,
+        smoothing_length: Some(vec![0.5, 0.2]),
+        arrays: vec![PointArray { name: "v".into(), components: 1, values: vec![0.0, 10.0] }],
+        notes: vec![],
+    };
+    let cam = Camera {
+        position: [0.0, -5.0, 0.0],
+        focal_point: [0.0; 3],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 30.0,
+        parallel_projection: false,
+        parallel_scale: 1.0,
+    };
+    let rays = cam.rays(33, 33);
+    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("v"), range: None };
+    let s = Settings::default();
+    let f = points::render(&input, &rays, &s).unwrap();
+    let centre = 16 * 33 + 16;
+    // The near sphere (value 10: the map's top) faces the eye: shade 1.
+    let top = Colormap::Viridis.at(1.0);
+    for k in 0..3 {
+        assert!((f.rgba[centre][k] - top[k]).abs() < 1e-5, "{:?} vs {top:?}", f.rgba[centre]);
+    }
+    assert!((f.depth[centre] as f64 - 4.8).abs() < 1e-5, "{}", f.depth[centre]);
+    // Beside the near sphere the far one shows, with the map's bottom colour.
+    let ring = 16 * 33 + 16 + 4;
+    let bottom = Colormap::Viridis.at(0.0);
+    let ratio = f.rgba[ring][1] / bottom[1];
+    for (got, want) in f.rgba[ring].iter().zip(bottom) {
+        assert!((got - want * ratio).abs() < 1e-5, "{:?}", f.rgba[ring]);
+    }
+    assert!(f.depth[ring] > 6.0);
+    // An array that is not there: one line naming what there is.
+    let bad = PointsInput { color_by: Some("pressure"), ..input };
+    let e = points::render(&bad, &rays, &s).unwrap_err().to_string();
+    assert!(e.contains("no point array 'pressure'") && e.contains("v, h"), "{e}");
+}
+
+#[test]
+fn colour_maps_are_matplotlibs_in_linear_rgb() {
+    // viridis(0) is #440154 and magma(1) #fcfdbf in sRGB (matplotlib's ends).
+    let lin = |c: u8| {
+        let c = c as f32 / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    // Within the hex codes' rounding (half a step of 255 in sRGB, up to 0.005 in linear).
+    let close = |a: [f32; 3], b: [u8; 3]| (0..3).all(|k| (a[k] - lin(b[k])).abs() < 5e-3);
+    assert!(close(Colormap::Viridis.at(0.0), [0x44, 0x01, 0x54]), "{:?}", Colormap::Viridis.at(0.0));
+    assert!(close(Colormap::Magma.at(1.0), [0xfc, 0xfd, 0xbf]), "{:?}", Colormap::Magma.at(1.0));
+    // Grey is even in sRGB: 0.5 is sRGB 0.5.
+    assert!((Colormap::Grey.at(0.5)[0] - 0.214_041_14).abs() < 1e-6);
+}
+
+/// A points node composites with a volume by depth: a sphere in front of the volume hides
+/// it; beside the sphere the volume shows as it does alone.
+#[test]
+fn points_composite_with_a_volume_by_depth() {
+    if common::gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &volterra::samples::angio_phantom(32)).unwrap();
+    let one = ParticleSet {
+        positions: vec![[0.0, -12.0, 0.0]],
+        mass: Some(vec![1.0]),
+        density: Some(vec![1.0]),
+        smoothing_length: Some(vec![2.0]),
+        arrays: vec![],
+        notes: vec![],
+    };
+    volterra_formats::vtk::write_vtp(&dir.path().join("p.vtp"), &one, &Default::default()).unwrap();
+    let head = "[image]\nwidth = 48\nheight = 48\n[camera]\nposition = [0.0, -80.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\nview_angle = 20.0\n\
+                [[node]]\nname = \"v\"\nkind = \"volume\"\nfile = \"v.nii\"\nrenderer = \"shear-warp\"\n\
+                [node.transfer_function]\nscalar_opacity = [[0.0, 0.0], [255.0, 1.0]]\ncolor = [[0.0, 1.0, 0.2, 0.2], [255.0, 1.0, 0.2, 0.2]]\n";
+    let both = format!("{head}[[node]]\nname = \"p\"\nkind = \"particles\"\nfile = \"p.vtp\"\nrenderer = \"points\"\nsettings = {{ colormap = \"grey\" }}\n");
+    let load = |text: &str, name: &str| {
+        std::fs::write(dir.path().join(name), text).unwrap();
+        volterra::scene::Scene::load(&dir.path().join(name), &[]).unwrap()
+    };
+    let (alone, with) = (load(head, "alone.toml"), load(&both, "both.toml"));
+    let render = |s: &volterra::scene::Scene| {
+        volterra::render::render_view(s, &s.camera(None).unwrap(), (48, 48), &volterra::render::RenderCache::default()).unwrap()
+    };
+    let (a, b) = (render(&alone), render(&with));
+    let centre = 24 * 48 + 24;
+    // One particle, one value: the grey map's middle, nearly facing the eye (the pixel's
+    // centre lies half a pixel off the sphere's axis: shade just under 1).
+    let grey = Colormap::Grey.at(0.5);
+    let shade = b.rgba[centre][0] / grey[0];
+    assert!((0.97..=1.0).contains(&shade) && b.rgba[centre][3] == 1.0, "{:?}", b.rgba[centre]);
+    assert!((b.depth[centre] - 66.0).abs() < 0.1, "{}", b.depth[centre]);
+    // Off the sphere, where the volume is drawn, the composite is the volume's pixel.
+    let off: Vec<usize> = (0..48 * 48).filter(|&i| a.rgba[i][3] > 0.05 && (b.depth[i] - 66.0).abs() > 5.0).collect();
+    assert!(off.len() > 50, "{}", off.len());
+    for i in off {
+        assert_eq!(a.rgba[i], b.rgba[i], "pixel {i}");
+    }
+}

@@ -1,0 +1,30 @@
+"""Writes src/render/points/colormaps.rs: matplotlib's viridis, magma and coolwarm sampled
+at 33 evenly spaced values, converted from sRGB to linear RGB (volterra's frames are linear;
+the PNG preview encodes them back to sRGB). Re-run with the test venv's Python:
+    tests/reference/.venv/bin/python tests/reference/make_colormaps.py
+"""
+import os
+import matplotlib
+
+N = 33
+
+
+def linear(c):
+    return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
+
+
+out = ["//! Colour maps for the points renderer: matplotlib's viridis, magma and coolwarm at 33",
+       "//! evenly spaced values, in linear RGB. Written by tests/reference/make_colormaps.py; do",
+       "//! not edit.", ""]
+for name in ["viridis", "magma", "coolwarm"]:
+    cmap = matplotlib.colormaps[name]
+    out.append(f"pub const {name.upper()}: [[f32; 3]; {N}] = [")
+    for i in range(N):
+        r, g, b, _ = cmap(i / (N - 1))
+        out.append(f"    [{linear(r):.6}, {linear(g):.6}, {linear(b):.6}],")
+    out.append("];")
+    out.append("")
+path = os.path.join(os.path.dirname(__file__), "..", "..", "src", "render", "points", "colormaps.rs")
+with open(path, "w") as f:
+    f.write("\n".join(out))
+print(f"wrote {os.path.normpath(path)}")
