@@ -51,14 +51,33 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
         out.pos = vec4<f32>(-2.0, -2.0, 0.5, 1.0);
         return out;
     }
-    // The projection of the sphere's bounding cube contains the sphere's.
-    var lo = vec2<f32>(1e30, 1e30);
-    var hi = vec2<f32>(-1e30, -1e30);
-    for (var k = 0u; k < 8u; k = k + 1u) {
-        let o = vec3<f32>(select(-r, r, (k & 1u) != 0u), select(-r, r, (k & 2u) != 0u), select(-r, r, (k & 4u) != 0u));
-        let q = ndc(cam + o);
-        lo = min(lo, q);
-        hi = max(hi, q);
+    // The sphere's projection, bounded exactly along each image axis by the tangent lines
+    // from the eye (lo = tan(θ − δ), hi = tan(θ + δ), sin δ = r / |c|): a quad about a
+    // third of the size of one round the sphere's bounding cube, and fragments are what a
+    // software rasteriser pays for. Parallel: centre ± r.
+    var lo: vec2<f32>;
+    var hi: vec2<f32>;
+    if (view.parallel != 0u) {
+        lo = (cam.xy - vec2<f32>(r)) / vec2<f32>(view.half_w, view.half_h);
+        hi = (cam.xy + vec2<f32>(r)) / vec2<f32>(view.half_w, view.half_h);
+    } else {
+        let t = sqrt(max(dot(cam, cam) - r * r, 0.0));
+        let den_lo = cam.z * t + r * cam.xy;
+        let den_hi = cam.z * t - r * cam.xy;
+        if (all(den_lo > vec2<f32>(0.0)) && all(den_hi > vec2<f32>(0.0))) {
+            lo = (cam.xy * t - r * cam.z) / den_lo / vec2<f32>(view.half_w, view.half_h);
+            hi = (cam.xy * t + r * cam.z) / den_hi / vec2<f32>(view.half_w, view.half_h);
+        } else {
+            // More than 90° across (beside the eye): the bounding cube's projection.
+            lo = vec2<f32>(1e30, 1e30);
+            hi = vec2<f32>(-1e30, -1e30);
+            for (var k = 0u; k < 8u; k = k + 1u) {
+                let o = vec3<f32>(select(-r, r, (k & 1u) != 0u), select(-r, r, (k & 2u) != 0u), select(-r, r, (k & 4u) != 0u));
+                let q = ndc(cam + o);
+                lo = min(lo, q);
+                hi = max(hi, q);
+            }
+        }
     }
     var corners = array<vec2<f32>, 6>(
         vec2<f32>(0.0, 0.0), vec2<f32>(1.0, 0.0), vec2<f32>(0.0, 1.0),
@@ -66,7 +85,14 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
     // A pixel of margin, so a pixel centre just inside is never lost to rounding.
     let m = vec2<f32>(2.0 / view.width, 2.0 / view.height);
     let xy = mix(lo - m, hi + m, corners[vi]);
-    out.pos = vec4<f32>(clamp(xy, vec2<f32>(-4.0), vec2<f32>(4.0)), 0.5, 1.0);
+    // The quad's depth: the sphere's nearest distance from the eye (every fragment's ray
+    // meets the sphere no nearer), so the fragment depth is never nearer than the quad's.
+    var nearest = length(cam) - r;
+    if (view.parallel != 0u) {
+        nearest = cam.z - r;
+    }
+    let z = clamp((nearest - view.near) / (view.far - view.near), 0.0, 1.0);
+    out.pos = vec4<f32>(clamp(xy, vec2<f32>(-4.0), vec2<f32>(4.0)), z, 1.0);
     return out;
 }
 

@@ -409,6 +409,22 @@ enum BenchCommand {
         #[command(flatten)]
         common: BenchCommon,
     },
+    /// N particles (the plume, 1M by default) as spheres at 1920×1080: our GPU points
+    /// renderer against VTK's vtkPointGaussianMapper (pyvista's spheres) in the same run.
+    Points {
+        /// Particles.
+        #[arg(long, default_value_t = 1_000_000)]
+        count: usize,
+        #[arg(long, default_value = "1920x1080", value_parser = parse_image_size)]
+        image: (usize, usize),
+        /// Frames timed after the first (each turned by half a degree).
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
 }
 
 /// `WIDTHxHEIGHT`, e.g. 1920x1080.
@@ -571,6 +587,9 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
         }
         BenchCommand::Clinical { slices, frames, json, sets, error, common } => {
             b::clinical::run(&b::clinical::ClinicalBench { env: common.resolve(limits)?, slices, frames, json, sets, error })
+        }
+        BenchCommand::Points { count, image: (width, height), runs, json, common } => {
+            b::points::run(&b::points::PointsBench { env: common.resolve(limits)?, count, width, height, runs, json })
         }
         BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
             std::fs::create_dir_all(&common.work_dir)?;

@@ -226,9 +226,17 @@ fn pipeline(dev: &wgpu::Device) -> &'static Pipeline {
             label: Some("points"),
             entries: &[entry(0, wgpu::BufferBindingType::Uniform), entry(1, storage), entry(2, storage)],
         });
+        // The fragment's depth is never nearer than the quad's (the sphere's nearest
+        // point): with the adapter's early depth test, hidden fragments are never shaded.
+        let source = include_str!("../../../shaders/points.wgsl");
+        let source = if dev.features().contains(wgpu::Features::SHADER_EARLY_DEPTH_TEST) {
+            source.replace("@fragment\nfn fs", "@fragment @early_depth_test(greater_equal)\nfn fs")
+        } else {
+            source.to_string()
+        };
         let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("points.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("../../../shaders/points.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
         });
         let pl = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("points"),
