@@ -222,8 +222,13 @@ fn info_lists_a_series_steps_with_their_counts_and_ranges() {
     }
     let counts: Vec<u64> = steps.iter().map(|s| s["particles"].as_u64().unwrap()).collect();
     assert!(counts.windows(2).all(|w| w[0] < w[1]), "{counts:?}");
-    let text = ok(&volterra(&["info", pattern.to_str().unwrap()], 2));
-    let _ = text;
+    let text = volterra(&["info", pattern.to_str().unwrap()], 2);
+    ok(&text);
+    assert!(
+        String::from_utf8_lossy(&text.stdout).contains("(numbered files): 4 timesteps, time 0 .. 3"),
+        "{}",
+        String::from_utf8_lossy(&text.stdout)
+    );
 }
 
 #[test]

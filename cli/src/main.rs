@@ -807,7 +807,7 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         let (o, p) = outputs(k);
         o.is_file() && p.is_none_or(|p| p.is_file())
     };
-    let todo: Vec<_> = mine.iter().filter(|f| !(job.resume && done(f.index))).collect();
+    let todo: Vec<animation::AnimationFrame> = mine.iter().filter(|f| !(job.resume && done(f.index))).map(|f| **f).collect();
     let shard = if job.shard == Shard::ALL { String::new() } else { format!("task {} of {}: ", job.shard.index, job.shard.of) };
     eprintln!(
         "{shard}{} of the animation's {} frames to render{}",
@@ -828,7 +828,7 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
             current = current.at_time(time);
             cache.keep_only_for(&current);
         }
-        let camera = current.camera_at(Some(***f))?;
+        let camera = current.camera_at(Some(*f))?;
         let (o, p) = outputs(f.index);
         write_frame(&current, &camera, false, &o, p.as_deref(), &cache)?;
         seconds.push(t.elapsed().as_secs_f64());

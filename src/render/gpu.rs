@@ -53,8 +53,8 @@ fn open() -> Result<Device> {
 }
 
 impl Device {
-    /// Runs `f`, turning the GPU's out-of-memory and validation errors into errors that say
-    /// `what` failed.
+    /// Runs `f` inside GPU error scopes (they are per thread), turning the GPU's
+    /// out-of-memory and validation errors into errors that say `what` failed.
     pub fn guarded<T>(&self, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
         let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let invalid = self.device.push_error_scope(wgpu::ErrorFilter::Validation);

@@ -67,10 +67,10 @@ pub fn under_ci() -> bool {
     std::env::var("CI").is_ok_and(|v| v == "true" || v == "1")
 }
 
-/// The shared GPU (lavapipe where there is no hardware). Under CI a missing adapter is a
-/// failure; locally the test is skipped with a printed reason.
-pub fn gpu() -> Option<&'static volterra::render::terrain::gpu::Gpu> {
-    match volterra::render::terrain::gpu::gpu() {
+/// The shared GPU device (lavapipe where there is no hardware). Under CI a missing adapter
+/// is a failure; locally the test is skipped with a printed reason.
+pub fn gpu() -> Option<&'static volterra::render::gpu::Device> {
+    match volterra::render::gpu::device() {
         Ok(g) => Some(g),
         Err(e) if under_ci() => panic!("CI=true and no GPU adapter: {e}"),
         Err(e) => {

@@ -23,10 +23,10 @@ pub struct PointsBench {
 }
 
 fn camera(step: usize) -> Camera {
+    // 2.1 m in front of the plume (−y), turned about z by half a degree a step.
     let a = (0.5 * step as f64).to_radians();
-    let (x, y) = (0.0 * a.cos() - (-2.1) * a.sin(), 0.0 * a.sin() + (-2.1) * a.cos());
     Camera {
-        position: [0.5 + x, 0.5 + y, 0.5],
+        position: [0.5 + 2.1 * a.sin(), 0.5 - 2.1 * a.cos(), 0.5],
         focal_point: [0.5, 0.5, 0.48],
         view_up: [0.0, 0.0, 1.0],
         view_angle: 35.0,

@@ -13,12 +13,18 @@ use std::sync::OnceLock;
 use std::time::Instant;
 use volterra_formats::RgbImage;
 
-/// The shared device (`render::gpu`) with the terrain's pipelines.
+/// The shared device (`render::gpu`; its fields and methods through `Deref`) with the
+/// terrain's pipelines.
 pub struct Gpu {
-    pub device: wgpu::Device,
-    pub queue: wgpu::Queue,
-    pub info: wgpu::AdapterInfo,
+    shared: &'static crate::render::gpu::Device,
     pipelines: Pipelines,
+}
+
+impl std::ops::Deref for Gpu {
+    type Target = crate::render::gpu::Device;
+    fn deref(&self) -> &Self::Target {
+        self.shared
+    }
 }
 
 struct Pipelines {
@@ -39,8 +45,7 @@ pub fn gpu() -> Result<&'static Gpu> {
 
 fn open() -> Result<Gpu> {
     let shared = crate::render::gpu::device()?;
-    let pipelines = Pipelines::new(&shared.device);
-    Ok(Gpu { device: shared.device.clone(), queue: shared.queue.clone(), info: shared.info.clone(), pipelines })
+    Ok(Gpu { shared, pipelines: Pipelines::new(&shared.device) })
 }
 
 fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
@@ -206,7 +211,7 @@ impl GpuTerrain {
     /// Uploads the heightfield (and texture) and builds the pyramid. GPU errors — out of
     /// memory above all — come back as errors, not the panic wgpu's default handler gives.
     pub fn new(gpu: &Gpu, grid: &TerrainGrid, texture: Option<&RgbImage>) -> Result<GpuTerrain> {
-        guarded(gpu, "uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture))
+        gpu.guarded("uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture))
     }
 
     fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<&RgbImage>) -> Result<GpuTerrain> {
@@ -421,15 +426,15 @@ impl GpuTerrain {
     pub fn render(&self, gpu: &Gpu, view: &View) -> Result<Frame> {
         let params = self.params(view);
         let (rays, max_steps) = (view.rays, view.max_steps);
-        let (target, seconds) = guarded(gpu, "ray casting the terrain on the GPU", || {
+        let (target, seconds) = gpu.guarded("ray casting the terrain on the GPU", || {
             let target = self.target(gpu, &params)?;
             let seconds = self.dispatch(gpu, &target)?;
             Ok((target, seconds))
         })?;
-        let colour: Vec<[f32; 4]> = read_buffer(gpu, &target.colour)?;
-        let depth: Vec<f32> = read_buffer(gpu, &target.depth)?;
-        let steps: Vec<u32> = read_buffer(gpu, &target.steps)?;
-        let counters: Vec<u32> = read_buffer(gpu, &target.counters)?;
+        let colour: Vec<[f32; 4]> = gpu.read_buffer(&target.colour)?;
+        let depth: Vec<f32> = gpu.read_buffer(&target.depth)?;
+        let steps: Vec<u32> = gpu.read_buffer(&target.steps)?;
+        let counters: Vec<u32> = gpu.read_buffer(&target.counters)?;
         let (w, h) = rays.size();
         let mut frame = Frame::empty(w, h);
         frame.rgba = colour[..w * h].to_vec();
@@ -461,7 +466,7 @@ impl GpuTerrain {
     /// Seconds per frame for `runs` frames of the same view (dispatch and wait, no read-back).
     pub fn time_frames(&self, gpu: &Gpu, view: &View, runs: usize) -> Result<Vec<f64>> {
         let params = self.params(view);
-        let target = guarded(gpu, "allocating the frame on the GPU", || self.target(gpu, &params))?;
+        let target = gpu.guarded("allocating the frame on the GPU", || self.target(gpu, &params))?;
         self.dispatch(gpu, &target)?;
         (0..runs).map(|_| self.dispatch(gpu, &target)).collect()
     }
@@ -486,12 +491,6 @@ impl StepStats {
             max: sorted.last().copied().unwrap_or(0),
         }
     }
-}
-
-/// Runs `f` inside GPU error scopes (they are per thread), so that out-of-memory and
-/// validation errors are returned, naming `what`.
-fn guarded<T>(_gpu: &Gpu, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
-    crate::render::gpu::device()?.guarded(what, f)
 }
 
 fn uniform_buffer(gpu: &Gpu, bytes: &[u8]) -> wgpu::Buffer {
@@ -527,8 +526,4 @@ fn colour_texture(gpu: &Gpu, img: &RgbImage, max_dim: usize) -> Result<wgpu::Tex
         tex.size(),
     );
     Ok(tex)
-}
-
-fn read_buffer<T: bytemuck::Pod>(_gpu: &Gpu, src: &wgpu::Buffer) -> Result<Vec<T>> {
-    crate::render::gpu::device()?.read_buffer(src)
 }
