@@ -6,6 +6,7 @@
 mod common;
 
 use glam::DMat4;
+use volterra::render::colormap::ColourScale;
 use volterra::render::points::{self, Colormap, PointsInput, Settings};
 use volterra::scene::camera::Camera;
 use volterra_formats::rng::SplitMix64;
@@ -58,6 +59,8 @@ fn spheres_on_the_gpu_match_the_f64_reference_in_colour_coverage_and_distance() 
         let rays = camera(parallel).rays(96, 72);
         let gpu = points::render(&input, &rays, &s).unwrap();
         let cpu = points::render_reference(&spheres, &rays);
+        // The PNG preview gets a scalar bar for what colours the spheres.
+        assert_eq!(gpu.scales, [ColourScale { title: "temperature".into(), colormap: Colormap::Magma, range: [lo, hi] }]);
         let (mut both, mut mismatched, mut worst_colour, mut worst_depth) = (0, 0, 0.0f32, 0.0f64);
         for i in 0..96 * 72 {
             let (g, c) = (gpu.rgba[i], cpu.rgba[i]);

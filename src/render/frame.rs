@@ -1,6 +1,8 @@
 //! What every renderer returns: premultiplied linear RGBA, a depth, optional extra
 //! channels, and statistics.
 
+use super::colormap::ColourScale;
+use super::scalar_bar;
 use volterra_formats::FloatImage;
 
 #[derive(Debug, Clone, Default)]
@@ -37,6 +39,8 @@ pub struct Frame {
     pub depth: Vec<f32>,
     /// Extra named channels (step counts, …).
     pub extra: Vec<(String, Vec<f32>)>,
+    /// What the frame shows through colour maps: a scalar bar each in the PNG preview.
+    pub scales: Vec<ColourScale>,
     pub stats: FrameStats,
 }
 
@@ -48,6 +52,7 @@ impl Frame {
             rgba: vec![[0.0; 4]; width * height],
             depth: vec![f32::INFINITY; width * height],
             extra: Vec::new(),
+            scales: Vec::new(),
             stats: FrameStats::default(),
         }
     }
@@ -71,6 +76,11 @@ impl Frame {
         }
         for l in layers {
             out.extra.extend(l.extra.iter().cloned());
+            for s in &l.scales {
+                if !out.scales.contains(s) {
+                    out.scales.push(s.clone());
+                }
+            }
             out.stats.counters.extend(l.stats.counters.iter().cloned());
             out.stats.notes.extend(l.stats.notes.iter().cloned());
             out.stats.nodes.extend(l.stats.nodes.iter().cloned());
@@ -94,10 +104,18 @@ impl Frame {
         img
     }
 
-    /// Interleaved RGBA for a PNG preview (colour over the background, alpha 1).
-    /// `exposure`: stops (the composited colour times 2^exposure, background included, as a
-    /// camera's exposure); the EXR stays linear and unscaled.
+    /// Interleaved RGBA for a PNG preview (colour over the background, alpha 1), with a
+    /// scalar bar for each of the frame's colour scales. `exposure`: stops (the composited
+    /// colour times 2^exposure, background included, as a camera's exposure; the bars are
+    /// not scaled); the EXR stays linear and unscaled.
     pub fn preview_rgba(&self, background: [f64; 3], exposure: f64) -> Vec<f32> {
+        let mut rgba = self.picture_rgba(background, exposure);
+        scalar_bar::draw(&mut rgba, self.width, self.height, &self.scales, background.map(|c| c * exposure.exp2()));
+        rgba
+    }
+
+    /// The preview's picture alone, without scalar bars.
+    pub fn picture_rgba(&self, background: [f64; 3], exposure: f64) -> Vec<f32> {
         let k = exposure.exp2() as f32;
         self.rgba
             .iter()

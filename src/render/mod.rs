@@ -2,6 +2,7 @@
 //! none reaches into another. `render_scene` draws every visible node with the renderer it
 //! names and composites the results by depth.
 
+pub mod colormap;
 pub mod driver;
 pub mod frame;
 pub mod geometry;
@@ -9,10 +10,12 @@ pub mod gpu;
 pub mod points;
 pub mod reference_volume;
 pub mod registry;
+pub mod scalar_bar;
 pub mod settings;
 pub mod shear_warp;
 pub mod smoke;
 pub mod terrain;
+pub mod text;
 pub mod volume_shading;
 
 pub use frame::{Frame, FrameStats, NodeTime};

@@ -1,4 +1,4 @@
-"""Writes src/render/points/colormaps.rs: matplotlib's viridis, magma and coolwarm sampled
+"""Writes src/render/colormap/tables.rs: matplotlib's viridis, magma and coolwarm sampled
 at 33 evenly spaced values, converted from sRGB to linear RGB (volterra's frames are linear;
 the PNG preview encodes them back to sRGB). Re-run with the test venv's Python:
     tests/reference/.venv/bin/python tests/reference/make_colormaps.py
@@ -13,9 +13,8 @@ def linear(c):
     return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
 
 
-out = ["//! Colour maps for the points renderer: matplotlib's viridis, magma and coolwarm at 33",
-       "//! evenly spaced values, in linear RGB. Written by tests/reference/make_colormaps.py; do",
-       "//! not edit.", ""]
+out = ["//! matplotlib's viridis, magma and coolwarm at 33 evenly spaced values, in linear RGB.",
+       "//! Written by tests/reference/make_colormaps.py; do not edit.", ""]
 for name in ["viridis", "magma", "coolwarm"]:
     cmap = matplotlib.colormaps[name]
     out.append(f"pub const {name.upper()}: [[f32; 3]; {N}] = [")
@@ -24,7 +23,7 @@ for name in ["viridis", "magma", "coolwarm"]:
         out.append(f"    [{linear(r):.6}, {linear(g):.6}, {linear(b):.6}],")
     out.append("];")
     out.append("")
-path = os.path.join(os.path.dirname(__file__), "..", "..", "src", "render", "points", "colormaps.rs")
+path = os.path.join(os.path.dirname(__file__), "..", "..", "src", "render", "colormap", "tables.rs")
 with open(path, "w") as f:
     f.write("\n".join(out))
 print(f"wrote {os.path.normpath(path)}")

@@ -6,7 +6,8 @@
 //! depth-composites with the others. [`render_reference`] is the brute-force CPU version
 //! the tests hold it to.
 
-pub mod colormaps;
+pub use crate::render::colormap::Colormap;
+use crate::render::colormap::ColourScale;
 
 use super::registry::{NodeSettings, RendererDecl};
 use super::settings::Bounds;
@@ -18,20 +19,6 @@ use glam::{DMat3, DMat4, DVec3};
 use std::sync::OnceLock;
 use std::time::Instant;
 use volterra_formats::ParticleSet;
-
-crate::setting_choice! {
-    /// The colour map values are shown through.
-    pub enum Colormap {
-        /// matplotlib's viridis (perceptually uniform, dark blue to yellow).
-        Viridis = "viridis",
-        /// matplotlib's magma (black to light yellow).
-        Magma = "magma",
-        /// Moreland's diverging cool-warm (blue, grey, red), as matplotlib's coolwarm.
-        Coolwarm = "coolwarm",
-        /// Black to white (even in sRGB).
-        Grey = "grey",
-    }
-}
 
 crate::declare_settings! {
     pub struct Settings {
@@ -71,31 +58,6 @@ pub struct Sphere {
     pub centre: DVec3,
     pub radius: f64,
     pub colour: [f32; 3],
-}
-
-fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
-impl Colormap {
-    /// The colour (linear RGB) at t in [0, 1] (clamped), linear between the table's values.
-    pub fn at(self, t: f64) -> [f32; 3] {
-        let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 } as f32;
-        let table: &[[f32; 3]] = match self {
-            Colormap::Viridis => &colormaps::VIRIDIS,
-            Colormap::Magma => &colormaps::MAGMA,
-            Colormap::Coolwarm => &colormaps::COOLWARM,
-            Colormap::Grey => return [srgb_to_linear(t); 3],
-        };
-        let x = t * (table.len() - 1) as f32;
-        let i = (x.floor() as usize).min(table.len() - 2);
-        let f = x - i as f32;
-        [0, 1, 2].map(|c| table[i][c] + f * (table[i + 1][c] - table[i][c]))
-    }
 }
 
 /// The values `color_by` names, one per particle, and the name used (None: no array).
@@ -340,6 +302,7 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
     let mut notes = vec![format!("GPU: {} ({:?})", dev.info.name, dev.info.backend)];
     if let Some((name, [lo, hi])) = &range {
         notes.push(format!("colour: {name} from {lo} to {hi} ({})", s.colormap.name()));
+        frame.scales.push(ColourScale { title: name.clone(), colormap: s.colormap, range: [*lo, *hi] });
     }
     frame.stats = FrameStats {
         renderer: RENDERER.name.into(),

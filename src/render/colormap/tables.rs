@@ -1,6 +1,5 @@
-//! Colour maps for the points renderer: matplotlib's viridis, magma and coolwarm at 33
-//! evenly spaced values, in linear RGB. Written by tests/reference/make_colormaps.py; do
-//! not edit.
+//! matplotlib's viridis, magma and coolwarm at 33 evenly spaced values, in linear RGB.
+//! Written by tests/reference/make_colormaps.py; do not edit.
 
 pub const VIRIDIS: [[f32; 3]; 33] = [
     [0.057951, 0.000377245, 0.0886574],

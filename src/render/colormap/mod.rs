@@ -1,0 +1,53 @@
+//! Colour maps: a value's place in a range to a colour (linear RGB). Shared by every
+//! renderer that colours by a data value and by the scalar bar drawn into PNG previews.
+
+pub mod tables;
+
+crate::setting_choice! {
+    /// The colour map values are shown through.
+    pub enum Colormap {
+        /// matplotlib's viridis (perceptually uniform, dark blue to yellow).
+        Viridis = "viridis",
+        /// matplotlib's magma (black to light yellow).
+        Magma = "magma",
+        /// Moreland's diverging cool-warm (blue, grey, red), as matplotlib's coolwarm.
+        Coolwarm = "coolwarm",
+        /// Black to white (even in sRGB).
+        Grey = "grey",
+    }
+}
+
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+impl Colormap {
+    /// The colour (linear RGB) at t in [0, 1] (clamped; not finite: the low end), linear
+    /// between the table's values.
+    pub fn at(self, t: f64) -> [f32; 3] {
+        let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 } as f32;
+        let table: &[[f32; 3]] = match self {
+            Colormap::Viridis => &tables::VIRIDIS,
+            Colormap::Magma => &tables::MAGMA,
+            Colormap::Coolwarm => &tables::COOLWARM,
+            Colormap::Grey => return [srgb_to_linear(t); 3],
+        };
+        let x = t * (table.len() - 1) as f32;
+        let i = (x.floor() as usize).min(table.len() - 2);
+        let f = x - i as f32;
+        [0, 1, 2].map(|c| table[i][c] + f * (table[i + 1][c] - table[i][c]))
+    }
+}
+
+/// What a frame shows through a colour map, for the scalar bar beside it: the quantity's
+/// name, the map, and the values at its ends.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColourScale {
+    pub title: String,
+    pub colormap: Colormap,
+    pub range: [f64; 2],
+}
