@@ -16,7 +16,8 @@ struct View {
     parallel: u32,
     near: f32,
     far: f32,
-    pad: f32,
+    // Splats: each splat's opacity at its centre.
+    opacity: f32,
 };
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -102,10 +103,13 @@ struct FOut {
     @builtin(frag_depth) depth: f32,
 };
 
-@fragment
-fn fs(in: VOut) -> FOut {
-    let s = spheres[in.id];
-    let px = in.pos.xy;
+// The ray through a fragment's pixel centre: origin and unit direction, eye-relative.
+struct Ray {
+    o: vec3<f32>,
+    d: vec3<f32>,
+};
+
+fn pixel_ray(px: vec2<f32>) -> Ray {
     let sx = (2.0 * px.x / view.width - 1.0) * view.half_w;
     let sy = (1.0 - 2.0 * px.y / view.height) * view.half_h;
     var o = vec3<f32>(0.0, 0.0, 0.0);
@@ -115,6 +119,15 @@ fn fs(in: VOut) -> FOut {
     } else {
         d = normalize(view.forward.xyz + view.right.xyz * sx + view.up.xyz * sy);
     }
+    return Ray(o, d);
+}
+
+@fragment
+fn fs(in: VOut) -> FOut {
+    let s = spheres[in.id];
+    let ray = pixel_ray(in.pos.xy);
+    let o = ray.o;
+    let d = ray.d;
     // The ray's nearest approach to the centre, then back along the ray to the surface
     // (no difference of two large squares).
     let oc = o - s.xyz;
@@ -133,5 +146,35 @@ fn fs(in: VOut) -> FOut {
     out.colour = vec4<f32>(colours[in.id].rgb * (0.3 + 0.7 * max(dot(n, -d), 0.0)), 1.0);
     out.dist = t;
     out.depth = clamp((t - view.near) / (view.far - view.near), 0.0, 1.0);
+    return out;
+}
+
+// Gaussian splats: each particle a Gaussian blob of σ = radius / 3 about its centre, cut at
+// the radius, weighted by the ray's nearest approach q to the centre: α = opacity ·
+// exp(−q² / 2σ²). Order-independent (weighted blended): target 0 sums colour · α (RGB)
+// and multiplies (1 − α) (A), target 1 sums α, target 2 keeps the least distance to the
+// point of nearest approach among splats the ray passes within σ of.
+struct SplatOut {
+    @location(0) colour: vec4<f32>,
+    @location(1) weight: f32,
+    @location(2) dist: f32,
+};
+
+@fragment
+fn fs_splat(in: VOut) -> SplatOut {
+    let s = spheres[in.id];
+    let ray = pixel_ray(in.pos.xy);
+    let oc = ray.o - s.xyz;
+    let b = dot(oc, ray.d);
+    let q = oc - b * ray.d;
+    let q2 = dot(q, q) / (s.w * s.w);
+    if (q2 >= 1.0 || -b <= 0.0) {
+        discard;
+    }
+    let a = view.opacity * exp(-4.5 * q2);
+    var out: SplatOut;
+    out.colour = vec4<f32>(colours[in.id].rgb * a, a);
+    out.weight = a;
+    out.dist = select(3.0e38, -b, q2 <= 1.0 / 9.0);
     return out;
 }

@@ -202,3 +202,59 @@ fn points_composite_with_a_volume_by_depth() {
         assert_eq!(a.rgba[i], b.rgba[i], "pixel {i}");
     }
 }
+
+/// Gaussian splats on the GPU against their f64 CPU version: the same coverage, colours
+/// (weighted blended: α-weighted mean colour over 1 − Π (1 − α)) and depth, in perspective
+/// and in parallel; the result does not depend on the particles' order.
+#[test]
+fn splats_on_the_gpu_match_the_f64_reference_in_any_order() {
+    if common::gpu().is_none() {
+        return;
+    }
+    let mut set = cloud(80);
+    let s = Settings { style: points::PointStyle::Splats, opacity: 0.4, colormap: Colormap::Viridis, ..Default::default() };
+    for parallel in [false, true] {
+        let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None };
+        let (spheres, _) = points::spheres(&input, &s).unwrap();
+        let rays = camera(parallel).rays(96, 72);
+        let gpu = points::render(&input, &rays, &s).unwrap();
+        let cpu = points::render_splats_reference(&spheres, &rays, s.opacity);
+        let (mut covered, mut worst, mut worst_depth, mut depth_mismatch) = (0, 0.0f32, 0.0f32, 0);
+        for i in 0..96 * 72 {
+            let (g, c) = (gpu.rgba[i], cpu.rgba[i]);
+            worst = worst.max((0..4).map(|k| (g[k] - c[k]).abs()).fold(0.0, f32::max));
+            covered += (c[3] > 0.01) as usize;
+            if cpu.depth[i].is_finite() != gpu.depth[i].is_finite() {
+                depth_mismatch += 1; // a ray passing exactly σ from a centre, within f32
+            } else if cpu.depth[i].is_finite() {
+                worst_depth = worst_depth.max((gpu.depth[i] - cpu.depth[i]).abs() / cpu.depth[i]);
+            }
+        }
+        eprintln!("splats, parallel {parallel}: {covered} pixels covered; worst RGBA difference {worst:e}, depth {worst_depth:e}, {depth_mismatch} depth mismatches");
+        assert!(covered > 1000, "{covered}");
+        assert!(worst < 2e-5, "RGBA differs by {worst:e}");
+        assert!(worst_depth < 2e-6 && depth_mismatch <= 3, "depth {worst_depth:e}, {depth_mismatch} mismatches");
+        // Translucent where few splats overlap: coverage spans (0, 1).
+        assert!(gpu.rgba.iter().any(|p| p[3] > 0.01 && p[3] < 0.5) && gpu.rgba.iter().any(|p| p[3] > 0.6));
+        // Reversed order: the same picture up to the float sums' rounding.
+        set.positions.reverse();
+        set.smoothing_length.as_mut().unwrap().reverse();
+        set.arrays[0].values.reverse();
+        let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None };
+        let reversed = points::render(&input, &rays, &s).unwrap();
+        let order =
+            (0..96 * 72).map(|i| (0..4).map(|k| (reversed.rgba[i][k] - gpu.rgba[i][k]).abs()).fold(0.0, f32::max)).fold(0.0, f32::max);
+        assert!(order < 1e-5, "order changes the picture by {order:e}");
+    }
+}
+
+/// `opacity` belongs to splats: a spheres node that gives it is refused before any drawing.
+#[test]
+fn opacity_is_refused_for_spheres() {
+    let decl = volterra::render::registry::find("points").unwrap();
+    let table = |s: &str| s.parse::<toml::Table>().unwrap();
+    let e = (decl.parse)(&table("opacity = 0.5")).err().unwrap();
+    assert!(e.to_string().contains("opacity") && e.to_string().contains("splats"), "{e}");
+    assert!((decl.parse)(&table("style = \"splats\"\nopacity = 0.5")).is_ok());
+    assert!((decl.parse)(&table("style = \"splats\"\nopacity = 0.0")).is_err(), "opacity in (0, 1]");
+}

@@ -594,3 +594,43 @@ fn a_screenshot_of_a_scene_that_cannot_render_ends_with_the_error() {
     assert!(err.contains("needs medium"), "the error names the cause: {err}");
     assert!(!shot.exists());
 }
+
+/// The points node's controls: colour by another array, switch to splats (the opacity
+/// slider appears only then), save; the saved scene renders as the viewer drew it; back to
+/// spheres, the opacity goes (spheres refuse it).
+#[test]
+fn points_coloured_by_another_array_as_splats_are_rendered_and_saved() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = samples();
+    let mut h = settled_on(&dir.path().join("plume_points.toml"));
+    assert!(h.query_by_label("Opacity").is_none(), "no opacity for spheres");
+    h.get_by_label("Colour by").click();
+    h.run_steps(2);
+    click_in_panel(&mut h, "density");
+    let n = &h.state().scene().unwrap().nodes()[0];
+    assert_eq!(n.color_by.as_deref(), Some("density"));
+    assert_eq!(h.state().current_full_frame().unwrap().scales[0].title, "density", "the scalar bar follows");
+    h.get_by_label("Style").click();
+    h.run_steps(2);
+    click_in_panel(&mut h, "splats");
+    set_in_panel(&mut h, egui::accesskit::Role::Slider, "Opacity", 0.6);
+    settle(&mut h);
+    let splats = h.state().current_full_frame().unwrap().clone();
+    assert!(splats.rgba.iter().any(|p| p[3] > 0.0 && p[3] < 0.5), "translucent edges");
+    let out = tempfile::tempdir().unwrap();
+    let scene_path = out.path().join("splats.toml");
+    save_through_toolbar(&mut h, &scene_path);
+    let text = std::fs::read_to_string(&scene_path).unwrap();
+    assert!(text.contains("style = \"splats\"") && text.contains("opacity = 0.6") && text.contains("color_by = \"density\""), "{text}");
+    let b = render_with_cli(&scene_path, out.path());
+    let a = b.channel("A").unwrap();
+    assert_eq!(a.len(), splats.rgba.len());
+    let diff = splats.rgba.iter().zip(a).map(|(p, q)| (p[3] - q).abs()).fold(0.0f32, f32::max);
+    assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
+    h.get_by_label("Style").click();
+    h.run_steps(2);
+    click_in_panel(&mut h, "spheres");
+    assert!(!h.state().scene().unwrap().nodes()[0].settings.contains_key("opacity"));
+}

@@ -409,12 +409,16 @@ enum BenchCommand {
         #[command(flatten)]
         common: BenchCommon,
     },
-    /// N particles (the plume, 1M by default) as spheres at 1920×1080: our GPU points
-    /// renderer against VTK's vtkPointGaussianMapper (pyvista's spheres) in the same run.
+    /// N particles (the plume, 1M by default) as spheres or splats at 1920×1080: our GPU
+    /// points renderer against VTK's vtkPointGaussianMapper (pyvista's spheres, or its
+    /// Gaussian splats) in the same run.
     Points {
         /// Particles.
         #[arg(long, default_value_t = 1_000_000)]
         count: usize,
+        /// spheres or splats.
+        #[arg(long, default_value = "spheres", value_parser = parse_point_style)]
+        style: volterra::render::points::PointStyle,
         #[arg(long, default_value = "1920x1080", value_parser = parse_image_size)]
         image: (usize, usize),
         /// Frames timed after the first (each turned by half a degree).
@@ -425,6 +429,11 @@ enum BenchCommand {
         #[command(flatten)]
         common: BenchCommon,
     },
+}
+
+fn parse_point_style(s: &str) -> Result<volterra::render::points::PointStyle, String> {
+    use volterra::render::points::PointStyle;
+    PointStyle::ALL.iter().copied().find(|p| p.name() == s).ok_or_else(|| format!("'{s}': spheres or splats"))
 }
 
 /// `WIDTHxHEIGHT`, e.g. 1920x1080.
@@ -588,8 +597,8 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
         BenchCommand::Clinical { slices, frames, json, sets, error, common } => {
             b::clinical::run(&b::clinical::ClinicalBench { env: common.resolve(limits)?, slices, frames, json, sets, error })
         }
-        BenchCommand::Points { count, image: (width, height), runs, json, common } => {
-            b::points::run(&b::points::PointsBench { env: common.resolve(limits)?, count, width, height, runs, json })
+        BenchCommand::Points { count, style, image: (width, height), runs, json, common } => {
+            b::points::run(&b::points::PointsBench { env: common.resolve(limits)?, count, style, width, height, runs, json })
         }
         BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
             std::fs::create_dir_all(&common.work_dir)?;

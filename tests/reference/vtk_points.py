@@ -6,8 +6,10 @@ splat shader), coloured by temperature through coolwarm, offscreen at the same s
 same machine (Mesa's software OpenGL where there is no GPU; ours runs on Mesa's software
 Vulkan). Prints {"first_ms", "ms": [...], "vtk", "renderer"} and writes the image.
 
+With spec style "splats": VTK's own Gaussian splats (default shader, emissive), footprint h.
+
 Usage: vtk_points.py SPEC.json   (spec: vtp, width, height, camera {position,
-focal_point, view_up, view_angle}, runs, image)
+focal_point, view_up, view_angle}, runs, image, style)
 """
 import json
 import sys
@@ -17,6 +19,21 @@ import numpy as np
 import OpenEXR
 import vtk
 from vtk.util.numpy_support import vtk_to_numpy
+
+
+def spheres(mapper):
+    """pyvista's sphere look for points_gaussian + render_points_as_spheres."""
+    mapper.SetScaleFactor(1.0)
+    mapper.EmissiveOff()
+    mapper.SetSplatShaderCode(
+        "//VTK::Color::Impl\n"
+        "float dist = dot(offsetVCVSOutput.xy, offsetVCVSOutput.xy);\n"
+        "if (dist > 1.0) { discard; } else {\n"
+        "  float scale = (1.0 - dist);\n"
+        "  ambientColor *= scale;\n"
+        "  diffuseColor *= scale;\n"
+        "}\n"
+    )
 
 
 def main():
@@ -31,18 +48,13 @@ def main():
     mapper = vtk.vtkPointGaussianMapper()
     mapper.SetInputData(poly)
     mapper.SetScaleArray("h")
-    mapper.SetScaleFactor(1.0)
-    mapper.EmissiveOff()
-    # pyvista's sphere look for points_gaussian + render_points_as_spheres.
-    mapper.SetSplatShaderCode(
-        "//VTK::Color::Impl\n"
-        "float dist = dot(offsetVCVSOutput.xy, offsetVCVSOutput.xy);\n"
-        "if (dist > 1.0) { discard; } else {\n"
-        "  float scale = (1.0 - dist);\n"
-        "  ambientColor *= scale;\n"
-        "  diffuseColor *= scale;\n"
-        "}\n"
-    )
+    if spec.get("style") == "splats":
+        # VTK's own Gaussian splats (its default shader, emissive): σ is the scale, drawn
+        # out to 3σ; a third of h puts the footprint at h, as volterra's splats.
+        mapper.SetScaleFactor(1.0 / 3.0)
+    else:
+        spheres(mapper)
+
     lut = vtk.vtkColorTransferFunction()
     t = vtk_to_numpy(poly.GetPointData().GetArray("temperature"))
     lo, hi = float(t.min()), float(t.max())

@@ -711,6 +711,7 @@ impl Viewer {
         match n.kind {
             NodeKind::Volume => self.volume_controls(ui, i, current),
             NodeKind::Heightfield => self.terrain_controls(ui, i, current),
+            NodeKind::Particles if current.name == volterra::render::points::RENDERER.name => self.points_controls(ui, i, current),
             NodeKind::Particles => self.smoke_controls(ui, i, current),
             NodeKind::Group => {}
         }
@@ -939,6 +940,49 @@ impl Viewer {
         self.setting_controls(ui, i, renderer, &n.settings);
         self.sun_controls(ui, &lights);
         ui.label(egui::RichText::new("Traced photons are cached on disk: moving the camera reuses them.").weak());
+    }
+
+    /// The points renderer's controls: what colours the particles (any of their point
+    /// arrays), then the declared settings; opacity only for splats (spheres refuse it).
+    fn points_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
+        let Some(doc) = &self.doc else { return };
+        let n = doc.scene.nodes()[i].clone();
+        if let Ok(NodeData::Particles(p)) = doc.scene.data(i) {
+            let mut names: Vec<String> =
+                [("density", p.density.is_some()), ("mass", p.mass.is_some()), ("h", p.smoothing_length.is_some())]
+                    .iter()
+                    .filter(|(_, present)| *present)
+                    .map(|(n, _)| n.to_string())
+                    .collect();
+            names.extend(p.arrays.iter().map(|a| a.name.clone()));
+            let current = n.color_by.clone().unwrap_or_else(|| if p.density.is_some() { "density".into() } else { "(one colour)".into() });
+            let mut pick = None;
+            egui::ComboBox::from_label("Colour by").selected_text(&current).show_ui(ui, |ui| {
+                for name in &names {
+                    if ui.selectable_label(*name == current, name).clicked() {
+                        pick = Some(name.clone());
+                    }
+                }
+            });
+            if let Some(name) = pick.filter(|p| *p != current) {
+                // A range given for another array would not fit this one.
+                self.edit(false, |f| {
+                    f.nodes[i].color_by = Some(name);
+                    f.nodes[i].color_range = None;
+                });
+            }
+        }
+        let splats = n.settings.get("style").and_then(|v| v.as_str()) == Some(volterra::render::points::PointStyle::Splats.name());
+        let decls = renderer.settings.iter().filter(|d| splats || d.key != "opacity");
+        if let Some(c) = super::settings_controls::show_some(ui, decls, &n.settings) {
+            self.edit(c.moving, |f| {
+                let settings = &mut f.nodes[i].settings;
+                settings.insert(c.key.to_string(), c.value);
+                if settings.get("style").and_then(|v| v.as_str()) != Some("splats") {
+                    settings.remove("opacity");
+                }
+            });
+        }
     }
 
     fn slice_panel(&mut self, ui: &mut egui::Ui) {

@@ -2,7 +2,7 @@
 //! every setting declared with a `viewer` control gets its widget, in declaration order.
 
 use volterra::render::registry::RendererDecl;
-use volterra::render::settings::{self, SettingType, Value, Widget};
+use volterra::render::settings::{self, SettingDecl, SettingType, Value, Widget};
 
 /// A setting the user changed: its key, the new value, and whether a drag is still going
 /// on (the viewer then draws a quick preview).
@@ -14,8 +14,13 @@ pub struct Change {
 
 /// Draws the controls `renderer` declares for a node whose settings are `table`.
 pub fn show(ui: &mut egui::Ui, renderer: &RendererDecl, table: &toml::Table) -> Option<Change> {
+    show_some(ui, renderer.settings.iter(), table)
+}
+
+/// Draws the controls of the settings `decls` (some of a renderer's) for `table`.
+pub fn show_some<'a>(ui: &mut egui::Ui, decls: impl Iterator<Item = &'a SettingDecl>, table: &toml::Table) -> Option<Change> {
     let mut change = None;
-    for d in renderer.settings {
+    for d in decls {
         let Some(control) = d.viewer else { continue };
         let mut set = |value: Value, moving: bool| change = Some(Change { key: d.key, value: value.to_toml(), moving });
         match (d.ty, settings::current(d, table)) {

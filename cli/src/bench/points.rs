@@ -2,7 +2,8 @@
 //! of their smoothing length, coloured by temperature, at 1920×1080 — by our points
 //! renderer (wgpu; lavapipe where there is no GPU) and by VTK's vtkPointGaussianMapper
 //! with pyvista's sphere look (OpenGL; Mesa's llvmpipe where there is no GPU), in the same
-//! run. Each side's first frame counts from the particles in memory (ours) or the file (VTK:
+//! run. With `--style splats`: our Gaussian splats against VTK's own (its default shader,
+//! emissive, scaled so its 3σ footprint is h as ours is). Each side's first frame counts from the particles in memory (ours) or the file (VTK:
 //! reading the .vtp) to the frame read back; further frames turn the camera by half a degree
 //! each and read the frame back.
 
@@ -10,12 +11,13 @@ use super::median;
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 use std::time::Instant;
-use volterra::render::points::{self, Colormap, PointsInput, Settings};
+use volterra::render::points::{self, Colormap, PointStyle, PointsInput, Settings};
 use volterra::scene::Camera;
 
 pub struct PointsBench {
     pub env: super::BenchEnv,
     pub count: usize,
+    pub style: PointStyle,
     pub width: usize,
     pub height: usize,
     pub runs: usize,
@@ -50,7 +52,7 @@ pub fn run(b: &PointsBench) -> Result<()> {
 
     // Ours.
     let input = PointsInput { particles: &set, node_to_world: glam::DMat4::IDENTITY, color_by: Some("temperature"), range: None };
-    let s = Settings { colormap: Colormap::Coolwarm, ..Default::default() };
+    let s = Settings { colormap: Colormap::Coolwarm, style: b.style, ..Default::default() };
     let t = Instant::now();
     let first = points::render(&input, &camera(0).rays(b.width, b.height), &s)?;
     let ours_first = 1000.0 * t.elapsed().as_secs_f64();
@@ -68,7 +70,7 @@ pub fn run(b: &PointsBench) -> Result<()> {
     // VTK in its own process.
     let c = camera(0);
     let spec = serde_json::json!({
-        "vtp": std::fs::canonicalize(&vtp)?, "width": b.width, "height": b.height, "runs": b.runs,
+        "vtp": std::fs::canonicalize(&vtp)?, "width": b.width, "height": b.height, "runs": b.runs, "style": b.style.name(),
         "camera": {"position": c.position, "focal_point": c.focal_point, "view_up": c.view_up, "view_angle": c.view_angle},
         "image": b.env.work_dir.join("points_vtk.exr"),
     });
@@ -79,7 +81,7 @@ pub fn run(b: &PointsBench) -> Result<()> {
     let mut sorted = ours.clone();
     let ours_med = median(&mut sorted);
     let report = serde_json::json!({
-        "particles": b.count, "image": [b.width, b.height],
+        "particles": b.count, "style": b.style.name(), "image": [b.width, b.height],
         "ours": {"first_ms": ours_first, "ms": ours, "median_ms": ours_med, "draw_ms": draw, "gpu": gpu_note},
         "vtk": vtk.as_ref().ok(), "vtk_error": vtk.as_ref().err().map(|e| format!("{e:#}")),
     });
@@ -87,7 +89,7 @@ pub fn run(b: &PointsBench) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
-    println!("{} particles as spheres of their h, coloured by temperature, {}×{}", b.count, b.width, b.height);
+    println!("{} particles as {} of their h, coloured by temperature, {}×{}", b.count, b.style.name(), b.width, b.height);
     println!("{:<48} {:>12} {:>14}", "", "first frame", "frame (median)");
     println!("{:<48} {:>9.0} ms {:>11.1} ms", format!("volterra points ({gpu_note})"), ours_first, ours_med);
     println!("{:<48} (of which the GPU's draw, submit to done: {draw_med:.1} ms)", "");

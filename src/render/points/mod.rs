@@ -10,7 +10,7 @@ pub use crate::render::colormap::Colormap;
 use crate::render::colormap::ColourScale;
 
 use super::registry::{NodeSettings, RendererDecl};
-use super::settings::Bounds;
+use super::settings::{Bounds, Control, SettingError, Widget};
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
 use crate::scene::NodeKind;
@@ -20,25 +20,54 @@ use std::sync::OnceLock;
 use std::time::Instant;
 use volterra_formats::ParticleSet;
 
+crate::setting_choice! {
+    /// How each particle is drawn.
+    pub enum PointStyle {
+        /// An opaque sphere of the particle's radius, shaded by a headlight; exact
+        /// ray-sphere depth.
+        Spheres = "spheres",
+        /// A translucent Gaussian blob (σ = radius / 3, cut at the radius), unshaded, blended
+        /// order-independently: the look of a density field rather than of balls.
+        Splats = "splats",
+    }
+}
+
 crate::declare_settings! {
     pub struct Settings {
+        /// How each particle is drawn.
+        pub style: PointStyle = PointStyle::Spheres, viewer = Control { label: "Style", widget: Widget::ByType };
         /// Sphere radius in the particles' length unit; 0: each particle's smoothing length h.
-        pub radius: f64 = 0.0, range = Bounds::above(0.0), zero = "auto: each particle's h";
+        pub radius: f64 = 0.0, range = Bounds::above(0.0), zero = "auto: each particle's h",
+            viewer = Control { label: "Radius (0: h)", widget: Widget::Drag { lo: 0.0, hi: 1e30, speed: 0.001 } };
         /// The colour map for the node's `color_by` array.
-        pub colormap: Colormap = Colormap::Viridis;
+        pub colormap: Colormap = Colormap::Viridis, viewer = Control { label: "Colour map", widget: Widget::ByType };
+        /// Splats only: each splat's opacity at its centre (falling off as its Gaussian).
+        pub opacity: f64 = 0.3, range = Bounds::open_closed(0.0, 1.0),
+            viewer = Control { label: "Opacity", widget: Widget::Slider { lo: 0.01, hi: 1.0, step: 0.01 } };
     }
+}
+
+/// The settings a node's table gives; `opacity` is refused unless the style is splats
+/// (spheres are opaque), before anything is drawn.
+fn parse(t: &toml::Table) -> Result<NodeSettings, SettingError> {
+    let s = Settings::from_table(t)?;
+    if s.style != PointStyle::Splats && t.contains_key("opacity") {
+        return Err(SettingError { key: "opacity".into(), message: "applies to style = \"splats\" only (spheres are opaque)".into() });
+    }
+    Ok(NodeSettings::Points(s))
 }
 
 pub const RENDERER: RendererDecl = RendererDecl {
     name: "points",
     kind: NodeKind::Particles,
-    doc: "Every particle as a sphere on the GPU (wgpu), coloured by a point array (the node's \
-          `color_by`, default density) through a colour map over `color_range` (default: the \
-          data's range), shaded by a headlight; exact ray-sphere depth, composited with the \
-          other nodes.",
+    doc: "Every particle as a sphere or a Gaussian splat on the GPU (wgpu), coloured by a point \
+          array (the node's `color_by`, default density) through a colour map over \
+          `color_range` (default: the data's range). Spheres: shaded by a headlight, exact \
+          ray-sphere depth. Splats: blended order-independently, depth where a ray passes \
+          within σ of a centre. Composited with the other nodes by depth.",
     reference: false,
     settings: Settings::DECLS,
-    parse: |t| Settings::from_table(t).map(NodeSettings::Points),
+    parse,
 };
 
 /// What the points renderer draws: the particles, placed, and what colours them.
@@ -168,15 +197,75 @@ pub fn render_reference(spheres: &[Sphere], rays: &RayGenerator) -> Frame {
     frame
 }
 
-struct Pipeline {
-    layout: wgpu::BindGroupLayout,
-    pipeline: wgpu::RenderPipeline,
+/// The brute-force CPU version of the splats, in f64: every pixel's ray against every
+/// splat, with the shader's formulas (see `fs_splat` in shaders/points.wgsl).
+pub fn render_splats_reference(spheres: &[Sphere], rays: &RayGenerator, opacity: f64) -> Frame {
+    let (w, h) = rays.size();
+    let mut frame = Frame::empty(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
+            let mut acc = SplatSums::default();
+            for s in spheres {
+                let oc = ray.origin - s.centre;
+                let b = oc.dot(ray.dir);
+                let q2 = (oc - b * ray.dir).length_squared() / (s.radius * s.radius);
+                if q2 < 1.0 && -b > 0.0 {
+                    let a = opacity * (-4.5 * q2).exp();
+                    for k in 0..3 {
+                        acc.colour[k] += s.colour[k] as f64 * a;
+                    }
+                    acc.weight += a;
+                    acc.clear *= 1.0 - a;
+                    if q2 <= 1.0 / 9.0 {
+                        acc.dist = acc.dist.min(-b);
+                    }
+                }
+            }
+            (frame.rgba[y * w + x], frame.depth[y * w + x]) = acc.resolve();
+        }
+    }
+    frame
 }
 
-static PIPELINE: OnceLock<Pipeline> = OnceLock::new();
+/// What the splats leave in a pixel: Σ colour·α, Σ α, Π (1 − α) and the least distance.
+struct SplatSums {
+    colour: [f64; 3],
+    weight: f64,
+    clear: f64,
+    dist: f64,
+}
 
-fn pipeline(dev: &wgpu::Device) -> &'static Pipeline {
-    PIPELINE.get_or_init(|| {
+impl Default for SplatSums {
+    fn default() -> Self {
+        SplatSums { colour: [0.0; 3], weight: 0.0, clear: 1.0, dist: f64::INFINITY }
+    }
+}
+
+impl SplatSums {
+    /// Weighted blended order-independent transparency: the α-weighted mean colour, with
+    /// coverage 1 − Π (1 − α) (premultiplied); the distance, +∞ where no splat is near.
+    fn resolve(&self) -> ([f32; 4], f32) {
+        if self.weight <= 0.0 {
+            return ([0.0; 4], f32::INFINITY);
+        }
+        let a = 1.0 - self.clear;
+        let c = self.colour.map(|c| (c / self.weight * a) as f32);
+        ([c[0], c[1], c[2], a as f32], if self.dist < 1e38 { self.dist as f32 } else { f32::INFINITY })
+    }
+}
+
+struct Pipelines {
+    layout: wgpu::BindGroupLayout,
+    spheres: wgpu::RenderPipeline,
+    /// None where the adapter cannot blend 32-bit float targets.
+    splats: Option<wgpu::RenderPipeline>,
+}
+
+static PIPELINES: OnceLock<Pipelines> = OnceLock::new();
+
+fn pipelines(dev: &wgpu::Device) -> &'static Pipelines {
+    PIPELINES.get_or_init(|| {
         let entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
@@ -192,7 +281,7 @@ fn pipeline(dev: &wgpu::Device) -> &'static Pipeline {
         // point): with the adapter's early depth test, hidden fragments are never shaded.
         let source = include_str!("../../../shaders/points.wgsl");
         let source = if dev.features().contains(wgpu::Features::SHADER_EARLY_DEPTH_TEST) {
-            source.replace("@fragment\nfn fs", "@fragment @early_depth_test(greater_equal)\nfn fs")
+            source.replace("@fragment\nfn fs(", "@fragment @early_depth_test(greater_equal)\nfn fs(")
         } else {
             source.to_string()
         };
@@ -205,32 +294,69 @@ fn pipeline(dev: &wgpu::Device) -> &'static Pipeline {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let target = |format| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL });
-        let pipeline = dev.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("points"),
-            layout: Some(&pl),
-            vertex: wgpu::VertexState { module: &module, entry_point: Some("vs"), compilation_options: Default::default(), buffers: &[] },
-            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: wgpu::TextureFormat::Depth32Float,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
-                targets: &[target(wgpu::TextureFormat::Rgba32Float), target(wgpu::TextureFormat::R32Float)],
-            }),
-            multiview_mask: None,
-            cache: None,
+        let pipeline = |entry: &str, depth: bool, targets: &[Option<wgpu::ColorTargetState>]| {
+            dev.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pl),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+                depth_stencil: depth.then(|| wgpu::DepthStencilState {
+                    format: wgpu::TextureFormat::Depth32Float,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    targets,
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let target = |format, blend| Some(wgpu::ColorTargetState { format, blend, write_mask: wgpu::ColorWrites::ALL });
+        let spheres = pipeline("fs", true, &[target(SPHERE_TARGETS[0].0, None), target(SPHERE_TARGETS[1].0, None)]);
+        use wgpu::{BlendComponent as C, BlendFactor as F, BlendOperation as O};
+        let add = C { src_factor: F::One, dst_factor: F::One, operation: O::Add };
+        let splats = dev.features().contains(wgpu::Features::FLOAT32_BLENDABLE).then(|| {
+            // Colour sums; coverage as the product of (1 − α); α sums; the least distance.
+            let product = C { src_factor: F::Zero, dst_factor: F::OneMinusSrcAlpha, operation: O::Add };
+            let least = C { src_factor: F::One, dst_factor: F::One, operation: O::Min };
+            pipeline(
+                "fs_splat",
+                false,
+                &[
+                    target(SPLAT_TARGETS[0].0, Some(wgpu::BlendState { color: add, alpha: product })),
+                    target(SPLAT_TARGETS[1].0, Some(wgpu::BlendState { color: add, alpha: add })),
+                    target(SPLAT_TARGETS[2].0, Some(wgpu::BlendState { color: least, alpha: least })),
+                ],
+            )
         });
-        Pipeline { layout, pipeline }
+        Pipelines { layout, spheres, splats }
     })
 }
+
+/// A render target: its format and what it is cleared to.
+type Target = (wgpu::TextureFormat, wgpu::Color);
+
+/// Spheres: shaded colour, distance along the ray.
+const SPHERE_TARGETS: [Target; 2] =
+    [(wgpu::TextureFormat::Rgba32Float, wgpu::Color::TRANSPARENT), (wgpu::TextureFormat::R32Float, wgpu::Color::TRANSPARENT)];
+/// Splats: (Σ colour·α, Π (1 − α)), Σ α, the least distance.
+const SPLAT_TARGETS: [Target; 3] = [
+    (wgpu::TextureFormat::Rgba32Float, wgpu::Color { r: 0.0, g: 0.0, b: 0.0, a: 1.0 }),
+    (wgpu::TextureFormat::R32Float, wgpu::Color::TRANSPARENT),
+    (wgpu::TextureFormat::R32Float, wgpu::Color { r: 3.0e38, g: 3.0e38, b: 3.0e38, a: 3.0e38 }),
+];
 
 /// The view the shader needs (std140-compatible: three vec4 and eight 4-byte values).
 #[repr(C)]
@@ -246,13 +372,22 @@ struct ViewUniform {
     parallel: u32,
     near: f32,
     far: f32,
-    pad: f32,
+    opacity: f32,
 }
 
 pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<Frame> {
     let start = Instant::now();
     let (spheres, range) = spheres(input, s)?;
     let dev = crate::render::gpu::device()?;
+    let p = pipelines(&dev.device);
+    let splats = match (s.style, &p.splats) {
+        (PointStyle::Spheres, _) => None,
+        (PointStyle::Splats, Some(pipeline)) => Some(pipeline),
+        (PointStyle::Splats, None) => bail!(
+            "splats sum into 32-bit float render targets, and the GPU '{}' cannot blend them (wgpu's FLOAT32_BLENDABLE); use style = \"spheres\"",
+            dev.info.name
+        ),
+    };
     let (w, h) = rays.size();
     let (eye, right, up) = rays.basis();
     let forward = rays.forward();
@@ -280,7 +415,7 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
         parallel: rays.is_parallel() as u32,
         near: near as f32,
         far: far as f32,
-        pad: 0.0,
+        opacity: s.opacity as f32,
     };
     let centres: Vec<[f32; 4]> = spheres
         .iter()
@@ -290,14 +425,38 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
         })
         .collect();
     let colours: Vec<[f32; 4]> = spheres.iter().map(|sp| [sp.colour[0], sp.colour[1], sp.colour[2], 1.0]).collect();
-    let (colour, dist, seconds) = dev.guarded("drawing the particles on the GPU", || draw(dev, &view, &centres, &colours, w, h))?;
+    let buffers = Buffers { view: &view, centres: &centres, colours: &colours, w, h };
     let mut frame = Frame::empty(w, h);
-    for i in 0..w * h {
-        if colour[i][3] > 0.0 {
-            frame.rgba[i] = colour[i];
-            frame.depth[i] = dist[i];
+    let seconds = match splats {
+        None => {
+            let (targets, seconds) =
+                dev.guarded("drawing the particles on the GPU", || draw(dev, &p.spheres, true, &SPHERE_TARGETS, &buffers))?;
+            let (colour, dist) = (&targets[0], &targets[1]);
+            for i in 0..w * h {
+                if colour[4 * i + 3] > 0.0 {
+                    frame.rgba[i] = [colour[4 * i], colour[4 * i + 1], colour[4 * i + 2], colour[4 * i + 3]];
+                    frame.depth[i] = dist[i];
+                }
+            }
+            seconds
         }
-    }
+        Some(pipeline) => {
+            let (targets, seconds) =
+                dev.guarded("drawing the particles on the GPU", || draw(dev, pipeline, false, &SPLAT_TARGETS, &buffers))?;
+            let (sums, weight, dist) = (&targets[0], &targets[1], &targets[2]);
+            for i in 0..w * h {
+                let c = &sums[4 * i..4 * i + 4];
+                let acc = SplatSums {
+                    colour: [c[0], c[1], c[2]].map(f64::from),
+                    clear: c[3] as f64,
+                    weight: weight[i] as f64,
+                    dist: dist[i] as f64,
+                };
+                (frame.rgba[i], frame.depth[i]) = acc.resolve();
+            }
+            seconds
+        }
+    };
     let drawn = frame.rgba.iter().filter(|p| p[3] > 0.0).count();
     let mut notes = vec![format!("GPU: {} ({:?})", dev.info.name, dev.info.backend)];
     if let Some((name, [lo, hi])) = &range {
@@ -318,25 +477,35 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
     Ok(frame)
 }
 
-/// Draws the spheres into a colour and a distance target and reads both back; also the
-/// seconds the draw took on the GPU side (submit to done).
-fn draw(
-    dev: &crate::render::gpu::Device,
-    view: &ViewUniform,
-    centres: &[[f32; 4]],
-    colours: &[[f32; 4]],
+/// What a draw reads: the view, each sphere's eye-relative centre and radius, its colour,
+/// and the picture's size.
+struct Buffers<'a> {
+    view: &'a ViewUniform,
+    centres: &'a [[f32; 4]],
+    colours: &'a [[f32; 4]],
     w: usize,
     h: usize,
-) -> Result<(Vec<[f32; 4]>, Vec<f32>, f64)> {
+}
+
+/// Draws every sphere once through `pipeline` into `targets` (with a depth buffer when
+/// `depth`) and reads each target back as f32 values (all are 32-bit float formats); also
+/// the seconds the draw took on the GPU side (submit to done).
+fn draw(
+    dev: &crate::render::gpu::Device,
+    pipeline: &wgpu::RenderPipeline,
+    depth: bool,
+    targets: &[Target],
+    b: &Buffers,
+) -> Result<(Vec<Vec<f32>>, f64)> {
     use wgpu::util::DeviceExt;
-    let d = &dev.device;
-    let p = pipeline(d);
+    let (d, w, h) = (&dev.device, b.w, b.h);
+    let p = pipelines(d);
     let buffer = |label: &str, bytes: &[u8], usage| {
         d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytes, usage })
     };
-    let uniform = buffer("points view", bytemuck::bytes_of(view), wgpu::BufferUsages::UNIFORM);
-    let spheres = buffer("spheres", bytemuck::cast_slice(centres), wgpu::BufferUsages::STORAGE);
-    let colour_buf = buffer("colours", bytemuck::cast_slice(colours), wgpu::BufferUsages::STORAGE);
+    let uniform = buffer("points view", bytemuck::bytes_of(b.view), wgpu::BufferUsages::UNIFORM);
+    let spheres = buffer("spheres", bytemuck::cast_slice(b.centres), wgpu::BufferUsages::STORAGE);
+    let colour_buf = buffer("colours", bytemuck::cast_slice(b.colours), wgpu::BufferUsages::STORAGE);
     let bind = d.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("points"),
         layout: &p.layout,
@@ -347,9 +516,9 @@ fn draw(
         ],
     });
     let size = wgpu::Extent3d { width: w as u32, height: h as u32, depth_or_array_layers: 1 };
-    let texture = |label: &str, format| {
+    let texture = |format| {
         d.create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
+            label: Some("points target"),
             size,
             mip_level_count: 1,
             sample_count: 1,
@@ -359,29 +528,29 @@ fn draw(
             view_formats: &[],
         })
     };
-    let colour_tex = texture("points colour", wgpu::TextureFormat::Rgba32Float);
-    let dist_tex = texture("points distance", wgpu::TextureFormat::R32Float);
-    let depth_tex = texture("points depth", wgpu::TextureFormat::Depth32Float);
-    let (cv, dv, zv) = (
-        colour_tex.create_view(&Default::default()),
-        dist_tex.create_view(&Default::default()),
-        depth_tex.create_view(&Default::default()),
-    );
-    let attachment = |view| {
-        Some(wgpu::RenderPassColorAttachment {
-            view,
-            depth_slice: None,
-            resolve_target: None,
-            ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT), store: wgpu::StoreOp::Store },
+    let textures: Vec<wgpu::Texture> = targets.iter().map(|t| texture(t.0)).collect();
+    let views: Vec<wgpu::TextureView> = textures.iter().map(|t| t.create_view(&Default::default())).collect();
+    let depth_tex = depth.then(|| texture(wgpu::TextureFormat::Depth32Float));
+    let depth_view = depth_tex.as_ref().map(|t| t.create_view(&Default::default()));
+    let attachments: Vec<Option<wgpu::RenderPassColorAttachment>> = views
+        .iter()
+        .zip(targets)
+        .map(|(view, t)| {
+            Some(wgpu::RenderPassColorAttachment {
+                view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(t.1), store: wgpu::StoreOp::Store },
+            })
         })
-    };
+        .collect();
     let mut enc = d.create_command_encoder(&Default::default());
     {
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("points"),
-            color_attachments: &[attachment(&cv), attachment(&dv)],
-            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &zv,
+            color_attachments: &attachments,
+            depth_stencil_attachment: depth_view.as_ref().map(|view| wgpu::RenderPassDepthStencilAttachment {
+                view,
                 depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
                 stencil_ops: None,
             }),
@@ -389,37 +558,44 @@ fn draw(
             occlusion_query_set: None,
             multiview_mask: None,
         });
-        pass.set_pipeline(&p.pipeline);
+        pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &bind, &[]);
-        pass.draw(0..6, 0..centres.len() as u32);
+        pass.draw(0..6, 0..b.centres.len() as u32);
     }
     // Rows padded to 256 bytes for the copies.
     let padded = |bytes_per_pixel: usize| (w * bytes_per_pixel).div_ceil(256) * 256;
-    let readback = |tex: &wgpu::Texture, bpp: usize, enc: &mut wgpu::CommandEncoder| {
-        let buf = d.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("points read-back"),
-            size: (padded(bpp) * h) as u64,
-            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        enc.copy_texture_to_buffer(
-            tex.as_image_copy(),
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buf,
-                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded(bpp) as u32), rows_per_image: None },
-            },
-            size,
-        );
-        buf
-    };
-    let colour_rows = readback(&colour_tex, 16, &mut enc);
-    let dist_rows = readback(&dist_tex, 4, &mut enc);
+    let bpp = |format: wgpu::TextureFormat| format.block_copy_size(None).unwrap_or(4) as usize;
+    let rows: Vec<wgpu::Buffer> = textures
+        .iter()
+        .map(|tex| {
+            let bpp = bpp(tex.format());
+            let buf = d.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("points read-back"),
+                size: (padded(bpp) * h) as u64,
+                usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            enc.copy_texture_to_buffer(
+                tex.as_image_copy(),
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &buf,
+                    layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded(bpp) as u32), rows_per_image: None },
+                },
+                size,
+            );
+            buf
+        })
+        .collect();
     let t = Instant::now();
     dev.queue.submit([enc.finish()]);
     d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("drawing the particles on the GPU failed: {e}"))?;
     let seconds = t.elapsed().as_secs_f64();
-    let unpad = |bytes: Vec<u8>, bpp: usize| -> Vec<u8> { bytes.chunks(padded(bpp)).flat_map(|row| row[..w * bpp].to_vec()).collect() };
-    let colour: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&unpad(dev.read_buffer::<u8>(&colour_rows)?, 16));
-    let dist: Vec<f32> = bytemuck::pod_collect_to_vec(&unpad(dev.read_buffer::<u8>(&dist_rows)?, 4));
-    Ok((colour, dist, seconds))
+    let mut out = Vec::with_capacity(rows.len());
+    for (buf, tex) in rows.iter().zip(&textures) {
+        let bpp = bpp(tex.format());
+        let bytes = dev.read_buffer::<u8>(buf)?;
+        let unpadded: Vec<u8> = bytes.chunks(padded(bpp)).flat_map(|row| row[..w * bpp].to_vec()).collect();
+        out.push(bytemuck::pod_collect_to_vec(&unpadded));
+    }
+    Ok((out, seconds))
 }
