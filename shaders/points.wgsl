@@ -53,7 +53,8 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
         return out;
     }
     // The sphere's projection, bounded exactly along each image axis by the tangent lines
-    // from the eye (lo = tan(θ − δ), hi = tan(θ + δ), sin δ = r / |c|): a quad about a
+    // from the eye in that axis's plane (lo = tan(θ − δ), hi = tan(θ + δ), sin δ = r over
+    // the centre's distance in the plane): a quad about a
     // third of the size of one round the sphere's bounding cube, and fragments are what a
     // software rasteriser pays for. Parallel: centre ± r.
     var lo: vec2<f32>;
@@ -62,7 +63,10 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
         lo = (cam.xy - vec2<f32>(r)) / vec2<f32>(view.half_w, view.half_h);
         hi = (cam.xy + vec2<f32>(r)) / vec2<f32>(view.half_w, view.half_h);
     } else {
-        let t = sqrt(max(dot(cam, cam) - r * r, 0.0));
+        // Per axis, the tangents in that axis's plane through the eye (x with the depth,
+        // y with the depth): the sphere's shadow there is a circle about (c_x, c_z) or
+        // (c_y, c_z), so t is the tangent length in that plane, not in 3-D.
+        let t = sqrt(max(cam.xy * cam.xy + vec2<f32>(cam.z * cam.z - r * r), vec2<f32>(0.0)));
         let den_lo = cam.z * t + r * cam.xy;
         let den_hi = cam.z * t - r * cam.xy;
         if (all(den_lo > vec2<f32>(0.0)) && all(den_hi > vec2<f32>(0.0))) {
@@ -83,8 +87,10 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
     var corners = array<vec2<f32>, 6>(
         vec2<f32>(0.0, 0.0), vec2<f32>(1.0, 0.0), vec2<f32>(0.0, 1.0),
         vec2<f32>(0.0, 1.0), vec2<f32>(1.0, 0.0), vec2<f32>(1.0, 1.0));
-    // A pixel of margin, so a pixel centre just inside is never lost to rounding.
-    let m = vec2<f32>(2.0 / view.width, 2.0 / view.height);
+    // A fiftieth of a pixel of margin, so a pixel centre just inside is never lost to
+    // rounding (f32 puts the bound within about 1e-4 pixel). Not more: at a few pixels
+    // across, a whole pixel each side would quadruple the fragments of a sphere.
+    let m = vec2<f32>(0.04 / view.width, 0.04 / view.height);
     let xy = mix(lo - m, hi + m, corners[vi]);
     // The quad's depth: the sphere's nearest distance from the eye (every fragment's ray
     // meets the sphere no nearer), so the fragment depth is never nearer than the quad's.

@@ -84,8 +84,9 @@ fn spheres_on_the_gpu_match_the_f64_reference_in_colour_coverage_and_distance() 
         }
         eprintln!("parallel {parallel}: {both} pixels agree, {mismatched} differ; worst colour {worst_colour:e}, depth {worst_depth:e}");
         assert!(both > 1000, "the cloud covers much of the view: {both}");
-        // Only silhouette pixels, where the ray grazes a sphere, may differ.
-        assert!(mismatched <= both / 200, "{mismatched} of {both} pixels differ");
+        // The quads bound each projection exactly (a fiftieth of a pixel to spare): at most a
+        // ray grazing a sphere within f32's reach may differ.
+        assert!(mismatched <= 2, "{mismatched} of {both} pixels differ");
         assert!(worst_depth < 2e-6, "distance along the ray: relative error {worst_depth:e}");
         assert!(worst_colour < 1e-4, "colour error {worst_colour:e}");
     }

@@ -593,9 +593,12 @@ fn draw(
     let mut out = Vec::with_capacity(rows.len());
     for (buf, tex) in rows.iter().zip(&textures) {
         let bpp = bpp(tex.format());
-        let bytes = dev.read_buffer::<u8>(buf)?;
-        let unpadded: Vec<u8> = bytes.chunks(padded(bpp)).flat_map(|row| row[..w * bpp].to_vec()).collect();
-        out.push(bytemuck::pod_collect_to_vec(&unpadded));
+        let values = dev.read_buffer::<f32>(buf)?;
+        let mut rows = Vec::with_capacity(w * h * bpp / 4);
+        for row in values.chunks(padded(bpp) / 4) {
+            rows.extend_from_slice(&row[..w * bpp / 4]);
+        }
+        out.push(rows);
     }
     Ok((out, seconds))
 }
