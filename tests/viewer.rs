@@ -634,3 +634,53 @@ fn points_coloured_by_another_array_as_splats_are_rendered_and_saved() {
     click_in_panel(&mut h, "spheres");
     assert!(!h.state().scene().unwrap().nodes()[0].settings.contains_key("opacity"));
 }
+
+/// A time series opened as a file (a ParaView collection): framed by its first step; the
+/// toolbar's time slider draws another step (its particles, read when drawn), ">" steps
+/// on, and Play runs through the steps by itself, from the last back to the first.
+#[test]
+fn a_time_series_steps_and_plays_in_the_viewer() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = samples();
+    let pvd = dir.path().join("plume_series").join("plume.pvd");
+    let mut h = settled_on(&pvd);
+    let scene = h.state().scene().unwrap();
+    let times = scene.timeline();
+    assert_eq!(times.len(), 8);
+    assert_eq!(scene.nodes()[0].renderer.as_deref(), Some("points"));
+    let first = scene.particles(0).unwrap().len();
+    let covered = |h: &Harness<'_, Viewer>| h.state().current_full_frame().unwrap().rgba.iter().filter(|p| p[3] > 0.0).count();
+    let covered_first = covered(&h);
+    set_in_panel(&mut h, egui::accesskit::Role::Slider, "Time", 5.0);
+    settle(&mut h);
+    let scene = h.state().scene().unwrap();
+    assert_eq!(scene.time(), Some(times[5]));
+    let later = scene.particles(0).unwrap().len();
+    assert!(later > first, "the plume grows over time: {first} → {later} particles");
+    assert!(covered(&h) > covered_first, "and covers more of the view");
+    h.get_by_label(">").click();
+    h.run_steps(2);
+    settle(&mut h);
+    assert_eq!(h.state().scene().unwrap().time(), Some(times[6]));
+    // Play: each full frame brings the next step, past the last back to the first.
+    h.get_by_label("Play").click();
+    let mut seen = std::collections::BTreeSet::new();
+    for _ in 0..400 {
+        h.run_steps(1);
+        h.state().wait_for_renders(Duration::from_secs(30));
+        std::thread::sleep(Duration::from_millis(20));
+        seen.insert(h.state().scene().unwrap().time().map(|t| t.to_bits()));
+        if seen.len() >= 4 && seen.contains(&Some(times[0].to_bits())) {
+            break;
+        }
+    }
+    assert!(
+        seen.contains(&Some(times[7].to_bits())) && seen.contains(&Some(times[0].to_bits())),
+        "played through the end and round: {seen:?}"
+    );
+    h.get_by_label("Pause").click();
+    h.run_steps(2);
+    settle(&mut h);
+}

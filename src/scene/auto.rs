@@ -11,7 +11,13 @@ use volterra_formats::LoadOptions;
 /// Reads `path` and builds a scene showing it. The data read is handed to the scene, so
 /// nothing is read twice.
 pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
-    let data = NodeData::from(volterra_formats::load(path, opts)?);
+    // A series (a .pvd, a numbered pattern) is framed by its first step; the scene finds
+    // the series again from the node's file and draws its steps over time.
+    let first = match volterra_formats::series::is_series_name(path) {
+        true => volterra_formats::series::discover(path)?.map(|s| s.steps[0].file.clone()),
+        false => None,
+    };
+    let data = NodeData::from(volterra_formats::load(first.as_deref().unwrap_or(path), opts)?);
     let kind = data.kind();
     let name = node_name(path);
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));

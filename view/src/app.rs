@@ -133,6 +133,8 @@ pub struct Viewer {
     opening: Option<(PathBuf, std::sync::mpsc::Receiver<Result<Opened>>)>,
     /// The crop box face whose handle is being dragged in the 3-D view.
     crop_drag: Option<usize>,
+    /// Playing a time series: the next step follows each full frame.
+    playing: bool,
 }
 
 #[derive(Default, PartialEq)]
@@ -183,6 +185,7 @@ impl Viewer {
             save_path: String::new(),
             mode: NavMode::Orbit,
             crop_drag: None,
+            playing: false,
             eye_height: 1.7,
             show_steps: false,
             load,
@@ -406,6 +409,7 @@ impl Viewer {
         let ctx = ui.ctx().clone();
         let _ = self.wake.set(ctx.clone());
         self.receive(&ctx);
+        self.play_step(&ctx);
         self.handle_dropped_files(&ctx);
         self.poll_opening();
         if let Some(p) = self.dialog.show(&ctx) {
@@ -596,7 +600,76 @@ impl Viewer {
                     }
                 }
             }
+            self.time_controls(ui);
         });
+    }
+
+    /// The time series' controls, where the scene has one: a slider over its steps
+    /// (labelled with the step's time), a step back and forward ("<", ">"), and play (the next step
+    /// follows each full frame, so playback goes as fast as the renderer draws).
+    fn time_controls(&mut self, ui: &mut egui::Ui) {
+        let Some(doc) = &self.doc else { return };
+        let times = doc.scene.timeline();
+        if times.len() < 2 {
+            return;
+        }
+        ui.separator();
+        let mut index = self.time_index(&times);
+        let last = times.len() - 1;
+        if ui.button("<").on_hover_text("Previous step").clicked() {
+            index = index.saturating_sub(1);
+        }
+        let label = ui.label("Time");
+        let shown = times.clone();
+        ui.add(
+            egui::Slider::new(&mut index, 0..=last)
+                .custom_formatter(move |i, _| format!("{} (step {} of {})", shown[i as usize], i as usize + 1, shown.len())),
+        )
+        .labelled_by(label.id);
+        if ui.button(">").on_hover_text("Next step").clicked() {
+            index = (index + 1).min(last);
+        }
+        let play = if self.playing { "Pause" } else { "Play" };
+        if ui.button(play).clicked() {
+            self.playing = !self.playing;
+        }
+        if index != self.time_index(&times) {
+            self.set_time(times[index]);
+        }
+    }
+
+    /// The step of `times` the scene draws (a still draws the first).
+    fn time_index(&self, times: &[f64]) -> usize {
+        let t = self.doc.as_ref().and_then(|d| d.scene.time()).unwrap_or(times[0]);
+        times.iter().rposition(|x| *x <= t).unwrap_or(0)
+    }
+
+    /// Draws the scene at time `t`: each series node reads its step there when the frame is
+    /// drawn (off the UI thread); the other nodes keep their data.
+    pub fn set_time(&mut self, t: f64) {
+        let Some(doc) = &mut self.doc else { return };
+        doc.scene = Arc::new(doc.scene.at_time(t));
+        self.bump(false);
+    }
+
+    /// Playing: once the current step's full frame is shown, on to the next (from the last
+    /// back to the first).
+    fn play_step(&mut self, ctx: &egui::Context) {
+        if !self.playing {
+            return;
+        }
+        let Some(doc) = &self.doc else { return };
+        let times = doc.scene.timeline();
+        if times.len() < 2 {
+            self.playing = false;
+            return;
+        }
+        let done = self.shown.as_ref().is_some_and(|s| s.version == self.version && s.quality == Quality::Full);
+        if done {
+            let next = (self.time_index(&times) + 1) % times.len();
+            self.set_time(times[next]);
+        }
+        ctx.request_repaint_after(std::time::Duration::from_millis(30));
     }
 
     fn status_bar(&mut self, ui: &mut egui::Ui) {

@@ -13,7 +13,7 @@ pub struct FileDialog {
     listed: Option<PathBuf>,
 }
 
-const READABLE: &[&str] = &[".toml", ".nii", ".nii.gz", ".hdr", ".dcm", ".tif", ".tiff", ".png", ".vtk", ".vtp", ".vtu"];
+const READABLE: &[&str] = &[".toml", ".nii", ".nii.gz", ".hdr", ".dcm", ".tif", ".tiff", ".png", ".vtk", ".vtp", ".vtu", ".pvd"];
 
 fn readable(name: &str) -> bool {
     let n = name.to_ascii_lowercase();

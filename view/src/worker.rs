@@ -146,6 +146,7 @@ fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn
     let (lock, cv) = &*mailbox;
     let mut cache = RenderCache::default();
     let mut cached_for: Option<PathBuf> = None;
+    let mut cached_time: Option<f64> = None;
     loop {
         let job = {
             let mut m = lock.lock().unwrap();
@@ -164,6 +165,12 @@ fn work(mailbox: Arc<(Mutex<Mailbox>, Condvar)>, tx: Sender<Done>, wake: impl Fn
         if cached_for.as_deref() != Some(job.scene.source.as_path()) {
             cache = RenderCache::default();
             cached_for = Some(job.scene.source.clone());
+        }
+        // Another step of a time series: what was prepared for steps no longer drawn goes
+        // (only then: previews and full frames of one step share their preparations).
+        if job.scene.time() != cached_time {
+            cache.keep_only_for(&job.scene);
+            cached_time = job.scene.time();
         }
         let start = Instant::now();
         progress.cancellable.store(job.quality != Quality::Reference, std::sync::atomic::Ordering::Relaxed);
