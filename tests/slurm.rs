@@ -1,9 +1,9 @@
 //! `volterra slurm` on a real single-node Slurm cluster (Debian's slurmctld, slurmd,
 //! slurm-client and munge, which tests/setup-system.sh installs): the test starts munged,
 //! slurmctld and slurmd from a minimal configuration under a temporary directory (node on
-//! 127.0.0.1, free ports, no accounting, proctrack/linuxproc, task/none), submits a job
-//! array for the built-in plume series, and checks every frame against the serial render
-//! bit for bit; then kills one task mid-frame and checks that a resubmission with --resume
+//! 127.0.0.1, free ports, no accounting, proctrack/linuxproc, task/none); a 24-step series
+//! rendered serially, by 2 shards and by a job array gives the same files bit for bit; a job
+//! array for the built-in plume series is checked against the serial render the same way; then kills one task mid-frame and checks that a resubmission with --resume
 //! renders only what is missing and that no partial file is left. The daemons are stopped
 //! by PID when the test ends, also when a check fails. Without Slurm the test skips
 //! locally and fails under CI.
@@ -202,6 +202,8 @@ fn a_job_array_renders_every_frame_as_the_serial_render_and_a_resubmission_finis
     eprintln!("cluster up in {:.1} s", t.elapsed().as_secs_f64());
     let conf = cluster.conf.clone();
 
+    twenty_four_frames_serially_by_two_shards_and_by_the_array(&conf);
+
     // The built-in plume series, 6 steps; frames heavy enough (≈ 1 s each on one thread)
     // that a task can be killed in the middle of one.
     let work = tempfile::tempdir().unwrap();
@@ -277,4 +279,40 @@ fn a_job_array_renders_every_frame_as_the_serial_render_and_a_resubmission_finis
         .sum();
     assert_eq!(rendered, serial.len() - after_kill.len(), "the resubmission renders exactly the missing frames");
     eprintln!("whole test {:.1} s", t.elapsed().as_secs_f64());
+}
+
+/// The issue's proof: a 24-step series rendered serially, by 2 shards and by a Slurm job
+/// array gives the same files, bit for bit (light smoke frames: seeds per frame are what
+/// is tested, not the load).
+fn twenty_four_frames_serially_by_two_shards_and_by_the_array(conf: &Path) {
+    let work = tempfile::tempdir().unwrap();
+    volterra::samples::write_plume_series(&work.path().join("series"), 24, 2000).unwrap();
+    let scene = work.path().join("plume24.toml");
+    std::fs::write(
+        &scene,
+        "[image]\nwidth = 64\nheight = 64\n[camera]\nposition = [0.5, -1.6, 0.5]\nfocal_point = [0.5, 0.5, 0.45]\n\
+         [orbit]\n[[light]]\nkind = \"directional\"\ndirection = [-1.0, 0.6, -0.5]\nintensity = 3.0\n\
+         [[node]]\nname = \"plume\"\nkind = \"particles\"\nfile = \"series/plume.pvd\"\nrenderer = \"smoke\"\n\
+         medium = { c_ext = 10.0, albedo = 0.9, g = 0.3 }\nsettings = { photons = 3000, samples = 2 }\n",
+    )
+    .unwrap();
+    let s = scene.to_str().unwrap();
+    let dirs = ["serial", "shards", "array"].map(|n| work.path().join(n));
+    for d in &dirs {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    let out = |k: usize| dirs[k].join("f.exr").display().to_string();
+    ok(&volterra(&["render", s, "-o", &out(0), "--frames"], None));
+    for k in 0..2 {
+        ok(&volterra(&["render", s, "-o", &out(1), "--frames", "--shard", &format!("{k}/2")], None));
+    }
+    ok(&volterra(&["slurm", s, "-o", &out(2), "--frames", "--tasks", "4", "--submit", "--wait"], Some(conf)));
+    let serial = exr_frames(&dirs[0]);
+    assert_eq!(serial.len(), 24);
+    for d in &dirs[1..] {
+        assert_eq!(exr_frames(d), serial, "{}", d.display());
+        for f in &serial {
+            assert_eq!(std::fs::read(dirs[0].join(f)).unwrap(), std::fs::read(d.join(f)).unwrap(), "{} {f}", d.display());
+        }
+    }
 }

@@ -393,6 +393,26 @@ enum BenchCommand {
     },
     /// Photon map and particle map, with and without the irradiance map, against their
     /// error from Mitsuba.
+    /// An animation's throughput: the built-in plume series (24 steps) at 500×500 rendered
+    /// serially and as 2 shards side by side (frames per minute, frames compared bit for
+    /// bit); for smoke, a second view of one step (photons cached) against the first.
+    Frames {
+        /// Timesteps (frames).
+        #[arg(long, default_value_t = 24)]
+        steps: usize,
+        /// Particles in the last step (the plume rises: earlier steps hold fewer).
+        #[arg(long, default_value_t = 12_000)]
+        particles: usize,
+        #[arg(long, default_value = "500x500", value_parser = parse_image_size)]
+        image: (usize, usize),
+        /// points, smoke, or both (repeat the flag).
+        #[arg(long = "renderer", default_values_t = ["points".to_string(), "smoke".to_string()])]
+        renderers: Vec<String>,
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
     Smoke {
         /// One particle node with a Mitsuba reference in ../data.
         #[arg(long, default_value = "tests/reference/smoke_scenes/plume110k.toml")]
@@ -599,6 +619,10 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
         }
         BenchCommand::Points { count, style, image: (width, height), runs, json, common } => {
             b::points::run(&b::points::PointsBench { env: common.resolve(limits)?, count, style, width, height, runs, json })
+        }
+        BenchCommand::Frames { steps, particles, image: (width, height), renderers, json, common } => {
+            std::fs::create_dir_all(&common.work_dir)?;
+            b::frames::run(&b::frames::FramesBench { env: common.resolve(limits)?, steps, particles, width, height, renderers, json })
         }
         BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
             std::fs::create_dir_all(&common.work_dir)?;

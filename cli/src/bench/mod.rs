@@ -3,6 +3,7 @@
 
 pub mod clinical;
 pub mod formats;
+pub mod frames;
 pub mod points;
 pub mod shear_warp;
 pub mod smoke;
