@@ -208,14 +208,7 @@ pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
 /// (particles, or voxels) and the range of each scalar (a volume's values; a particle set's
 /// density, mass, h and every one-component point array).
 pub fn step_json(step: &volterra_formats::series::TimeStep, d: &Dataset, names: &ParticleArrayNames) -> Value {
-    let range = |v: &mut dyn Iterator<Item = f64>| {
-        let (lo, hi) = v.filter(|x| x.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
-        if lo <= hi {
-            json!([lo, hi])
-        } else {
-            Value::Null
-        }
-    };
+    let range = |v: &mut dyn Iterator<Item = f64>| volterra_formats::finite_range(v).map_or(Value::Null, |(lo, hi)| json!([lo, hi]));
     let mut o = json!({"time": step.time, "file": step.file.display().to_string()});
     if let Some(k) = step.volume_index {
         o["volume_index"] = json!(k);

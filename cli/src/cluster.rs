@@ -126,8 +126,7 @@ pub fn run(job: &SlurmJob) -> Result<()> {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let id = stdout.lines().next().unwrap_or("").split(';').next().unwrap_or("").trim().to_string();
     if !out.status.success() {
-        let err = String::from_utf8_lossy(&out.stderr);
-        let why = err.lines().find(|l| !l.trim().is_empty()).unwrap_or("no message");
+        let why = crate::child::first_line(&out.stderr);
         if job.wait && !id.is_empty() {
             bail!("job {id} ended with a failed task ({why}); logs: {}", out_dir.join(format!("slurm-{stem}-{id}_*.log")).display());
         }

@@ -5,6 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 mod bench;
+mod child;
 mod cluster;
 mod movie;
 mod progress;

@@ -125,8 +125,7 @@ pub fn run(pattern: &Path, output: &Path, fps: f64) -> Result<()> {
         drop(stdin);
         let out = child.wait_with_output().map_err(|e| volterra_formats::FormatError::io(output, e))?;
         if !out.status.success() {
-            let err = String::from_utf8_lossy(&out.stderr);
-            let why = err.lines().find(|l| !l.trim().is_empty()).unwrap_or("no message").trim().to_string();
+            let why = crate::child::first_line(&out.stderr);
             return Err(volterra_formats::FormatError::invalid(output, format!("ffmpeg failed: {why}")));
         }
         fed

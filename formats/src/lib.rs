@@ -39,3 +39,9 @@ pub use particles::{ParticleArrayNames, ParticleSet, PointArray};
 
 mod load;
 pub use load::*;
+
+/// (min, max) of the finite values (None: there are none).
+pub fn finite_range(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
+    let (lo, hi) = values.into_iter().filter(|x| x.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+    (lo <= hi).then_some((lo, hi))
+}

@@ -662,18 +662,24 @@ impl Scene {
             limits: self.limits,
         };
         for i in 0..n {
-            let same = self.step(i) == next.step(i);
-            if let (true, Some(d)) = (same, self.data[i].get()) {
-                let _ = next.data[i].set(d.clone());
-            }
-            if let (true, Some(s)) = (same, self.stats[i].get()) {
-                let _ = next.stats[i].set(s.clone());
-            }
-            if let Some(t) = self.textures[i].get() {
-                let _ = next.textures[i].set(t.clone());
-            }
+            let same_step = self.step(i) == next.step(i);
+            self.carry_over(i, &next, i, same_step, true);
         }
         next
+    }
+
+    /// Hands what node `from` has read to node `to` of `next`: its data and value statistics
+    /// when `same_data`, its texture when `same_texture`.
+    fn carry_over(&self, from: usize, next: &Scene, to: usize, same_data: bool, same_texture: bool) {
+        if let (true, Some(d)) = (same_data, self.data[from].get()) {
+            let _ = next.data[to].set(d.clone());
+        }
+        if let (true, Some(s)) = (same_data, self.stats[from].get()) {
+            let _ = next.stats[to].set(s.clone());
+        }
+        if let (true, Some(t)) = (same_texture, self.textures[from].get()) {
+            let _ = next.textures[to].set(t.clone());
+        }
     }
 
     /// The scene with `limits` for everything it reads and prepares from now on.
@@ -841,15 +847,7 @@ impl Scene {
             let o = &self.file.nodes[j];
             let same_data = (&o.kind, &o.file, &o.series, o.volume_index, o.resample, &o.png, &o.arrays)
                 == (&n.kind, &n.file, &n.series, n.volume_index, n.resample, &n.png, &n.arrays);
-            if let (true, Some(d)) = (same_data, self.data[j].get()) {
-                let _ = next.data[i].set(d.clone());
-            }
-            if let (true, true, Some(t)) = (same_data, o.texture == n.texture, self.textures[j].get()) {
-                let _ = next.textures[i].set(t.clone());
-            }
-            if let (true, Some(s)) = (same_data, self.stats[j].get()) {
-                let _ = next.stats[i].set(s.clone());
-            }
+            self.carry_over(j, &next, i, same_data, same_data && o.texture == n.texture);
         }
         Ok(next)
     }

@@ -233,7 +233,7 @@ fn run_vtk(python: &Path, scripts: &Path, spec: &PathBuf) -> Result<serde_json::
         .output()
         .with_context(|| format!("cannot run {}", python.display()))?;
     if !out.status.success() {
-        bail!("vtk_volume.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+        bail!("vtk_volume.py failed: {}", crate::child::last_line(&out.stderr));
     }
     Ok(serde_json::from_slice(&out.stdout)?)
 }

@@ -69,7 +69,7 @@ fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path) -> Res
     let theirs: Option<serde_json::Value> = match py {
         Ok(o) if o.status.success() => serde_json::from_slice(&o.stdout).ok(),
         Ok(o) => {
-            eprintln!("reference timing failed: {}", String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or(""));
+            eprintln!("reference timing failed: {}", crate::child::last_line(&o.stderr));
             None
         }
         Err(e) => {

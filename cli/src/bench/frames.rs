@@ -71,8 +71,7 @@ fn spawn_render(
 fn wait(child: std::process::Child, what: &str) -> Result<()> {
     let out = child.wait_with_output()?;
     if !out.status.success() {
-        let err = String::from_utf8_lossy(&out.stderr);
-        bail!("{what} failed: {}", err.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or("(no message)"));
+        bail!("{what} failed: {}", crate::child::last_line(&out.stderr));
     }
     Ok(())
 }

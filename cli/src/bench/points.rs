@@ -117,7 +117,7 @@ fn run_vtk(python: &Path, scripts: &Path, spec: &Path) -> Result<serde_json::Val
         .output()
         .with_context(|| format!("cannot run {}", python.display()))?;
     if !out.status.success() {
-        bail!("vtk_points.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+        bail!("vtk_points.py failed: {}", crate::child::last_line(&out.stderr));
     }
     let text = String::from_utf8_lossy(&out.stdout);
     let line = text.lines().rev().find(|l| l.starts_with('{')).context("vtk_points.py printed no result")?;

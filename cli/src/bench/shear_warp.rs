@@ -321,7 +321,7 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
         .output()
         .with_context(|| format!("cannot run {}", b.env.python.display()))?;
     if !out.status.success() {
-        bail!("vtk_volume.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+        bail!("vtk_volume.py failed: {}", crate::child::last_line(&out.stderr));
     }
     let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     let mut ms: Vec<f64> = v["ms"]

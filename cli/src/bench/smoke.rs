@@ -171,7 +171,7 @@ fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) ->
             .output()
             .with_context(|| format!("cannot run {}", b.env.python.display()))?;
         if !out.status.success() {
-            bail!("mitsuba_smoke.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+            bail!("mitsuba_smoke.py failed: {}", crate::child::last_line(&out.stderr));
         }
         // "mitsuba WxH at N spp in T s" on stderr: the render alone, without the resampling.
         let stderr = String::from_utf8_lossy(&out.stderr);

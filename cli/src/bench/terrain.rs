@@ -223,7 +223,7 @@ fn vtk_rows(b: &TerrainBench) -> Result<Vec<Row>> {
         .output()
         .with_context(|| format!("cannot run {}", b.env.python.display()))?;
     if !out.status.success() {
-        bail!("vtk_terrain.py failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or(""));
+        bail!("vtk_terrain.py failed: {}", crate::child::last_line(&out.stderr));
     }
     let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     let version = v["vtk"].as_str().unwrap_or("").to_string();

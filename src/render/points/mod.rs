@@ -137,14 +137,7 @@ pub fn spheres(input: &PointsInput, s: &Settings) -> Result<(Vec<Sphere>, Option
     }
     let values = values(p, input.color_by)?;
     let range = values.as_ref().map(|(name, v)| {
-        let r = input.range.unwrap_or_else(|| {
-            let (lo, hi) = v.iter().filter(|x| x.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-            if lo <= hi {
-                [lo, hi]
-            } else {
-                [0.0, 1.0]
-            }
-        });
+        let r = input.range.unwrap_or_else(|| volterra_formats::finite_range(v.iter().copied()).map_or([0.0, 1.0], |(lo, hi)| [lo, hi]));
         (name.clone(), r)
     });
     let mut out = Vec::with_capacity(p.len());
