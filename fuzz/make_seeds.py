@@ -43,7 +43,8 @@ def main():
     shared = Path(sys.argv[2]) if len(sys.argv) > 2 else None
     have_shared = shared is not None and shared.is_dir()
     fixtures = ROOT / "tests" / "fixtures"
-    seeds = {t: [] for t in ["dicom_file", "dicom_series", "nifti", "nifti_gz", "geotiff", "png_height", "vtk_legacy", "vtk_xml"]}
+    seeds = {t: [] for t in ["dicom_file", "dicom_series", "nifti", "nifti_gz", "geotiff", "png_height", "vtk_legacy", "vtk_xml",
+                             "vtk_image", "metaimage", "nrrd"]}
 
     dicoms = small_files(fixtures / "dicom", [".dcm"])
     if have_shared:
@@ -89,6 +90,40 @@ def main():
     if have_shared:
         seeds["vtk_legacy"] += [(p.name, p.read_bytes()) for p in small_files(shared, [".vtk"])]
         seeds["vtk_xml"] += [(p.name, p.read_bytes()) for p in small_files(shared, [".vtp", ".vtu"])]
+
+    # Volumes in the text-header formats: small ones written here (every encoding the readers
+    # take), and the real files in ../shared/data that are small enough.
+    vox = struct.pack("<24h", *range(-12, 12))  # 4 x 3 x 2 int16
+    seeds["metaimage"] = [
+        ("raw.mha", b"ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nElementSpacing = 0.5 1 2\nOffset = 1 2 3\n"
+                    b"TransformMatrix = 0 1 0 -1 0 0 0 0 1\nElementType = MET_SHORT\nElementDataFile = LOCAL\n" + vox),
+        ("zlib.mha", b"ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nCompressedData = True\nBinaryDataByteOrderMSB = True\n"
+                     b"ElementType = MET_SHORT\nElementDataFile = LOCAL\n" + zlib.compress(struct.pack(">24h", *range(24)))),
+        ("float2d.mha", b"ObjectType = Image\nNDims = 2\nDimSize = 3 2\nElementType = MET_FLOAT\nElementDataFile = LOCAL\n"
+                        + struct.pack("<6f", *[0.5 * i for i in range(6)])),
+    ]
+    seeds["nrrd"] = [
+        ("raw.nrrd", b"NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 2\nspace: left-posterior-superior\n"
+                     b"space directions: (0.5,0,0) (0,1,0) (0,0.2,2)\nspace origin: (1,2,3)\nendian: little\nencoding: raw\n\n" + vox),
+        ("gzip.nrrd", b"NRRD0005\ntype: uint16\ndimension: 3\nsizes: 4 3 2\nspacings: 1 1 2\nendian: big\nencoding: gzip\n\n"
+                      + gzip.compress(struct.pack(">24H", *range(24)))),
+        ("ascii.nrrd", b"NRRD0004\ntype: float\ndimension: 2\nsizes: 3 2\nencoding: ascii\n\n0 1.5 2\n3 4 -5\n"),
+    ]
+    seeds["vtk_image"] = [
+        ("points.vtk", b"# vtk DataFile Version 3.0\nseed\nBINARY\nDATASET STRUCTURED_POINTS\nDIMENSIONS 4 3 2\n"
+                       b"ORIGIN 0 0 0\nSPACING 1 1 1\nPOINT_DATA 24\nSCALARS s short 1\nLOOKUP_TABLE default\n"
+                       + struct.pack(">24h", *range(24)) + b"\n"),
+        ("ascii.vtk", b"# vtk DataFile Version 3.0\nseed\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 2 2 1\n"
+                      b"SPACING 1 1 1\nORIGIN 0 0 0\nPOINT_DATA 4\nVECTORS v float\n0 0 0 1 1 1 2 2 2 3 3 3\n"
+                      b"SCALARS s float\nLOOKUP_TABLE default\n0 1 2 3\n"),
+        ("inline.vti", b'<?xml version="1.0"?>\n<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian">\n'
+                       b'<ImageData WholeExtent="0 1 0 1 0 0" Origin="0 0 0" Spacing="1 1 1" Direction="0 1 0 1 0 0 0 0 1">\n'
+                       b'<Piece Extent="0 1 0 1 0 0"><PointData Scalars="s"><DataArray type="Float32" Name="s" format="ascii">'
+                       b"0 1 2 3</DataArray></PointData></Piece></ImageData></VTKFile>\n"),
+    ]
+    if have_shared:
+        seeds["metaimage"] += [(p.name, p.read_bytes()) for p in small_files(shared / "volumes", [".mha"])]
+        seeds["vtk_image"] += [(p.name, p.read_bytes()) for p in small_files(shared / "volumes", [".vti"])]
 
     for target, files in seeds.items():
         d = out / target

@@ -289,6 +289,44 @@ fn vtk_cases(s: &mut Suite) {
     s.file("cut_appended.vtp", &appended[..appended.len() - 100]);
 }
 
+/// The text-header volume formats (MetaImage, NRRD, VTK image data): lying sizes, cut
+/// data, what they hold that is not a scalar volume.
+fn volume_format_cases(s: &mut Suite) {
+    let vox: Vec<u8> = (-12i16..12).flat_map(|v| v.to_le_bytes()).collect();
+    let mha = |head: &str, data: &[u8]| {
+        [format!("ObjectType = Image\nNDims = 3\n{head}ElementDataFile = LOCAL\n").into_bytes(), data.to_vec()].concat()
+    };
+    s.file("short_data.mha", &mha("DimSize = 4 3 2\nElementType = MET_SHORT\n", &vox[..30]));
+    s.file("huge_dims.mha", &mha("DimSize = 100000 100000 100000\nElementType = MET_SHORT\n", &vox));
+    s.file("two_channels.mha", &mha("DimSize = 4 3 2\nElementNumberOfChannels = 2\nElementType = MET_SHORT\n", &vox));
+    s.file("long_type.mha", &mha("DimSize = 4 3 2\nElementType = MET_LONG_LONG\n", &vox));
+    s.file("bad_zlib.mha", &mha("DimSize = 4 3 2\nCompressedData = True\nElementType = MET_SHORT\n", &vox));
+    s.file("missing_raw.mhd", b"ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nElementType = MET_SHORT\nElementDataFile = gone.raw\n");
+    s.file("no_datafile.mha", b"ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nElementType = MET_SHORT\n");
+    let nrrd = |head: &str, data: &[u8]| [format!("NRRD0004\ntype: short\n{head}endian: little\n\n").into_bytes(), data.to_vec()].concat();
+    s.file("short_data.nrrd", &nrrd("dimension: 3\nsizes: 4 3 2\nencoding: raw\n", &vox[..30]));
+    s.file("huge_sizes.nrrd", &nrrd("dimension: 3\nsizes: 100000 100000 100000\nencoding: raw\n", &vox));
+    s.file("vector_kind.nrrd", &nrrd("dimension: 3\nsizes: 2 3 4\nkinds: vector domain domain\nencoding: raw\n", &vox));
+    s.file("bzip2.nrrd", &nrrd("dimension: 3\nsizes: 4 3 2\nencoding: bzip2\n", &vox));
+    s.file("cut_gzip.nrrd", &nrrd("dimension: 3\nsizes: 4 3 2\nencoding: gzip\n", &gzip(&vox)[..20]));
+    s.file("missing_raw.nhdr", b"NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 2\nendian: little\nencoding: raw\ndata file: gone.raw\n");
+    let sp = |dims: &str, data: &[u8]| {
+        [format!("# vtk DataFile Version 3.0\nt\nBINARY\nDATASET STRUCTURED_POINTS\nDIMENSIONS {dims}\nPOINT_DATA 24\nSCALARS s short\nLOOKUP_TABLE default\n").into_bytes(), data.to_vec()].concat()
+    };
+    s.file("short_scalars.vtk", &sp("4 3 2", &vox[..30]));
+    s.file("wrong_count.vtk", &sp("4 3 3", &vox));
+    s.file("rectilinear.vtk", b"# vtk DataFile Version 3.0\nt\nASCII\nDATASET RECTILINEAR_GRID\nDIMENSIONS 2 1 1\n");
+    let vti = |extent: &str, values: &str| {
+        format!(
+            "<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\">\n<ImageData WholeExtent=\"{extent}\" Origin=\"0 0 0\" Spacing=\"1 1 1\">\n\
+             <Piece Extent=\"{extent}\"><PointData Scalars=\"s\"><DataArray type=\"Float32\" Name=\"s\" format=\"ascii\">{values}</DataArray></PointData></Piece></ImageData></VTKFile>\n"
+        )
+    };
+    s.file("few_values.vti", vti("0 1 0 1 0 0", "0 1 2").as_bytes());
+    s.file("huge_extent.vti", vti("0 99999 0 99999 0 99999", "0").as_bytes());
+    s.file("no_scalars.vti", vti("0 1 0 1 0 0", "0 1 2 3").replace("Scalars=\"s\"", "Scalars=\"t\"").as_bytes());
+}
+
 fn run_info(path: &Path) -> (Option<i32>, String) {
     let out = Command::new(common::volterra_bin()).args(["--max-memory", "1G", "info"]).arg(path).output().unwrap();
     (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
@@ -303,6 +341,7 @@ fn every_malformed_input_gets_its_one_line_error_and_exit_1() {
     geotiff_cases(&mut s);
     png_cases(&mut s);
     vtk_cases(&mut s);
+    volume_format_cases(&mut s);
     let print = std::env::var_os("VOLTERRA_PRINT_MALFORMED").is_some();
     let mut failures = Vec::new();
     for (name, path) in &s.cases {
@@ -386,6 +425,25 @@ const EXPECTED: &[(&str, &str)] = &[
     ("cut_half.vtp", "file is truncated: no closing </VTKFile>"),
     ("wrong_root.vtp", "not a VTK XML file (no VTKFile element)"),
     ("cut_appended.vtp", "file is truncated: no closing </VTKFile>"),
+    ("short_data.mha", "file is truncated: it holds 30 bytes of voxel data, the header declares 48"),
+    ("huge_dims.mha", "volume needs 1819.0 TiB but the memory limit is 1.0 GiB (set --max-memory to raise it)"),
+    ("two_channels.mha", "ElementNumberOfChannels 2: a volume holds one value per voxel"),
+    ("long_type.mha", "ElementType MET_LONG_LONG: not a scalar type volumes keep"),
+    ("bad_zlib.mha", "voxel data does not decompress: corrupt deflate stream"),
+    ("missing_raw.mhd", "data file gone.raw: no such file"),
+    ("no_datafile.mha", "header has no ElementDataFile (or is longer than 1 MiB)"),
+    ("short_data.nrrd", "file is truncated: it holds 30 bytes of voxel data, the header declares 48"),
+    ("huge_sizes.nrrd", "volume needs 1819.0 TiB but the memory limit is 1.0 GiB (set --max-memory to raise it)"),
+    ("vector_kind.nrrd", "kinds 'vector domain domain': a non-spatial axis (vector, colour, time, list) is not a scalar volume"),
+    ("bzip2.nrrd", "encoding 'bzip2' (raw, gzip and ascii are read)"),
+    ("cut_gzip.nrrd", "voxel data does not decompress: incomplete deflate stream"),
+    ("missing_raw.nhdr", "data file gone.raw: no such file"),
+    ("short_scalars.vtk", "file is truncated: 24 short values need 48 bytes, 30 remain"),
+    ("wrong_count.vtk", "POINT_DATA 24 does not match DIMENSIONS [4, 3, 3] (36 points)"),
+    ("rectilinear.vtk", "a RECTILINEAR_GRID's spacing varies along its axes: not a regular volume"),
+    ("few_values.vti", "array 's' holds 3 values; the extent has 4 points"),
+    ("huge_extent.vti", "array 's' needs 3638.0 TiB but the memory limit is 1.0 GiB (set --max-memory to raise it)"),
+    ("no_scalars.vti", "PointData names Scalars 't', which it does not hold"),
 ];
 
 /// Non-UTF-8 file names are read like any other, and named (lossily) in errors.

@@ -72,6 +72,38 @@ fn nibabel_reads_our_nifti_exactly() {
     }
 }
 
+/// `convert … out.nrrd`: pynrrd reads our NRRD's values, space and geometry (the axis
+/// vectors are the affine's columns, in RAS); a rescaled volume is written as its real
+/// values in float; our own reader reads it back to the same volume.
+#[test]
+fn pynrrd_reads_our_nrrd() {
+    let Some(py) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    for (src, out) in [("dicom/oblique", "oblique.nrrd"), ("nifti/scaled.nii", "scaled.nrrd"), ("nifti/f32_nifti2_be.nii.gz", "f32.nrrd")] {
+        let Dataset::Volume(v) = load(&repo_path("tests/fixtures").join(src), &LoadOptions::default()).unwrap() else { panic!() };
+        let p = dir.path().join(out);
+        volterra_formats::nrrd::write_nrrd(&p, &v).unwrap();
+        let r = read_with_reference(&py, "nrrd", &p);
+        assert_eq!(r["shape"], serde_json::json!(v.dims), "{src}");
+        assert_eq!(r["space"], "right-anterior-superior");
+        let values = floats(&r["values"]);
+        assert_eq!(values.len(), v.voxel_count());
+        for (i, got) in values.iter().enumerate() {
+            let want = if v.rescale.is_identity() { v.data.stored(i) } else { v.value(i) as f32 as f64 };
+            assert_eq!(*got, want, "{src}: voxel {i}");
+        }
+        for c in 0..3 {
+            for row in 0..3 {
+                assert!((r["directions"][c][row].as_f64().unwrap() - v.affine[row][c]).abs() < 1e-9, "{src}: axis {c}");
+            }
+            assert!((r["origin"][c].as_f64().unwrap() - v.affine[c][3]).abs() < 1e-9, "{src}: origin");
+        }
+        let Dataset::Volume(back) = load(&p, &LoadOptions::default()).unwrap() else { panic!() };
+        assert_eq!((back.dims, back.affine), (v.dims, v.affine), "{src}");
+        assert!((0..v.voxel_count()).all(|i| back.value(i) == values[i]), "{src}: read back");
+    }
+}
+
 #[test]
 fn tifffile_reads_our_geotiff_with_its_georeferencing() {
     let Some(py) = python() else { return };

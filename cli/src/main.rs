@@ -710,6 +710,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
     let data = data?;
     match data {
         Dataset::Volume(v) if out.ends_with(".nii") || out.ends_with(".nii.gz") => formats::nifti::write_nifti(output, &v)?,
+        Dataset::Volume(v) if out.ends_with(".nrrd") => formats::nrrd::write_nrrd(output, &v)?,
         Dataset::Heightfield(h) if out.ends_with(".tif") || out.ends_with(".tiff") => formats::geotiff::write_geotiff(output, &h)?,
         Dataset::Heightfield(h) if out.ends_with(".exr") => {
             let mut img = formats::FloatImage::new(h.width, h.height);
@@ -719,7 +720,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
         Dataset::Particles(p) if out.ends_with(".vtp") => formats::vtk::write_vtp(output, &p, &opts.particles)?,
         d => {
             let (kind, allowed) = match d {
-                Dataset::Volume(_) => ("a volume", ".nii or .nii.gz"),
+                Dataset::Volume(_) => ("a volume", ".nii, .nii.gz or .nrrd"),
                 Dataset::Heightfield(_) => ("a heightfield", ".tif or .exr"),
                 Dataset::Particles(_) => ("a particle set", ".vtp"),
             };

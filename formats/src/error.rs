@@ -45,12 +45,16 @@ impl FormatError {
         Self::new(path, ErrorKind::Unsupported, message)
     }
     pub fn io(path: impl AsRef<Path>, err: std::io::Error) -> Self {
-        let message = match err.kind() {
-            std::io::ErrorKind::NotFound => "no such file".to_string(),
-            std::io::ErrorKind::UnexpectedEof => "file is truncated".to_string(),
-            _ => err.to_string(),
-        };
-        Self::new(path, ErrorKind::Io, message)
+        Self::new(path, ErrorKind::Io, io_reason(&err))
+    }
+}
+
+/// What an I/O error says, in the words our errors use.
+pub fn io_reason(err: &std::io::Error) -> String {
+    match err.kind() {
+        std::io::ErrorKind::NotFound => "no such file".to_string(),
+        std::io::ErrorKind::UnexpectedEof => "file is truncated".to_string(),
+        _ => err.to_string(),
     }
 }
 

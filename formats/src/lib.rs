@@ -18,14 +18,18 @@ pub mod heightfield;
 pub mod image;
 pub mod kdtree;
 pub mod memory;
+pub mod metaimage;
 pub mod nifti;
+pub mod nrrd;
 pub mod particles;
 pub mod png_height;
+pub mod raw;
 pub mod rng;
 pub mod series;
 pub mod sph;
 pub mod volume;
 pub mod vtk;
+pub mod vtk_image;
 pub mod vtk_xml;
 
 pub use error::{ErrorKind, FormatError, Result};

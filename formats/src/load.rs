@@ -38,6 +38,10 @@ pub enum FileKind {
     PngHeightmap,
     VtkLegacy,
     VtkXml,
+    /// VTK XML ImageData (`.vti`).
+    VtkImage,
+    MetaImage,
+    Nrrd,
 }
 
 pub fn detect(path: &Path) -> Result<FileKind> {
@@ -58,12 +62,18 @@ pub fn detect(path: &Path) -> Result<FileKind> {
         FileKind::VtkLegacy
     } else if name.ends_with(".vtp") || name.ends_with(".vtu") {
         FileKind::VtkXml
+    } else if name.ends_with(".vti") {
+        FileKind::VtkImage
+    } else if name.ends_with(".mha") || name.ends_with(".mhd") {
+        FileKind::MetaImage
+    } else if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
+        FileKind::Nrrd
     } else if name.ends_with(".dcm") || dicom::looks_like_dicom(path) {
         FileKind::Dicom
     } else {
         return Err(FormatError::unsupported(
             path,
-            "unknown file type (volterra reads .nii[.gz], .hdr/.img, DICOM files and directories, .tif, .png, .vtk, .vtp, .vtu)",
+            "unknown file type (volterra reads .nii[.gz], .hdr/.img, DICOM files and directories, .mha/.mhd, .nrrd/.nhdr, .vti, .tif, .png, .vtk, .vtp, .vtu)",
         ));
     };
     Ok(kind)
@@ -75,6 +85,17 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
         FileKind::Dicom | FileKind::DicomDir => Dataset::Volume(dicom::read_dicom(path, &opts.dicom, &opts.limits)?),
         FileKind::GeoTiff => Dataset::Heightfield(geotiff::read_geotiff(path, &opts.limits)?),
         FileKind::PngHeightmap => Dataset::Heightfield(png_height::read_png_heightmap(path, &opts.png, &opts.limits)?),
-        FileKind::VtkLegacy | FileKind::VtkXml => Dataset::Particles(vtk::read_vtk_particles(path, &opts.particles, &opts.limits)?),
+        FileKind::VtkLegacy => match crate::vtk_image::legacy_dataset(path)?.as_deref() {
+            // Regular grids are volumes; point sets (POLYDATA, UNSTRUCTURED_GRID, the points of
+            // a STRUCTURED_GRID) are particles.
+            Some("STRUCTURED_POINTS" | "RECTILINEAR_GRID") => {
+                Dataset::Volume(crate::vtk_image::read_structured_points(path, &opts.limits)?)
+            }
+            _ => Dataset::Particles(vtk::read_vtk_particles(path, &opts.particles, &opts.limits)?),
+        },
+        FileKind::VtkXml => Dataset::Particles(vtk::read_vtk_particles(path, &opts.particles, &opts.limits)?),
+        FileKind::VtkImage => Dataset::Volume(crate::vtk_xml::read_vti(path, &opts.limits)?),
+        FileKind::MetaImage => Dataset::Volume(crate::metaimage::read_metaimage(path, &opts.limits)?),
+        FileKind::Nrrd => Dataset::Volume(crate::nrrd::read_nrrd(path, &opts.limits)?),
     })
 }

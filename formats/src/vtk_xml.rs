@@ -31,6 +31,13 @@ struct FileDecl {
     point_arrays: Vec<ArrayDecl>,
     positions: Option<ArrayDecl>,
     appended_base64: bool,
+    /// ImageData: WholeExtent (or the Piece's Extent), Origin, Spacing, Direction
+    /// (row-major), and the PointData's active scalars.
+    extent: Option<[i64; 6]>,
+    origin: [f64; 3],
+    spacing: [f64; 3],
+    direction: [f64; 9],
+    active_scalars: Option<String>,
 }
 
 fn attr(e: &BytesStart, key: &str) -> Option<String> {
@@ -112,6 +119,116 @@ pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames, limits: &Limits) ->
     ParticleSet::from_arrays(positions, arrays, names, notes).map_err(|m| FormatError::invalid(path, m))
 }
 
+/// The file's bytes with its appended block found: (bytes, where the XML ends, where the
+/// appended data starts after its '_').
+fn split_appended(path: &Path, bytes: &[u8]) -> Result<(usize, Option<usize>)> {
+    let tail = &bytes[bytes.len().saturating_sub(4096)..];
+    if find(tail, b"</VTKFile>").is_none() {
+        if find(&bytes[..bytes.len().min(4096)], b"<VTKFile").is_none() {
+            return Err(FormatError::invalid(path, "not a VTK XML file (no VTKFile element)"));
+        }
+        return Err(FormatError::invalid(path, "file is truncated: no closing </VTKFile>"));
+    }
+    let Some(start) = find(bytes, b"<AppendedData") else { return Ok((bytes.len(), None)) };
+    let us =
+        find(&bytes[start..], b"_").map(|i| start + i + 1).ok_or_else(|| FormatError::invalid(path, "AppendedData has no '_' marker"))?;
+    Ok((start, Some(us)))
+}
+
+/// A VTK XML ImageData file (`.vti`) as a volume: the PointData's active scalars (else its
+/// first one-component array), in the stored type. VTK's coordinates are taken as world
+/// coordinates (VTK has no anatomical frame): world = Origin + Direction · (Spacing ⊙ index),
+/// index counted from the extent's start (a piece may start away from 0).
+pub fn read_vti(path: &Path, limits: &Limits) -> Result<crate::Volume> {
+    use crate::volume::{ScalarType, VoxelData};
+    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let (xml_end, data_start) = split_appended(path, &bytes)?;
+    let appended: &[u8] = data_start.map_or(&[], |s| &bytes[s..]);
+    let mut decl = parse_decl(path, &bytes[..xml_end])?;
+    if data_start.is_some() {
+        let head_end = find(&bytes[xml_end..], b">").map(|i| xml_end + i + 1).unwrap_or(xml_end);
+        decl.appended_base64 = String::from_utf8_lossy(&bytes[xml_end..head_end]).contains("base64");
+    }
+    if decl.dataset != "ImageData" {
+        return Err(FormatError::unsupported(path, format!("VTK XML type '{}': volumes come from ImageData (.vti)", decl.dataset)));
+    }
+    let e = decl.extent.ok_or_else(|| FormatError::invalid(path, "ImageData has no WholeExtent or Piece Extent"))?;
+    let dims = [0, 1, 2].map(|a| (e[2 * a + 1] - e[2 * a] + 1).max(0) as usize);
+    if dims.contains(&0) {
+        return Err(FormatError::invalid(path, format!("extent {e:?} holds no points")));
+    }
+    let n = dims.iter().try_fold(1usize, |n, &d| n.checked_mul(d)).ok_or_else(|| FormatError::invalid(path, "point count overflows"))?;
+    let chosen = match &decl.active_scalars {
+        Some(name) => decl.point_arrays.iter().find(|a| &a.name == name),
+        None => decl.point_arrays.iter().find(|a| a.components == 1),
+    };
+    let a = chosen.cloned().ok_or_else(|| match &decl.active_scalars {
+        Some(name) => FormatError::invalid(path, format!("PointData names Scalars '{name}', which it does not hold")),
+        None => FormatError::unsupported(path, "PointData holds no one-component array: nothing to draw as a volume"),
+    })?;
+    if a.components != 1 {
+        return Err(FormatError::unsupported(
+            path,
+            format!("array '{}' has {} components: a volume holds one value per voxel", a.name, a.components),
+        ));
+    }
+    let ty = match a.ty.as_str() {
+        "Int8" => ScalarType::I8,
+        "UInt8" => ScalarType::U8,
+        "Int16" => ScalarType::I16,
+        "UInt16" => ScalarType::U16,
+        "Int32" => ScalarType::I32,
+        "UInt32" => ScalarType::U32,
+        "Float32" => ScalarType::F32,
+        "Float64" => ScalarType::F64,
+        other => {
+            return Err(FormatError::unsupported(path, format!("array '{}' is {other}: 64-bit integers are not kept as voxels", a.name)))
+        }
+    };
+    let data = match decode(path, &decl, &a, appended, n, limits)? {
+        Decoded::Bytes(b) => VoxelData::from_bytes(ty, &b, decl.big_endian),
+        Decoded::Text(v) => {
+            if v.len() != n {
+                return Err(FormatError::invalid(path, format!("array '{}' holds {} values; the extent has {n} points", a.name, v.len())));
+            }
+            match ty {
+                ScalarType::F32 => VoxelData::F32(v.iter().map(|&x| x as f32).collect()),
+                ScalarType::F64 => VoxelData::F64(v),
+                _ => VoxelData::F64(v), // integers read from text, kept exactly
+            }
+        }
+    };
+    let d = decl.direction;
+    let mut axes = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for r in 0..3 {
+            axes[i][r] = d[3 * r + i] * decl.spacing[i];
+        }
+    }
+    let start = [e[0], e[2], e[4]].map(|x| x as f64);
+    let origin = [0, 1, 2].map(|r| decl.origin[r] + (0..3).map(|i| axes[i][r] * start[i]).sum::<f64>());
+    let affine = crate::raw::affine_from_axes(axes, origin);
+    crate::raw::check_affine(path, &affine)?;
+    let mut v = crate::Volume::new(dims, affine, data);
+    v.notes.push(format!(
+        "VTK XML ImageData, array '{}' ({}), {}{}",
+        a.name,
+        a.ty,
+        if data_start.is_some() {
+            if decl.appended_base64 {
+                "appended base64"
+            } else {
+                "appended raw"
+            }
+        } else {
+            "inline"
+        },
+        if decl.zlib { ", zlib" } else { "" }
+    ));
+    v.attributes.push(("array".into(), a.name.clone()));
+    Ok(v)
+}
+
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
 }
@@ -154,14 +271,47 @@ fn parse_decl(path: &Path, xml: &[u8]) -> Result<FileDecl> {
                         Some(other) => return Err(FormatError::unsupported(path, format!("compressor {other} (only zlib is supported)"))),
                     }
                 }
+                "ImageData" => {
+                    let nums = |key: &str, n: usize| -> Result<Option<Vec<f64>>> {
+                        let Some(v) = attr(&e, key) else { return Ok(None) };
+                        let x: Option<Vec<f64>> = v.split_whitespace().map(|w| w.parse::<f64>().ok().filter(|x| x.is_finite())).collect();
+                        match x {
+                            Some(x) if x.len() == n => Ok(Some(x)),
+                            _ => Err(FormatError::invalid(path, format!("ImageData {key} '{v}' is not {n} numbers"))),
+                        }
+                    };
+                    decl.extent = nums("WholeExtent", 6)?.map(|v| [0, 1, 2, 3, 4, 5].map(|i| v[i] as i64));
+                    decl.origin = nums("Origin", 3)?.map_or([0.0; 3], |v| [v[0], v[1], v[2]]);
+                    decl.spacing = nums("Spacing", 3)?.map_or([1.0; 3], |v| [v[0], v[1], v[2]]);
+                    decl.direction =
+                        nums("Direction", 9)?.map_or([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], |v| std::array::from_fn(|i| v[i]));
+                    section.push(name);
+                }
                 "Piece" => {
                     pieces += 1;
                     if pieces > 1 {
                         return Err(FormatError::unsupported(path, "file holds several pieces; only the first is read"));
                     }
-                    let np = attr(&e, "NumberOfPoints").unwrap_or_default();
-                    decl.points =
-                        np.trim().parse().map_err(|_| FormatError::invalid(path, format!("NumberOfPoints '{np}' is not a count")))?;
+                    if let Some(ext) = attr(&e, "Extent") {
+                        let v: Option<Vec<i64>> = ext.split_whitespace().map(|w| w.parse().ok()).collect();
+                        let v = v
+                            .filter(|v| v.len() == 6 && (0..3).all(|a| v[2 * a] <= v[2 * a + 1]))
+                            .ok_or_else(|| FormatError::invalid(path, format!("Piece Extent '{ext}' is not 6 increasing pairs")))?;
+                        decl.extent = Some([v[0], v[1], v[2], v[3], v[4], v[5]]);
+                    }
+                    if let Some(np) = attr(&e, "NumberOfPoints") {
+                        decl.points =
+                            np.trim().parse().map_err(|_| FormatError::invalid(path, format!("NumberOfPoints '{np}' is not a count")))?;
+                    }
+                    if !empty {
+                        section.push(name);
+                    }
+                }
+                "PointData" => {
+                    decl.active_scalars = attr(&e, "Scalars");
+                    if !empty {
+                        section.push(name);
+                    }
                 }
                 "DataArray" => {
                     let ty = attr(&e, "type").unwrap_or_default();
@@ -242,11 +392,35 @@ fn store(decl: &mut FileDecl, section: &[String], a: ArrayDecl) {
     }
 }
 
+/// What a DataArray decodes to: its bytes (in the file's byte order), or numbers from text.
+enum Decoded {
+    Bytes(Vec<u8>),
+    Text(Vec<f64>),
+}
+
 /// Decodes one DataArray into f64 values, checking its length against `n` points.
 fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: usize, limits: &Limits) -> Result<Vec<f64>> {
+    let size = type_size(&a.ty).unwrap() as u64;
+    limits.check(path, &format!("array '{}'", a.name), &[n as u64, a.components as u64, size])?;
+    limits.check(path, &format!("array '{}' as f64", a.name), &[n as u64, a.components as u64, 8])?;
+    let what = if a.name.is_empty() { "Points".to_string() } else { format!("array '{}'", a.name) };
+    let values = match decode(path, f, a, appended, n, limits)? {
+        Decoded::Bytes(raw) => to_f64(&raw, &a.ty, f.big_endian),
+        Decoded::Text(v) => v,
+    };
+    if values.len() != n * a.components {
+        return Err(FormatError::invalid(
+            path,
+            format!("{what} holds {} values, but {n} points × {} components need {}", values.len(), a.components, n * a.components),
+        ));
+    }
+    Ok(values)
+}
+
+/// Decodes one DataArray of `n` tuples as stored (binary: exactly its bytes).
+fn decode(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: usize, limits: &Limits) -> Result<Decoded> {
     let size = type_size(&a.ty).unwrap();
     let want = limits.check(path, &format!("array '{}'", a.name), &[n as u64, a.components as u64, size as u64])?;
-    limits.check(path, &format!("array '{}' as f64", a.name), &[n as u64, a.components as u64, 8])?;
     let what = if a.name.is_empty() { "Points".to_string() } else { format!("array '{}'", a.name) };
     let values = match a.format.as_str() {
         "ascii" => {
@@ -254,12 +428,11 @@ fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: us
             // value VTK stored, then widen.
             let parse = |t: &str| if a.ty == "Float32" { t.parse::<f32>().map(f64::from) } else { t.parse::<f64>() };
             let v: std::result::Result<Vec<f64>, _> = a.text.split_ascii_whitespace().map(parse).collect();
-            v.map_err(|_| FormatError::invalid(path, format!("{what}: ascii data holds a non-number")))?
+            return Ok(Decoded::Text(v.map_err(|_| FormatError::invalid(path, format!("{what}: ascii data holds a non-number")))?));
         }
         "binary" => {
             let text: String = a.text.chars().filter(|c| !c.is_whitespace()).collect();
-            let raw = decode_base64_block(path, f, text.as_bytes(), want, &what)?;
-            to_f64(&raw, &a.ty, f.big_endian)
+            decode_base64_block(path, f, text.as_bytes(), want, &what)?
         }
         "appended" => {
             let off = a.offset.ok_or_else(|| FormatError::invalid(path, format!("{what}: appended array has no offset")))?;
@@ -269,24 +442,20 @@ fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: us
                     format!("{what}: offset {off} lies beyond the appended data ({} bytes)", appended.len()),
                 ));
             }
-            let raw = if f.appended_base64 {
+            if f.appended_base64 {
                 let end =
                     appended[off..].iter().position(|c| c.is_ascii_whitespace() || *c == b'<').map(|e| off + e).unwrap_or(appended.len());
                 decode_base64_block(path, f, &appended[off..end], want, &what)?
             } else {
                 decode_raw_block(path, f, &appended[off..], want, &what)?
-            };
-            to_f64(&raw, &a.ty, f.big_endian)
+            }
         }
         other => return Err(FormatError::unsupported(path, format!("{what}: DataArray format '{other}'"))),
     };
-    if values.len() != n * a.components {
-        return Err(FormatError::invalid(
-            path,
-            format!("{what} holds {} values, but {n} points × {} components need {}", values.len(), a.components, n * a.components),
-        ));
+    if values.len() != want {
+        return Err(FormatError::invalid(path, format!("{what} holds {} bytes, but {n} tuples need {want}", values.len())));
     }
-    Ok(values)
+    Ok(Decoded::Bytes(values))
 }
 
 /// One integer of a block header; None when the bytes run out (a cut or corrupt header).

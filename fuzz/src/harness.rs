@@ -12,7 +12,19 @@ use std::sync::OnceLock;
 use volterra_formats::{self as formats, FormatError, Heightfield, ParticleSet, Volume};
 
 /// The targets, as named in `fuzz/Cargo.toml` and under `fuzz/regressions/`.
-pub const TARGETS: &[&str] = &["dicom_file", "dicom_series", "nifti", "nifti_gz", "geotiff", "png_height", "vtk_legacy", "vtk_xml"];
+pub const TARGETS: &[&str] = &[
+    "dicom_file",
+    "dicom_series",
+    "nifti",
+    "nifti_gz",
+    "geotiff",
+    "png_height",
+    "vtk_legacy",
+    "vtk_xml",
+    "vtk_image",
+    "metaimage",
+    "nrrd",
+];
 
 /// Bytes that split a `dicom_series` input into the files of one directory.
 pub const SERIES_SPLIT: &[u8] = b"\n--volterra-next-file--\n";
@@ -97,6 +109,28 @@ pub fn run(target: &str, data: &[u8]) {
             let path = dir.join(name);
             write(&path, data);
             check_particles(&path, formats::vtk::read_vtk_particles(&path, &Default::default(), &limits));
+        }
+        "vtk_image" => {
+            // Legacy STRUCTURED_POINTS or XML ImageData, by what the input starts with.
+            let name = if data.starts_with(b"# vtk") { "input.vtk" } else { "input.vti" };
+            let path = dir.join(name);
+            write(&path, data);
+            let read = if name == "input.vtk" {
+                formats::vtk_image::read_structured_points(&path, &limits)
+            } else {
+                formats::vtk_xml::read_vti(&path, &limits)
+            };
+            check_volume(&path, read);
+        }
+        "metaimage" => {
+            let path = dir.join("input.mha");
+            write(&path, data);
+            check_volume(&path, formats::metaimage::read_metaimage(&path, &limits));
+        }
+        "nrrd" => {
+            let path = dir.join("input.nrrd");
+            write(&path, data);
+            check_volume(&path, formats::nrrd::read_nrrd(&path, &limits));
         }
         other => panic!("unknown fuzz target {other}"),
     }

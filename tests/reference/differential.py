@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
-"""Differential test of volterra's volume readers against pydicom and nibabel, over the test
-files those libraries ship (pydicom/data/test_files, nibabel/tests/data: read in place from
-the reference venv, nothing copied) and every DICOM and NIfTI file in ../shared/data.
+"""Differential test of volterra's volume readers against pydicom, nibabel, pyvista/VTK,
+SimpleITK and pynrrd, over the test files those libraries ship (pydicom/data/test_files,
+nibabel/tests/data: read in place from the reference venv, nothing copied), every DICOM,
+NIfTI, VTK image (.vtk STRUCTURED_POINTS, .vti), MetaImage and NRRD file in ../shared/data,
+and files the reference libraries write themselves at test time (suite "written": oblique
+directions, odd spacings, negative and scaled values, every encoding and byte order).
 
 Each file is converted with `volterra convert FILE out.nii`; the NIfTI volterra wrote is read
 back with nibabel and compared with what the reference library reads from the original:
@@ -157,6 +160,171 @@ def nifti_reference(path):
     return data, affine, "nifti"
 
 
+def axes_affine(point, dims):
+    """The affine whose columns step index axes by one, from a function index -> world."""
+    o = np.array(point(0, 0, 0), dtype=np.float64)
+    a = np.eye(4)
+    a[:3, 3] = o
+    for c, ijk in enumerate([(1, 0, 0), (0, 1, 0), (0, 0, 1)]):
+        if dims[c] > 1:
+            a[:3, c] = np.array(point(*ijk), dtype=np.float64) - o
+        else:
+            a[:3, c] = 0.0
+    return a
+
+
+def vtk_reference(path):
+    """VTK image data through pyvista/VTK's own readers (legacy STRUCTURED_POINTS, .vti, and
+    NRRD files only VTK's reader takes): the active scalars, x fastest; VTK's coordinates
+    are world coordinates. The affine comes from the grid's own point positions."""
+    import pyvista as pv
+
+    mesh = pv.read(path)
+    if not isinstance(mesh, pv.ImageData):
+        return "other format", type(mesh).__name__
+    name = mesh.point_data.active_scalars_name or next(n for n in mesh.point_data.keys() if mesh.point_data[n].ndim == 1)
+    dims = mesh.dimensions
+    values = np.asarray(mesh.point_data[name], dtype=np.float64).reshape(dims, order="F")
+    affine = axes_affine(lambda i, j, k: mesh.GetPoint(i + dims[0] * (j + dims[1] * k)), dims)
+    if dims[2] == 1:
+        affine[:3, 2] = np.array(mesh.direction_matrix)[:, 2] * mesh.spacing[2]
+    return values, affine, "vtk"
+
+
+def metaimage_reference(path):
+    """MetaImage through SimpleITK: values x fastest, geometry from ITK's own index-to-
+    physical mapping (LPS), turned to RAS."""
+    import SimpleITK as sitk
+
+    img = sitk.ReadImage(path)
+    if img.GetNumberOfComponentsPerPixel() != 1:
+        return "other format", f"{img.GetNumberOfComponentsPerPixel()}-component image"
+    arr = sitk.GetArrayFromImage(img).astype(np.float64)
+    arr = arr.transpose(tuple(reversed(range(arr.ndim))))
+    dims = list(img.GetSize()) + [1] * (3 - img.GetDimension())
+    arr = arr.reshape(dims, order="C") if arr.ndim < 3 else arr
+    point = lambda i, j, k: img.TransformIndexToPhysicalPoint((i, j, k)[: img.GetDimension()]) + (0.0,) * (3 - img.GetDimension())
+    affine = axes_affine(point, dims)
+    affine[:2, :] *= -1  # LPS -> RAS
+    return arr, affine, "metaimage"
+
+
+NRRD_SPACE = {
+    "right-anterior-superior": [1, 1, 1], "ras": [1, 1, 1],
+    "left-anterior-superior": [-1, 1, 1], "las": [-1, 1, 1],
+    "left-posterior-superior": [-1, -1, 1], "lps": [-1, -1, 1],
+    "scanner-xyz": [1, 1, 1], "3d-right-handed": [1, 1, 1], "3d-left-handed": [1, 1, 1],
+}
+
+
+def nrrd_reference(path):
+    """NRRD through pynrrd: data x fastest; the affine from `space directions` (one vector per
+    axis) and `space origin`, the space turned to RAS (LPS negates x and y, LAS x); without
+    directions, `spacings` from the origin. Data split over a pattern of files (which pynrrd
+    does not read): pynrrd's header, the files read here. (VTK's NRRD reader is no reference:
+    it reads rows top-down, mirroring j.)"""
+    import nrrd
+
+    try:
+        data, h = nrrd.read(path, index_order="F")
+    except FileNotFoundError:
+        # pynrrd reads one data file; a `data file: PATTERN min max step` header is read
+        # here: pynrrd's header, each slice file by numpy (raw encoding).
+        h = nrrd.read_header(path)
+        pattern, lo, hi, step = h["data file"].split()[:4]
+        if h.get("encoding", "raw") != "raw":
+            raise
+        dtype = np.dtype(nrrd.reader._determine_datatype(h))
+        files = [os.path.join(os.path.dirname(path), pattern % k) for k in range(int(lo), int(hi) + 1, int(step))]
+        data = np.concatenate([np.fromfile(f, dtype=dtype) for f in files]).reshape(h["sizes"], order="F")
+    data = np.asarray(data, dtype=np.float64)
+    dims = list(data.shape) + [1] * (3 - data.ndim)
+    data = data.reshape(dims, order="F")
+    affine = np.eye(4)
+    if "space directions" in h:
+        d = np.asarray(h["space directions"], dtype=np.float64)
+        affine[:3, : d.shape[0]] = d.T
+        if "space origin" in h:
+            affine[:3, 3] = np.asarray(h["space origin"], dtype=np.float64)
+    elif "spacings" in h:
+        for i, sp in enumerate(h["spacings"]):
+            affine[i, i] = 1.0 if np.isnan(sp) else sp
+    signs = np.array(NRRD_SPACE.get(str(h.get("space", "ras")).lower(), [1, 1, 1]), dtype=np.float64)
+    affine[:3, :] *= signs[:, None]
+    return data, affine, "nrrd"
+
+
+def write_fixtures(work):
+    """Files written by the reference libraries themselves, with non-unit spacing, negative
+    and scaled values and oblique orientations: (path, kind)."""
+    import nrrd
+    import pyvista as pv
+    import SimpleITK as sitk
+
+    rng = np.random.default_rng(19)
+    out = []
+    vol = (rng.normal(0, 300, (13, 9, 7)) - 1000).astype(np.int16)  # x, y, z
+    c, s = np.cos(0.4), np.sin(0.4)
+    rot = np.array([[c, -s, 0], [s * 0.8, c * 0.8, -0.6], [s * 0.6, c * 0.6, 0.8]])
+    # SimpleITK: oblique direction, odd spacing, compressed and not, detached .mhd + .raw.
+    img = sitk.GetImageFromArray(vol.transpose(2, 1, 0))
+    img.SetSpacing((0.7, 1.3, 2.1))
+    img.SetOrigin((-10.0, 20.5, 30.25))
+    img.SetDirection(tuple(rot.flatten()))
+    for name, compress in [("oblique.mha", False), ("oblique_zlib.mha", True), ("oblique.mhd", False)]:
+        p = os.path.join(work, name)
+        sitk.WriteImage(img, p, compress)
+        out.append((p, "metaimage"))
+    flt = sitk.GetImageFromArray((rng.random((5, 6, 4)) * 1e3).astype(np.float64))
+    flt.SetSpacing((0.25, 0.5, 4.0))
+    p = os.path.join(work, "double.mha")
+    sitk.WriteImage(flt, p)
+    out.append((p, "metaimage"))
+    # The same int16 volume big-endian: the header edited, the bytes swapped.
+    p = os.path.join(work, "oblique.mha")
+    with open(p, "rb") as f:
+        raw = f.read()
+    head, _, body = raw.partition(b"ElementDataFile = LOCAL\n")
+    head = head.replace(b"BinaryDataByteOrderMSB = False", b"BinaryDataByteOrderMSB = True").replace(b"ElementByteOrderMSB = False", b"ElementByteOrderMSB = True")
+    swapped = np.frombuffer(body, dtype="<i2").astype(">i2").tobytes()
+    p = os.path.join(work, "oblique_msb.mha")
+    with open(p, "wb") as f:
+        f.write(head + b"ElementDataFile = LOCAL\n" + swapped)
+    out.append((p, "metaimage"))
+    # pynrrd: spaces LPS and RAS with oblique directions, raw / gzip / ascii, big endian,
+    # detached data.
+    dirs = (rot * np.array([0.9, 1.1, 2.5])).T  # one row per axis
+    for name, opts in [
+        ("lps_raw.nrrd", {"encoding": "raw", "space": "left-posterior-superior"}),
+        ("ras_gzip.nrrd", {"encoding": "gzip", "space": "right-anterior-superior"}),
+        ("las_ascii.nrrd", {"encoding": "ascii", "space": "left-anterior-superior"}),
+        ("lps_big.nrrd", {"encoding": "raw", "space": "left-posterior-superior", "endian": "big"}),
+    ]:
+        p = os.path.join(work, name)
+        h = {"space directions": dirs, "space origin": np.array([5.5, -3.25, 12.0]), "kinds": ["domain"] * 3, **opts}
+        nrrd.write(p, vol, h, index_order="F")
+        out.append((p, "nrrd"))
+    p = os.path.join(work, "detached.nhdr")
+    nrrd.write(p, (vol.astype(np.float32) * 0.125), {"spacings": [0.5, 0.75, 3.0], "encoding": "raw"}, detached_header=True, index_order="F")
+    out.append((p, "nrrd"))
+    # pyvista: ImageData with origin, spacing and a direction, as .vti (binary, compressed:
+    # pyvista's default; and ascii) and legacy .vtk (binary and ascii; legacy files keep no
+    # direction, so that grid is axis-aligned).
+    grid = pv.ImageData(dimensions=vol.shape, spacing=(0.6, 1.7, 2.2), origin=(-4.0, 7.5, 1.25))
+    grid.point_data["density"] = (vol.astype(np.float32) * 0.01).flatten(order="F")
+    for name, binary in [("legacy_binary.vtk", True), ("legacy_ascii.vtk", False)]:
+        p = os.path.join(work, name)
+        grid.save(p, binary=binary)
+        out.append((p, "vtk"))
+    oblique = grid.copy()
+    oblique.direction_matrix = rot
+    for name, binary in [("oblique.vti", True), ("oblique_ascii.vti", False)]:
+        p = os.path.join(work, name)
+        oblique.save(p, binary=binary)
+        out.append((p, "vtk"))
+    return out
+
+
 # --- the comparison -------------------------------------------------------------------------
 def volterra_convert(path, work):
     out = os.path.join(work, "out.nii")
@@ -213,7 +381,7 @@ def compare(ref, got, syntax):
 
 
 JUSTIFY = [
-    ("unknown file type", "not a format volterra reads (NIfTI, DICOM, GeoTIFF, PNG, VTK only)"),
+    ("unknown file type", "not a format volterra reads (NIfTI, DICOM, MetaImage, NRRD, VTK, GeoTIFF, PNG only)"),
     ("unsupported transfer syntax", "no decoder for this transfer syntax in dicom-rs"),
     ("not a scalar image", "a colour image that is not 8-bit RGB/YBR: volumes are scalar"),
     ("Analyze 7.5", "Analyze 7.5 (no NIfTI magic): its orientation is undefined, so no world geometry can be given"),
@@ -263,17 +431,21 @@ def main():
                     cases.append(("shared", p, "nifti"))
                 elif f.endswith(".dcm"):
                     cases.append(("shared", p, "dicom"))
+                elif f.endswith((".vti", ".vtk")):
+                    cases.append(("shared", p, "vtk"))
+                elif f.endswith((".mha", ".mhd")):
+                    cases.append(("shared", p, "metaimage"))
+                elif f.endswith((".nrrd", ".nhdr")):
+                    cases.append(("shared", p, "nrrd"))
     rows = []
-    with tempfile.TemporaryDirectory() as work:
+    with tempfile.TemporaryDirectory() as work, tempfile.TemporaryDirectory() as written:
+        cases += [("written", p, kind) for p, kind in write_fixtures(written)]
+        readers = {"dicom-series": series_reference, "dicom": dicom_reference, "nifti": nifti_reference,
+                   "vtk": vtk_reference, "metaimage": metaimage_reference, "nrrd": nrrd_reference}
         for suite, path, kind in cases:
-            name = os.path.relpath(path, {"pydicom": pyd, "nibabel": nib_dir}.get(suite, SHARED or "/"))
+            name = os.path.relpath(path, {"pydicom": pyd, "nibabel": nib_dir, "written": written}.get(suite, SHARED or "/"))
             try:
-                if kind == "dicom-series":
-                    ref = series_reference(path)
-                elif kind == "dicom":
-                    ref = dicom_reference(path)
-                else:
-                    ref = nifti_reference(path)
+                ref = readers[kind](path)
             except Exception as e:  # the reference cannot read it
                 text = str(e).splitlines()[0] if str(e) else ""
                 ref = ("error", f"{type(e).__name__}: {text}".replace(path, os.path.basename(path)).replace(os.path.dirname(path) + os.sep, "")[:200])
@@ -348,11 +520,13 @@ def write_table(rows):
     counts = {}
     for r in rows:
         counts.setdefault(r[0], {"equal": 0, "refused": 0, "wrong": 0, "no reference": 0})[r[2]] += 1
-    with open(OUT + ".tmp", "w") as f:
-        f.write("# Differential test: volterra against pydicom and nibabel\n\n")
+    with open(OUT + ".tmp", "w", encoding="utf-8") as f:
+        f.write("# Differential test: volterra against pydicom, nibabel, pyvista/VTK, SimpleITK and pynrrd\n\n")
         f.write("Regenerated by `tests/differential.rs` (tests/reference/differential.py): every image-bearing\n")
-        f.write("file of pydicom's and nibabel's own test data (from the reference venv) and every DICOM and\n")
-        f.write("NIfTI file in ../shared/data, converted with `volterra convert FILE out.nii` and compared with\n")
+        f.write("file of pydicom's and nibabel's own test data (from the reference venv), every DICOM, NIfTI,\n")
+        f.write("VTK image, MetaImage and NRRD file in ../shared/data, and files SimpleITK, pynrrd and pyvista\n")
+        f.write("write at test time (suite `written`: oblique directions, odd spacings, every encoding),\n")
+        f.write("converted with `volterra convert FILE out.nii` and compared with\n")
         f.write("the reference library's reading of the original: values after rescale, dims, and the\n")
         f.write("voxel-to-world affine (RAS+ mm). Files without pixel data (reports, plans, structure sets) are\n")
         f.write("left out. Lossy transfer syntaxes allow 2 grey levels between decoders.\n\n")

@@ -2,7 +2,7 @@
 """Reads files that volterra wrote with the reference libraries and prints what they see
 as JSON, so a Rust test can check our writers against independent readers.
 
-Usage: read_outputs.py KIND PATH   (KIND: nifti | geotiff | vtp)
+Usage: read_outputs.py KIND PATH   (KIND: nifti | nrrd | geotiff | vtp)
 """
 import json
 import sys
@@ -25,6 +25,17 @@ if kind == "nifti":
         "slope": None if slope is None else float(slope),
         "inter": None if inter is None else float(inter),
         "values": data.transpose(2, 1, 0).ravel().astype(np.float64).tolist(),
+    }
+elif kind == "nrrd":
+    import nrrd
+    data, h = nrrd.read(path, index_order="F")
+    out = {
+        "shape": list(data.shape),
+        "dtype": str(data.dtype.newbyteorder("=")),
+        "space": h.get("space"),
+        "directions": np.asarray(h["space directions"], dtype=np.float64).tolist(),
+        "origin": np.asarray(h["space origin"], dtype=np.float64).tolist(),
+        "values": data.ravel(order="F").astype(np.float64).tolist(),
     }
 elif kind == "geotiff":
     import tifffile

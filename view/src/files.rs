@@ -13,7 +13,10 @@ pub struct FileDialog {
     listed: Option<PathBuf>,
 }
 
-const READABLE: &[&str] = &[".toml", ".nii", ".nii.gz", ".hdr", ".dcm", ".tif", ".tiff", ".png", ".vtk", ".vtp", ".vtu", ".pvd"];
+const READABLE: &[&str] = &[
+    ".toml", ".nii", ".nii.gz", ".hdr", ".dcm", ".mha", ".mhd", ".nrrd", ".nhdr", ".vti", ".tif", ".tiff", ".png", ".vtk", ".vtp", ".vtu",
+    ".pvd",
+];
 
 fn readable(name: &str) -> bool {
     let n = name.to_ascii_lowercase();
