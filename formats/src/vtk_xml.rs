@@ -56,33 +56,8 @@ fn type_size(ty: &str) -> Option<usize> {
 
 pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames, limits: &Limits) -> Result<ParticleSet> {
     let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
-    // A cut file can still parse up to where it stops (and appended raw data can still cover
-    // the arrays): refuse it by its missing end.
-    let tail = &bytes[bytes.len().saturating_sub(4096)..];
-    if find(tail, b"</VTKFile>").is_none() {
-        if find(&bytes[..bytes.len().min(4096)], b"<VTKFile").is_none() {
-            return Err(FormatError::invalid(path, "not a VTK XML file (no VTKFile element)"));
-        }
-        return Err(FormatError::invalid(path, "file is truncated: no closing </VTKFile>"));
-    }
-    // The appended block may hold raw bytes that are not XML: parse only what precedes it.
-    let app_tag = find(&bytes, b"<AppendedData");
-    let xml_end = app_tag.unwrap_or(bytes.len());
-    let appended: &[u8] = match app_tag {
-        Some(start) => {
-            let us = find(&bytes[start..], b"_")
-                .map(|i| start + i + 1)
-                .ok_or_else(|| FormatError::invalid(path, "AppendedData has no '_' marker"))?;
-            &bytes[us..]
-        }
-        None => &[],
-    };
-    let mut decl = parse_decl(path, &bytes[..xml_end])?;
-    if let Some(start) = app_tag {
-        let head_end = find(&bytes[start..], b">").map(|i| start + i + 1).unwrap_or(start);
-        let tag = String::from_utf8_lossy(&bytes[start..head_end]);
-        decl.appended_base64 = tag.contains("base64");
-    }
+    let (decl, data_start) = parse_file(path, &bytes)?;
+    let appended: &[u8] = data_start.map_or(&[], |s| &bytes[s..]);
     if decl.dataset != "PolyData" && decl.dataset != "UnstructuredGrid" {
         return Err(FormatError::unsupported(
             path,
@@ -101,27 +76,28 @@ pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames, limits: &Limits) ->
         let values = decode_array(path, &decl, a, appended, n, limits)?;
         arrays.push(PointArray { name: a.name.clone(), components: a.components, values });
     }
-    let notes = vec![format!(
-        "VTK XML {}, {} points, {}{}",
-        decl.dataset,
-        n,
-        if app_tag.is_some() {
-            if decl.appended_base64 {
-                "appended base64"
-            } else {
-                "appended raw"
-            }
-        } else {
-            "inline"
-        },
-        if decl.zlib { ", zlib" } else { "" }
-    )];
+    let notes = vec![format!("VTK XML {}, {} points, {}", decl.dataset, n, decl.encoding(data_start.is_some()))];
     ParticleSet::from_arrays(positions, arrays, names, notes).map_err(|m| FormatError::invalid(path, m))
 }
 
-/// The file's bytes with its appended block found: (bytes, where the XML ends, where the
-/// appended data starts after its '_').
-fn split_appended(path: &Path, bytes: &[u8]) -> Result<(usize, Option<usize>)> {
+impl FileDecl {
+    /// How the arrays are stored, for notes: "inline", "appended raw" or "appended
+    /// base64", and ", zlib" when compressed.
+    fn encoding(&self, appended: bool) -> String {
+        let how = match (appended, self.appended_base64) {
+            (false, _) => "inline",
+            (true, true) => "appended base64",
+            (true, false) => "appended raw",
+        };
+        format!("{how}{}", if self.zlib { ", zlib" } else { "" })
+    }
+}
+
+/// The declarations of a VTK XML file's bytes, and where its appended data starts (after
+/// the '_' marker) if it has any. A cut file can still parse up to where it stops (and
+/// appended raw data can still cover the arrays): it is refused by its missing end. The
+/// appended block may hold raw bytes that are not XML: only what precedes it is parsed.
+fn parse_file(path: &Path, bytes: &[u8]) -> Result<(FileDecl, Option<usize>)> {
     let tail = &bytes[bytes.len().saturating_sub(4096)..];
     if find(tail, b"</VTKFile>").is_none() {
         if find(&bytes[..bytes.len().min(4096)], b"<VTKFile").is_none() {
@@ -129,10 +105,13 @@ fn split_appended(path: &Path, bytes: &[u8]) -> Result<(usize, Option<usize>)> {
         }
         return Err(FormatError::invalid(path, "file is truncated: no closing </VTKFile>"));
     }
-    let Some(start) = find(bytes, b"<AppendedData") else { return Ok((bytes.len(), None)) };
+    let Some(start) = find(bytes, b"<AppendedData") else { return Ok((parse_decl(path, bytes)?, None)) };
     let us =
         find(&bytes[start..], b"_").map(|i| start + i + 1).ok_or_else(|| FormatError::invalid(path, "AppendedData has no '_' marker"))?;
-    Ok((start, Some(us)))
+    let mut decl = parse_decl(path, &bytes[..start])?;
+    let head_end = find(&bytes[start..], b">").map(|i| start + i + 1).unwrap_or(start);
+    decl.appended_base64 = String::from_utf8_lossy(&bytes[start..head_end]).contains("base64");
+    Ok((decl, Some(us)))
 }
 
 /// A VTK XML ImageData file (`.vti`) as a volume: the PointData's active scalars (else its
@@ -142,13 +121,8 @@ fn split_appended(path: &Path, bytes: &[u8]) -> Result<(usize, Option<usize>)> {
 pub fn read_vti(path: &Path, limits: &Limits) -> Result<crate::Volume> {
     use crate::volume::{ScalarType, VoxelData};
     let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
-    let (xml_end, data_start) = split_appended(path, &bytes)?;
+    let (decl, data_start) = parse_file(path, &bytes)?;
     let appended: &[u8] = data_start.map_or(&[], |s| &bytes[s..]);
-    let mut decl = parse_decl(path, &bytes[..xml_end])?;
-    if data_start.is_some() {
-        let head_end = find(&bytes[xml_end..], b">").map(|i| xml_end + i + 1).unwrap_or(xml_end);
-        decl.appended_base64 = String::from_utf8_lossy(&bytes[xml_end..head_end]).contains("base64");
-    }
     if decl.dataset != "ImageData" {
         return Err(FormatError::unsupported(path, format!("VTK XML type '{}': volumes come from ImageData (.vti)", decl.dataset)));
     }
@@ -210,21 +184,7 @@ pub fn read_vti(path: &Path, limits: &Limits) -> Result<crate::Volume> {
     let affine = crate::raw::affine_from_axes(axes, origin);
     crate::raw::check_affine(path, &affine)?;
     let mut v = crate::Volume::new(dims, affine, data);
-    v.notes.push(format!(
-        "VTK XML ImageData, array '{}' ({}), {}{}",
-        a.name,
-        a.ty,
-        if data_start.is_some() {
-            if decl.appended_base64 {
-                "appended base64"
-            } else {
-                "appended raw"
-            }
-        } else {
-            "inline"
-        },
-        if decl.zlib { ", zlib" } else { "" }
-    ));
+    v.notes.push(format!("VTK XML ImageData, array '{}' ({}), {}", a.name, a.ty, decl.encoding(data_start.is_some())));
     v.attributes.push(("array".into(), a.name.clone()));
     Ok(v)
 }
