@@ -684,3 +684,34 @@ fn a_time_series_steps_and_plays_in_the_viewer() {
     h.run_steps(2);
     settle(&mut h);
 }
+
+/// CT window/level presets in the slice views, named and valued as PACS viewers set them;
+/// they change the slice pictures; a volume that is not CT gets them disabled.
+#[test]
+fn ct_window_presets_set_the_slice_views() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra_formats::nifti::write_nifti(&dir.path().join("ct.nii"), &volterra::samples::ct_phantom(48, 48, 24)).unwrap();
+    let scene = |modality: &str| {
+        format!(
+            "[image]\nwidth = 64\nheight = 64\n[camera]\nposition = [0.0, -200.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\n\
+             [[node]]\nname = \"ct\"\nkind = \"volume\"\nfile = \"ct.nii\"\nrenderer = \"shear-warp\"\n{modality}"
+        )
+    };
+    std::fs::write(dir.path().join("ct.toml"), scene("modality = \"CT\"\npreset = \"CT-Bone\"\n")).unwrap();
+    let mut h = settled_on(&dir.path().join("ct.toml"));
+    h.get_by_label("W/L preset").click();
+    h.run_steps(2);
+    h.get_by_label("Lung (W 1500 / L -600)").click();
+    h.run_steps(3);
+    assert_eq!(h.state().window_level(), Some((1500.0, -600.0)));
+    h.get_by_label("W/L preset").click();
+    h.run_steps(2);
+    h.get_by_label("Brain (W 80 / L 40)").click();
+    h.run_steps(3);
+    assert_eq!(h.state().window_level(), Some((80.0, 40.0)));
+    // Without a CT modality (the NIfTI does not say), the presets are disabled.
+    std::fs::write(dir.path().join("plain.toml"), scene("preset = \"CT-Bone\"\n")).unwrap();
+    let h = settled_on(&dir.path().join("plain.toml"));
+    use egui_kittest::kittest::NodeT;
+    assert!(h.get_by_label("W/L preset").accesskit_node().is_disabled());
+}

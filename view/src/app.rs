@@ -293,6 +293,11 @@ impl Viewer {
         self.slices.as_ref().map(|s| s.cross)
     }
 
+    /// The slice views' window and level.
+    pub fn window_level(&self) -> Option<(f64, f64)> {
+        self.slices.as_ref().map(|s| (s.window, s.level))
+    }
+
     /// Where the 3-D view lies in the window (points).
     pub fn viewport_rect(&self) -> Option<Rect> {
         self.viewport_rect
@@ -1067,7 +1072,7 @@ impl Viewer {
         let world = doc.scene.world_transform(i);
         let rebuild = self.slices.as_ref().is_none_or(|s| s.node != i || !Arc::ptr_eq(&s.source.volume, &volume));
         if rebuild {
-            let source = SliceSource::new(volume, world);
+            let source = SliceSource::new(volume.clone(), world);
             let (window, level) = stats
                 .as_ref()
                 .map(|s| {
@@ -1078,7 +1083,28 @@ impl Viewer {
                 .unwrap_or((1.0, 0.5));
             self.slices = Some(SliceState { node: i, cross: source.centre(), source, window, level, images: vec![], dirty: true });
         }
+        // The CT presets apply to values in Hounsfield units: a CT (the node's modality, else
+        // the file's) or values the file says are HU.
+        let node = &doc.scene.nodes()[i];
+        let ct = node.modality.as_deref().or(volume.modality.as_deref()).is_some_and(|m| m.eq_ignore_ascii_case("CT"))
+            || volume.units.as_deref() == Some("HU");
         let s = self.slices.as_mut().unwrap();
+        ui.horizontal(|ui| {
+            let current = super::slices::CT_WINDOWS.iter().find(|(_, w, l)| *w == s.window && *l == s.level).map_or("Custom", |p| p.0);
+            ui.add_enabled_ui(ct, |ui| {
+                egui::ComboBox::from_label("W/L preset")
+                    .selected_text(current)
+                    .show_ui(ui, |ui| {
+                        for &(name, w, l) in super::slices::CT_WINDOWS {
+                            if ui.selectable_label(current == name, format!("{name} (W {w} / L {l})")).clicked() {
+                                (s.window, s.level, s.dirty) = (w, l, true);
+                            }
+                        }
+                    })
+                    .response
+                    .on_disabled_hover_text("CT window presets need values in Hounsfield units (a CT, or set the node's modality to CT)");
+            });
+        });
         ui.horizontal(|ui| {
             let speed = s.window.abs() * 0.01 + 1e-6;
             let lbl = ui.label("Window");
