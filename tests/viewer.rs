@@ -715,3 +715,33 @@ fn ct_window_presets_set_the_slice_views() {
     use egui_kittest::kittest::NodeT;
     assert!(h.get_by_label("W/L preset").accesskit_node().is_disabled());
 }
+
+/// A DICOM folder with two series opens the series browser (patient, study, series,
+/// modality, size, images) instead of an error; a row chosen opens that series (a
+/// double-click does the same).
+#[test]
+fn a_folder_of_several_series_opens_the_series_browser() {
+    let mut h = harness(Viewer::new(LoadOptions::default()));
+    h.run_steps(1);
+    h.state_mut().open_in_background(common::repo_path("tests/fixtures/dicom/two_series"));
+    wait_loaded(&mut h);
+    h.run_steps(2);
+    assert!(h.state().scene().is_none(), "nothing opened yet");
+    let listed: Vec<String> =
+        h.state().series_to_choose().expect("the browser lists the series").iter().map(|s| s.description.clone()).collect();
+    assert_eq!(listed, ["fixture .301", "fixture .302"]);
+    // The table shows what each series is; a click selects the second, "Open series" opens it.
+    assert_eq!(h.get_all_by_label("3").count(), 2, "three images in each row");
+    assert_eq!(h.get_all_by_label("CT").count(), 2);
+    h.get_by_label("fixture .302").click();
+    h.run_steps(1);
+    h.get_by_label("Open series").click();
+    h.run_steps(1);
+    wait_loaded(&mut h);
+    h.run_steps(1);
+    assert!(h.state().series_to_choose().is_none(), "the browser closes");
+    let scene = h.state().scene().expect("the series opened");
+    let v = scene.volume(0).unwrap();
+    assert!(v.attributes.iter().any(|(k, val)| k == "series" && val == "fixture .302"), "{:?}", v.attributes);
+    assert_eq!(v.dims[2], 3);
+}

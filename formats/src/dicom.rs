@@ -36,6 +36,10 @@ pub struct SeriesSummary {
     pub files: usize,
     pub rows: u32,
     pub columns: u32,
+    /// Patient name, study description and study date where the files give them.
+    pub patient: String,
+    pub study: String,
+    pub study_date: String,
 }
 
 /// What one file says about its image, read without decoding pixel data.
@@ -684,6 +688,10 @@ fn scan(dir: &Path, limits: &Limits) -> Result<BTreeMap<String, Vec<ImageInfo>>>
     Ok(series)
 }
 
+fn attribute(attributes: &[(String, String)], name: &str) -> String {
+    attributes.iter().find(|(k, _)| k == name).map(|(_, v)| v.clone()).unwrap_or_default()
+}
+
 /// The series in a directory, for `info` and for choosing one.
 pub fn list_series(dir: &Path, limits: &Limits) -> Result<Vec<SeriesSummary>> {
     Ok(scan(dir, limits)?
@@ -695,6 +703,9 @@ pub fn list_series(dir: &Path, limits: &Limits) -> Result<Vec<SeriesSummary>> {
             files: v.len(),
             rows: v[0].rows,
             columns: v[0].columns,
+            patient: attribute(&v[0].attributes, "patient"),
+            study: attribute(&v[0].attributes, "study"),
+            study_date: attribute(&v[0].attributes, "study date"),
         })
         .collect())
 }

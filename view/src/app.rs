@@ -47,6 +47,24 @@ struct Opened {
     camera: Camera,
 }
 
+/// What opening a path gives: a document, or a DICOM folder's series to choose from.
+enum Loaded {
+    Document(Box<Opened>),
+    Series { dir: PathBuf, series: Vec<volterra_formats::dicom::SeriesSummary> },
+}
+
+/// Reads what `path` names: a folder holding several DICOM series (none chosen in `load`)
+/// gives the list to choose from, anything else the document.
+fn load_path(path: &Path, load: &LoadOptions) -> Result<Loaded> {
+    if path.is_dir() && load.dicom.series.is_none() {
+        let series = volterra_formats::dicom::list_series(path, &load.limits)?;
+        if series.len() > 1 {
+            return Ok(Loaded::Series { dir: path.to_path_buf(), series });
+        }
+    }
+    load_document(path, load).map(|o| Loaded::Document(Box::new(o)))
+}
+
 /// Reads a scene file or a data file, and everything the viewer derives from the data.
 fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
     let is_scene = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
@@ -130,11 +148,20 @@ pub struct Viewer {
     /// Frames shown so far, by quality (previews, full).
     frames_shown: [usize; 3],
     /// A file being read in the background.
-    opening: Option<(PathBuf, std::sync::mpsc::Receiver<Result<Opened>>)>,
+    opening: Option<(PathBuf, std::sync::mpsc::Receiver<Result<Loaded>>)>,
+    /// A DICOM folder's series, shown for the user to choose one.
+    series_choice: Option<SeriesChoice>,
     /// The crop box face whose handle is being dragged in the 3-D view.
     crop_drag: Option<usize>,
     /// Playing a time series: the next step follows each full frame.
     playing: bool,
+}
+
+/// The series browser's state: the folder, its series, the row selected.
+struct SeriesChoice {
+    dir: PathBuf,
+    series: Vec<volterra_formats::dicom::SeriesSummary>,
+    selected: usize,
 }
 
 #[derive(Default, PartialEq)]
@@ -186,6 +213,7 @@ impl Viewer {
             mode: NavMode::Orbit,
             crop_drag: None,
             playing: false,
+            series_choice: None,
             eye_height: 1.7,
             show_steps: false,
             load,
@@ -205,20 +233,46 @@ impl Viewer {
 
     /// Opens a scene file (.toml) or a data file / DICOM folder, waiting for it to load.
     pub fn open(&mut self, path: &Path) -> Result<()> {
-        let opened = load_document(path, &self.load)?;
-        self.install(opened);
+        let loaded = load_path(path, &self.load)?;
+        self.take_loaded(loaded);
         Ok(())
+    }
+
+    fn take_loaded(&mut self, loaded: Loaded) {
+        match loaded {
+            Loaded::Document(o) => self.install(*o),
+            Loaded::Series { dir, series } => {
+                self.message = Some(format!("{} holds {} series: choose one", dir.display(), series.len()));
+                self.series_choice = Some(SeriesChoice { dir, series, selected: 0 });
+            }
+        }
+    }
+
+    /// The series of the DICOM folder being chosen from, if any.
+    pub fn series_to_choose(&self) -> Option<&[volterra_formats::dicom::SeriesSummary]> {
+        self.series_choice.as_ref().map(|c| c.series.as_slice())
+    }
+
+    /// Opens series `uid` of the DICOM folder `dir` (the series browser's choice).
+    pub fn open_series(&mut self, dir: PathBuf, uid: String) {
+        let mut load = self.load.clone();
+        load.dicom.series = Some(uid);
+        self.series_choice = None;
+        self.open_with(dir, load);
     }
 
     /// Starts loading `path` on a thread; the UI keeps running and shows the document
     /// when it is read (a DICOM series of a thousand slices takes seconds).
     pub fn open_in_background(&mut self, path: PathBuf) {
+        self.open_with(path, self.load.clone());
+    }
+
+    fn open_with(&mut self, path: PathBuf, load: LoadOptions) {
         let (tx, rx) = std::sync::mpsc::channel();
-        let load = self.load.clone();
         let wake = self.wake.clone();
         let p = path.clone();
         std::thread::spawn(move || {
-            let _ = tx.send(load_document(&p, &load));
+            let _ = tx.send(load_path(&p, &load));
             if let Some(ctx) = wake.get() {
                 ctx.request_repaint();
             }
@@ -235,9 +289,9 @@ impl Viewer {
     fn poll_opening(&mut self) {
         let Some((_, rx)) = &self.opening else { return };
         match rx.try_recv() {
-            Ok(Ok(opened)) => {
+            Ok(Ok(loaded)) => {
                 self.opening = None;
-                self.install(opened);
+                self.take_loaded(loaded);
             }
             Ok(Err(e)) => {
                 self.opening = None;
@@ -420,6 +474,7 @@ impl Viewer {
         if let Some(p) = self.dialog.show(&ctx) {
             self.open_in_background(p);
         }
+        self.series_browser(&ctx);
 
         egui::Panel::top("toolbar").show(ui, |ui| self.toolbar(ui));
         egui::Panel::bottom("status").show(ui, |ui| self.status_bar(ui));
@@ -607,6 +662,59 @@ impl Viewer {
             }
             self.time_controls(ui);
         });
+    }
+
+    /// The DICOM series browser: a folder's series (patient, study, series description,
+    /// modality, size, images); a double-click or "Open series" opens the selected one.
+    fn series_browser(&mut self, ctx: &egui::Context) {
+        let Some(choice) = &mut self.series_choice else { return };
+        let mut open = None;
+        let mut keep = true;
+        egui::Window::new("DICOM series").open(&mut keep).default_size([640.0, 300.0]).show(ctx, |ui| {
+            ui.label(format!("{} holds {} series", choice.dir.display(), choice.series.len()));
+            egui::Grid::new("series").striped(true).num_columns(7).show(ui, |ui| {
+                for h in ["", "Patient", "Study", "Series", "Modality", "Size", "Images"] {
+                    ui.strong(h);
+                }
+                ui.end_row();
+                for (k, s) in choice.series.iter().enumerate() {
+                    let study = if s.study_date.is_empty() { s.study.clone() } else { format!("{} ({})", s.study, s.study_date) };
+                    let description = if s.description.is_empty() { s.uid.clone() } else { s.description.clone() };
+                    let row = ui.selectable_label(choice.selected == k, format!("{}", k + 1)).on_hover_text(&s.uid);
+                    let cells = [
+                        s.patient.clone(),
+                        study,
+                        description,
+                        s.modality.clone(),
+                        format!("{} × {}", s.columns, s.rows),
+                        s.files.to_string(),
+                    ];
+                    let mut clicked = row.clicked();
+                    let mut double = row.double_clicked();
+                    for c in cells {
+                        let r = ui.add(egui::Label::new(c).sense(Sense::click()));
+                        clicked |= r.clicked();
+                        double |= r.double_clicked();
+                    }
+                    if clicked {
+                        choice.selected = k;
+                    }
+                    if double {
+                        open = Some(k);
+                    }
+                    ui.end_row();
+                }
+            });
+            if ui.button("Open series").clicked() {
+                open = Some(choice.selected);
+            }
+        });
+        if let Some(k) = open {
+            let (dir, uid) = (choice.dir.clone(), choice.series[k].uid.clone());
+            self.open_series(dir, uid);
+        } else if !keep {
+            self.series_choice = None;
+        }
     }
 
     /// The time series' controls, where the scene has one: a slider over its steps
