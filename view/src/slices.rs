@@ -145,6 +145,19 @@ impl SliceSource {
     }
 }
 
+/// Window/level presets for CT in Hounsfield units, as common PACS viewers name and set
+/// them (Radiopaedia's "Windowing (CT)" values): (name, window, level).
+pub const CT_WINDOWS: &[(&str, f64, f64)] = &[
+    ("Brain", 80.0, 40.0),
+    ("Subdural", 200.0, 75.0),
+    ("Stroke", 40.0, 40.0),
+    ("Bone", 2800.0, 600.0),
+    ("Lung", 1500.0, -600.0),
+    ("Abdomen", 400.0, 50.0),
+    ("Liver", 150.0, 30.0),
+    ("Mediastinum", 350.0, 50.0),
+];
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -184,16 +197,3 @@ mod tests {
         assert_eq!((u, v), (3.5, 2.5));
     }
 }
-
-/// Window/level presets for CT in Hounsfield units, as common PACS viewers name and set
-/// them (Radiopaedia's "Windowing (CT)" values): (name, window, level).
-pub const CT_WINDOWS: &[(&str, f64, f64)] = &[
-    ("Brain", 80.0, 40.0),
-    ("Subdural", 200.0, 75.0),
-    ("Stroke", 40.0, 40.0),
-    ("Bone", 2800.0, 600.0),
-    ("Lung", 1500.0, -600.0),
-    ("Abdomen", 400.0, 50.0),
-    ("Liver", 150.0, 30.0),
-    ("Mediastinum", 350.0, 50.0),
-];
