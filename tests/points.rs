@@ -154,6 +154,9 @@ fn colour_maps_are_matplotlibs_in_linear_rgb() {
     let close = |a: [f32; 3], b: [u8; 3]| (0..3).all(|k| (a[k] - lin(b[k])).abs() < 5e-3);
     assert!(close(Colormap::Viridis.at(0.0), [0x44, 0x01, 0x54]), "{:?}", Colormap::Viridis.at(0.0));
     assert!(close(Colormap::Magma.at(1.0), [0xfc, 0xfd, 0xbf]), "{:?}", Colormap::Magma.at(1.0));
+    // hot ends in white; rainbow starts at #8000ff (matplotlib's).
+    assert!(close(Colormap::Hot.at(1.0), [0xff, 0xff, 0xff]), "{:?}", Colormap::Hot.at(1.0));
+    assert!(close(Colormap::Rainbow.at(0.0), [0x80, 0x00, 0xff]), "{:?}", Colormap::Rainbow.at(0.0));
     // Grey is even in sRGB: 0.5 is sRGB 0.5.
     assert!((Colormap::Grey.at(0.5)[0] - 0.214_041_14).abs() < 1e-6);
 }

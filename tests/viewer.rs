@@ -745,3 +745,63 @@ fn a_folder_of_several_series_opens_the_series_browser() {
     assert!(v.attributes.iter().any(|(k, val)| k == "series" && val == "fixture .302"), "{:?}", v.attributes);
     assert_eq!(v.dims[2], 3);
 }
+
+/// PET over CT in the slice views: a second volume chosen as the overlay is drawn through
+/// the hot colour map over the CT's grey where its values are above the overlay window's
+/// bottom; elsewhere the slices stay grey; opacity 0 shows the grey alone.
+#[test]
+fn a_pet_overlay_is_fused_over_the_ct_slices() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct = volterra::samples::ct_phantom(48, 48, 24);
+    volterra_formats::nifti::write_nifti(&dir.path().join("ct.nii"), &ct).unwrap();
+    // A hot ball (value 10 inside radius 8 mm, 0 outside) on a coarser grid about the CT's centre.
+    let centre = ct.index_to_world([23.5, 23.5, 11.5]);
+    let n = 16;
+    let spacing = 3.0;
+    let mut data = Vec::new();
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let p = [i, j, k].map(|x| (x as f64 - 7.5) * spacing);
+                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                data.push(if r < 8.0 { 10.0f32 } else { 0.0 });
+            }
+        }
+    }
+    let affine = [
+        [spacing, 0.0, 0.0, centre[0] - 7.5 * spacing],
+        [0.0, spacing, 0.0, centre[1] - 7.5 * spacing],
+        [0.0, 0.0, spacing, centre[2] - 7.5 * spacing],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    let pet = volterra_formats::Volume::new([n, n, n], affine, volterra_formats::VoxelData::F32(data));
+    volterra_formats::nifti::write_nifti(&dir.path().join("pet.nii"), &pet).unwrap();
+    std::fs::write(
+        dir.path().join("fused.toml"),
+        "[image]\nwidth = 48\nheight = 48\n[camera]\nposition = [0.0, -300.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\n\
+         [[node]]\nname = \"ct\"\nkind = \"volume\"\nfile = \"ct.nii\"\nmodality = \"CT\"\npreset = \"CT-Bone\"\n\
+         [[node]]\nname = \"pet\"\nkind = \"volume\"\nfile = \"pet.nii\"\npreset = \"PET-Hot\"\n",
+    )
+    .unwrap();
+    let mut h = settled_on(&dir.path().join("fused.toml"));
+    let coloured = |h: &Harness<'_, Viewer>| {
+        let (_, _, px) = h.state().slice_colours(0).unwrap();
+        px.iter().filter(|p| p[0] as i32 - p[2] as i32 > 40).count()
+    };
+    assert_eq!(coloured(&h), 0, "grey slices before the overlay");
+    h.get_by_label("Overlay").click();
+    h.run_steps(2);
+    h.get_by_label("pet").click();
+    h.run_steps(3);
+    let (w, hh, px) = h.state().slice_colours(0).unwrap();
+    let hot = coloured(&h);
+    // The ball's axial cross-section through its centre: π 8² mm² over the slice's pixels.
+    let pixel_mm = (ct.spacing[0] * 47.0) / (w as f64 - 1.0);
+    let expected = std::f64::consts::PI * 64.0 / (pixel_mm * pixel_mm);
+    assert!((hot as f64) > 0.4 * expected && (hot as f64) < 1.6 * expected, "{hot} hot pixels, about {expected:.0} expected ({w}×{hh})");
+    let greys = px.iter().filter(|p| p[0] == p[1] && p[1] == p[2]).count();
+    assert!(greys > px.len() / 2, "the rest stays grey: {greys} of {}", px.len());
+    set_in_panel(&mut h, egui::accesskit::Role::Slider, "Overlay opacity", 0.0);
+    h.run_steps(3);
+    assert_eq!(coloured(&h), 0, "opacity 0: the grey alone");
+}

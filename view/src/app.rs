@@ -8,7 +8,7 @@
 
 use super::files::{start_dir, FileDialog};
 use super::navigate::{self, AxisView};
-use super::slices::{Plane, SliceImage, SliceSource};
+use super::slices::{Overlay, Plane, SliceImage, SliceSource};
 use super::transfer_editor::TfEditor;
 use super::worker::{Done, Job, Quality, RenderWorker};
 use anyhow::{anyhow, Result};
@@ -109,7 +109,20 @@ struct SliceState {
     window: f64,
     level: f64,
     images: Vec<(SliceImage, egui::TextureHandle)>,
+    /// Each slice's colours as shown (the grey, fused with the overlay).
+    shown: Vec<Vec<[u8; 3]>>,
+    overlay: Option<OverlayState>,
     dirty: bool,
+}
+
+/// A second volume fused over the slices.
+struct OverlayState {
+    node: usize,
+    source: SliceSource,
+    window: f64,
+    level: f64,
+    colormap: volterra::render::colormap::Colormap,
+    opacity: f64,
 }
 
 pub struct Viewer {
@@ -345,6 +358,14 @@ impl Viewer {
     /// The cross-hair of the slice views (world RAS+ mm), once they are shown.
     pub fn slice_cross(&self) -> Option<DVec3> {
         self.slices.as_ref().map(|s| s.cross)
+    }
+
+    /// The colours a slice view shows (sRGB; `plane`: 0 axial, 1 coronal, 2 sagittal), with
+    /// its size.
+    pub fn slice_colours(&self, plane: usize) -> Option<(usize, usize, &[[u8; 3]])> {
+        let s = self.slices.as_ref()?;
+        let (img, _) = s.images.get(plane)?;
+        Some((img.width, img.height, s.shown.get(plane)?.as_slice()))
     }
 
     /// The slice views' window and level.
@@ -1189,7 +1210,17 @@ impl Viewer {
                     (b - a, 0.5 * (a + b))
                 })
                 .unwrap_or((1.0, 0.5));
-            self.slices = Some(SliceState { node: i, cross: source.centre(), source, window, level, images: vec![], dirty: true });
+            self.slices = Some(SliceState {
+                node: i,
+                cross: source.centre(),
+                source,
+                window,
+                level,
+                images: vec![],
+                shown: vec![],
+                overlay: None,
+                dirty: true,
+            });
         }
         // The CT presets apply to values in Hounsfield units: a CT (the node's modality, else
         // the file's) or values the file says are HU.
@@ -1220,16 +1251,117 @@ impl Viewer {
             let lbl = ui.label("Level");
             s.dirty |= ui.add(egui::DragValue::new(&mut s.level).speed(speed)).labelled_by(lbl.id).changed();
         });
+        // Fusion: another volume node over these slices, through a colour map.
+        let others: Vec<(usize, String)> = doc
+            .scene
+            .nodes()
+            .iter()
+            .enumerate()
+            .filter(|(j, n)| *j != i && n.kind == NodeKind::Volume)
+            .map(|(j, n)| (j, n.name.clone()))
+            .collect();
+        if !others.is_empty() {
+            let current =
+                s.overlay.as_ref().and_then(|o| others.iter().find(|(j, _)| *j == o.node)).map_or("None".to_string(), |(_, n)| n.clone());
+            let mut pick: Option<Option<usize>> = None;
+            egui::ComboBox::from_label("Overlay").selected_text(&current).show_ui(ui, |ui| {
+                if ui.selectable_label(s.overlay.is_none(), "None").clicked() {
+                    pick = Some(None);
+                }
+                for (j, name) in &others {
+                    if ui.selectable_label(current == *name, name).clicked() {
+                        pick = Some(Some(*j));
+                    }
+                }
+            });
+            match pick {
+                Some(None) => {
+                    s.overlay = None;
+                    s.dirty = true;
+                }
+                Some(Some(j)) => {
+                    if let Ok(v) = doc.scene.volume(j) {
+                        // The window from the overlay's own values (0.5 % to 99.9 %).
+                        let (lo, hi) =
+                            doc.scene.value_stats(j).map(|st| (st.percentile(0.005), st.percentile(0.999))).unwrap_or((0.0, 1.0));
+                        let (lo, hi) = if hi > lo { (lo, hi) } else { (lo, lo + 1.0) };
+                        s.overlay = Some(OverlayState {
+                            node: j,
+                            source: SliceSource::new(v, doc.scene.world_transform(j)),
+                            window: hi - lo,
+                            level: 0.5 * (lo + hi),
+                            colormap: volterra::render::colormap::Colormap::Hot,
+                            opacity: 0.5,
+                        });
+                        s.dirty = true;
+                    }
+                }
+                None => {}
+            }
+        }
+        if let Some(o) = s.overlay.as_mut() {
+            use volterra::render::colormap::Colormap;
+            egui::ComboBox::from_label("Overlay colours").selected_text(o.colormap.name()).show_ui(ui, |ui| {
+                for &c in Colormap::ALL {
+                    if ui.selectable_label(o.colormap == c, c.name()).clicked() && o.colormap != c {
+                        o.colormap = c;
+                        s.dirty = true;
+                    }
+                }
+            });
+            ui.horizontal(|ui| {
+                let lbl = ui.label("Overlay opacity");
+                s.dirty |= ui.add(egui::Slider::new(&mut o.opacity, 0.0..=1.0)).labelled_by(lbl.id).changed();
+            });
+            ui.horizontal(|ui| {
+                let speed = o.window.abs() * 0.01 + 1e-6;
+                let lbl = ui.label("Overlay window");
+                s.dirty |= ui.add(egui::DragValue::new(&mut o.window).speed(speed).range(1e-9..=f64::MAX)).labelled_by(lbl.id).changed();
+                let lbl = ui.label("level");
+                s.dirty |= ui.add(egui::DragValue::new(&mut o.level).speed(speed)).labelled_by(lbl.id).changed();
+            });
+            // The scalar bar: the map from the window's bottom to its top, with the values.
+            let (rect, _) = ui.allocate_exact_size(Vec2::new(ui.available_width().min(240.0), 12.0), Sense::hover());
+            let painter = ui.painter_at(rect);
+            let steps = 64;
+            for k in 0..steps {
+                let c = o.colormap.at((k as f64 + 0.5) / steps as f64);
+                let enc = |c: f32| (255.0 * if c <= 0.0031308 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 }) as u8;
+                let x0 = rect.left() + rect.width() * k as f32 / steps as f32;
+                let x1 = rect.left() + rect.width() * (k + 1) as f32 / steps as f32;
+                painter.rect_filled(
+                    Rect::from_min_max(Pos2::new(x0, rect.top()), Pos2::new(x1, rect.bottom())),
+                    0.0,
+                    Color32::from_rgb(enc(c[0]), enc(c[1]), enc(c[2])),
+                );
+            }
+            ui.horizontal(|ui| {
+                ui.label(format!("{:.4}", o.level - 0.5 * o.window));
+                ui.add_space((rect.width() - 120.0).max(0.0));
+                ui.label(format!("{:.4}", o.level + 0.5 * o.window));
+            });
+        }
         if s.dirty {
+            let overlay = s.overlay.as_ref().map(|o| Overlay {
+                source: &o.source,
+                window: o.window,
+                level: o.level,
+                colormap: o.colormap,
+                opacity: o.opacity,
+            });
+            s.shown.clear();
             s.images = Plane::ALL
                 .iter()
                 .map(|&p| {
                     let img = s.source.slice(p, s.cross, s.window, s.level);
+                    let rgb = super::slices::fused(&img, overlay.as_ref());
+                    let flat: Vec<u8> = rgb.iter().flatten().copied().collect();
                     let tex = ui.ctx().load_texture(
                         format!("slice-{}", p.label()),
-                        egui::ColorImage::from_gray([img.width, img.height], &img.grey),
+                        egui::ColorImage::from_rgb([img.width, img.height], &flat),
                         egui::TextureOptions::LINEAR,
                     );
+                    s.shown.push(rgb);
                     (img, tex)
                 })
                 .collect();

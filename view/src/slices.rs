@@ -145,6 +145,41 @@ impl SliceSource {
     }
 }
 
+/// A secondary volume fused over the slices (PET over CT, say): its values through a colour
+/// map between `level − window/2` (transparent below) and `level + window/2`, blended over
+/// the primary's grey at `opacity`.
+pub struct Overlay<'a> {
+    pub source: &'a SliceSource,
+    pub window: f64,
+    pub level: f64,
+    pub colormap: volterra::render::colormap::Colormap,
+    pub opacity: f64,
+}
+
+/// The colours of `img` (sRGB, opaque): its grey, with `overlay` blended over it where the
+/// secondary volume covers a pixel and its value lies above the window's lower end.
+pub fn fused(img: &SliceImage, overlay: Option<&Overlay>) -> Vec<[u8; 3]> {
+    let mut out: Vec<[u8; 3]> = img.grey.iter().map(|&g| [g; 3]).collect();
+    let Some(o) = overlay else { return out };
+    let lo = o.level - 0.5 * o.window;
+    let encode = |c: f32| (255.0 * if c <= 0.0031308 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 }).round().clamp(0.0, 255.0);
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let Some(v) = o.source.value_at(img.world_at(x as f64 + 0.5, y as f64 + 0.5)) else { continue };
+            let t = (v - lo) / o.window.max(1e-12);
+            if t <= 0.0 {
+                continue;
+            }
+            let c = o.colormap.at(t.min(1.0));
+            let p = &mut out[y * img.width + x];
+            for k in 0..3 {
+                p[k] = (p[k] as f64 * (1.0 - o.opacity) + encode(c[k]) as f64 * o.opacity).round() as u8;
+            }
+        }
+    }
+    out
+}
+
 /// Window/level presets for CT in Hounsfield units, as common PACS viewers name and set
 /// them (Radiopaedia's "Windowing (CT)" values): (name, window, level).
 pub const CT_WINDOWS: &[(&str, f64, f64)] = &[
@@ -174,6 +209,36 @@ mod tests {
             }
         }
         Arc::new(Volume::new([4, 3, 2], identity_affine(), VoxelData::I16(v)))
+    }
+
+    /// The overlay: transparent below its window, the colour map's top above it, blended
+    /// at the opacity; the grey alone where the secondary volume does not reach.
+    #[test]
+    fn overlay_blends_the_colour_map_over_the_grey() {
+        use volterra::render::colormap::Colormap;
+        let primary = SliceSource::new(ramp(), DMat4::IDENTITY);
+        let img = primary.slice(Plane::Axial, DVec3::new(0.0, 0.0, 0.0), 256.0, 128.0);
+        // A secondary covering x ≤ 2 only, values 0 (x = 0), 50, 100 along x.
+        let sec: Vec<f32> = (0..2 * 3 * 3).map(|n| (n % 3) as f32 * 50.0).collect();
+        let secondary = SliceSource::new(Arc::new(Volume::new([3, 3, 2], identity_affine(), VoxelData::F32(sec))), DMat4::IDENTITY);
+        let o = Overlay { source: &secondary, window: 50.0, level: 25.0, colormap: Colormap::Hot, opacity: 0.5 };
+        let out = fused(&img, Some(&o));
+        let at = |x: f64| {
+            // Pixel of world x on the top row (screen left is world +x).
+            let (u, _) = img.pixel_of(DVec3::new(x, 2.0, 0.0));
+            out[u as usize]
+        };
+        let grey = |x: f64| {
+            let (u, _) = img.pixel_of(DVec3::new(x, 2.0, 0.0));
+            img.grey[u as usize]
+        };
+        assert_eq!(at(0.0), [grey(0.0); 3], "value 0 is at the window's bottom: transparent");
+        assert_eq!(at(3.0), [grey(3.0); 3], "outside the secondary: grey");
+        // Value 100 is above the window: hot's top (white) at half opacity over the grey.
+        let g = grey(2.0) as f64;
+        assert_eq!(at(2.0), [((g + 255.0) / 2.0).round() as u8; 3]);
+        // Value 50 is the window's top too; 25 would be the middle.
+        assert_eq!(at(1.0), [((grey(1.0) as f64 + 255.0) / 2.0).round() as u8; 3]);
     }
 
     #[test]

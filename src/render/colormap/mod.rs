@@ -14,6 +14,10 @@ crate::setting_choice! {
         Coolwarm = "coolwarm",
         /// Black to white (even in sRGB).
         Grey = "grey",
+        /// matplotlib's hot (black, red, yellow, white): the usual PET overlay.
+        Hot = "hot",
+        /// matplotlib's rainbow (purple, blue, green, yellow, red), as PET-Rainbow overlays.
+        Rainbow = "rainbow",
     }
 }
 
@@ -34,6 +38,8 @@ impl Colormap {
             Colormap::Viridis => &tables::VIRIDIS,
             Colormap::Magma => &tables::MAGMA,
             Colormap::Coolwarm => &tables::COOLWARM,
+            Colormap::Hot => &tables::HOT,
+            Colormap::Rainbow => &tables::RAINBOW,
             Colormap::Grey => return [srgb_to_linear(t); 3],
         };
         let x = t * (table.len() - 1) as f32;
