@@ -112,7 +112,21 @@ struct SliceState {
     /// Each slice's colours as shown (the grey, fused with the overlay).
     shown: Vec<Vec<[u8; 3]>>,
     overlay: Option<OverlayState>,
+    /// Clicks on a slice place a ruler's ends instead of moving the cross-hair.
+    measuring: bool,
+    ruler: Option<Ruler>,
+    /// Where each slice was drawn last frame.
+    rects: Vec<Rect>,
     dirty: bool,
+}
+
+/// A distance measured on one slice: its plane (index into `Plane::ALL`) and its ends in
+/// world millimetres (the second once placed).
+#[derive(Debug, Clone, Copy)]
+struct Ruler {
+    plane: usize,
+    a: DVec3,
+    b: Option<DVec3>,
 }
 
 /// A second volume fused over the slices.
@@ -366,6 +380,22 @@ impl Viewer {
         let s = self.slices.as_ref()?;
         let (img, _) = s.images.get(plane)?;
         Some((img.width, img.height, s.shown.get(plane)?.as_slice()))
+    }
+
+    /// The distance the slice views' ruler measures, in millimetres (once both ends are placed).
+    pub fn measured_mm(&self) -> Option<f64> {
+        let r = self.slices.as_ref()?.ruler?;
+        Some((r.b? - r.a).length())
+    }
+
+    /// Where slice view `plane` (0 axial, 1 coronal, 2 sagittal) was drawn, and the world
+    /// point under a window position in it.
+    pub fn slice_point(&self, plane: usize, pos: Pos2) -> Option<(Rect, DVec3)> {
+        let s = self.slices.as_ref()?;
+        let (r, (img, _)) = (s.rects.get(plane)?, s.images.get(plane)?);
+        let u = (pos.x - r.left()) / r.width() * img.width as f32;
+        let v = (pos.y - r.top()) / r.height() * img.height as f32;
+        Some((*r, img.world_at(u as f64, v as f64)))
     }
 
     /// The slice views' window and level.
@@ -1219,6 +1249,9 @@ impl Viewer {
                 images: vec![],
                 shown: vec![],
                 overlay: None,
+                measuring: false,
+                ruler: None,
+                rects: vec![],
                 dirty: true,
             });
         }
@@ -1367,8 +1400,10 @@ impl Viewer {
                 .collect();
             s.dirty = false;
         }
+        ui.checkbox(&mut s.measuring, "Measure distance").on_hover_text("Click two points on a slice: their distance in millimetres");
         let width = ui.available_width();
         let mut new_cross = None;
+        s.rects.clear();
         for (k, plane) in Plane::ALL.iter().enumerate() {
             let (img, tex) = &s.images[k];
             ui.label(format!(
@@ -1384,10 +1419,14 @@ impl Viewer {
             let size = Vec2::new(width, (width * aspect).min(width * 1.5));
             let (resp, painter) = ui.allocate_painter(size, Sense::click_and_drag());
             let r = resp.rect;
+            s.rects.push(r);
             painter.image(tex.id(), r, Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)), Color32::WHITE);
+            let on_screen = |p: DVec3| {
+                let (u, v) = img.pixel_of(p);
+                Pos2::new(r.left() + (u as f32 / img.width as f32) * r.width(), r.top() + (v as f32 / img.height as f32) * r.height())
+            };
             // Cross-hair.
-            let (u, v) = img.pixel_of(s.cross);
-            let p = Pos2::new(r.left() + (u as f32 / img.width as f32) * r.width(), r.top() + (v as f32 / img.height as f32) * r.height());
+            let p = on_screen(s.cross);
             let stroke = egui::Stroke::new(1.0, Color32::from_rgb(255, 210, 0));
             painter.line_segment([Pos2::new(r.left(), p.y), Pos2::new(r.right(), p.y)], stroke);
             painter.line_segment([Pos2::new(p.x, r.top()), Pos2::new(p.x, r.bottom())], stroke);
@@ -1398,10 +1437,31 @@ impl Viewer {
             painter.text(Pos2::new(r.right() - 4.0, r.center().y), egui::Align2::RIGHT_CENTER, rt, font.clone(), c);
             painter.text(Pos2::new(r.center().x, r.top() + 2.0), egui::Align2::CENTER_TOP, t, font.clone(), c);
             painter.text(Pos2::new(r.center().x, r.bottom() - 2.0), egui::Align2::CENTER_BOTTOM, b, font, c);
-            if let Some(pos) = resp.interact_pointer_pos().filter(|_| resp.clicked() || resp.dragged()) {
+            // The ruler: a line between its ends and the distance in millimetres.
+            if let Some(ruler) = s.ruler.filter(|ru| ru.plane == k) {
+                let orange = Color32::from_rgb(255, 120, 40);
+                let a = on_screen(ruler.a);
+                painter.circle_filled(a, 3.0, orange);
+                if let Some(b) = ruler.b {
+                    let b2 = on_screen(b);
+                    painter.line_segment([a, b2], egui::Stroke::new(2.0, orange));
+                    painter.circle_filled(b2, 3.0, orange);
+                    let label = format!("{:.1} mm", (b - ruler.a).length());
+                    painter.text(b2 + Vec2::new(6.0, -6.0), egui::Align2::LEFT_BOTTOM, label, egui::FontId::proportional(14.0), orange);
+                }
+            }
+            if let Some(pos) = resp.interact_pointer_pos().filter(|_| resp.clicked() || (resp.dragged() && !s.measuring)) {
                 let u = (pos.x - r.left()) / r.width() * img.width as f32;
                 let v = (pos.y - r.top()) / r.height() * img.height as f32;
-                new_cross = Some(img.world_at(u as f64, v as f64));
+                let world = img.world_at(u as f64, v as f64);
+                if s.measuring {
+                    s.ruler = match s.ruler {
+                        Some(ru) if ru.plane == k && ru.b.is_none() => Some(Ruler { b: Some(world), ..ru }),
+                        _ => Some(Ruler { plane: k, a: world, b: None }),
+                    };
+                } else {
+                    new_cross = Some(world);
+                }
             }
         }
         if let Some(c) = new_cross {
