@@ -123,20 +123,25 @@ impl<'a> Placed<'a> {
         })
     }
 
-    /// The ray's parameter interval inside this volume's drawn region (world and index
-    /// space share the parameter: the map between them is affine).
-    fn interval(&self, origin: DVec3, dir: DVec3) -> Option<(f64, f64)> {
-        let (o, d) = (self.world_to_index.transform_point3(origin), self.world_to_index.transform_vector3(dir));
+    /// A world ray in this volume's index space (world and index space share the ray's
+    /// parameter: the map between them is affine), once per ray, not per sample.
+    fn index_ray(&self, origin: DVec3, dir: DVec3) -> (DVec3, DVec3) {
+        (self.world_to_index.transform_point3(origin), self.world_to_index.transform_vector3(dir))
+    }
+
+    /// The index-space ray's parameter interval inside this volume's drawn region.
+    fn interval(&self, (o, d): (DVec3, DVec3)) -> Option<(f64, f64)> {
         crate::render::geometry::clip_box(o, d, self.lo, self.hi)
             .and_then(|t| crate::scene::crop::clip_interval(o, d, t, &self.crop))
             .filter(|(a, b)| a < b)
     }
 
-    /// Value, opacity for a segment of length `len` and colour at parameter t.
-    fn classify(&self, origin: DVec3, dir: DVec3, t: f64, len: f64) -> (f64, f64, [f64; 3]) {
+    /// Value, opacity for a segment of length `len` and colour at parameter t of the world
+    /// ray (origin, dir), whose index-space form is `(o, d)`.
+    fn classify(&self, (o, d): (DVec3, DVec3), origin: DVec3, dir: DVec3, t: f64, len: f64) -> (f64, f64, [f64; 3]) {
         use super::volume_shading::gradient;
         let tf = self.input.tf;
-        let p = self.world_to_index.transform_point3(origin + dir * t);
+        let p = o + d * t;
         let v = self.field.sample(p);
         // The gradient, where the gradient opacity or shading reads it.
         let mut g = None;
@@ -178,12 +183,14 @@ pub fn render_fused(inputs: &[VolumeInput], rays: &RayGenerator, settings: &Sett
             let mut n = 0u64;
             let mut cuts: Vec<f64> = Vec::with_capacity(2 * placed.len());
             let mut spans: Vec<Option<(f64, f64)>> = vec![None; placed.len()];
+            let mut index_rays: Vec<(DVec3, DVec3)> = vec![(DVec3::ZERO, DVec3::ZERO); placed.len()];
             let mut active: Vec<usize> = Vec::with_capacity(placed.len());
             for x in 0..width {
                 let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
                 cuts.clear();
                 for (k, p) in placed.iter().enumerate() {
-                    spans[k] = p.interval(ray.origin, ray.dir);
+                    index_rays[k] = p.index_ray(ray.origin, ray.dir);
+                    spans[k] = p.interval(index_rays[k]);
                     if let Some((a, b)) = spans[k] {
                         cuts.extend([a, b]);
                     }
@@ -211,7 +218,8 @@ pub fn render_fused(inputs: &[VolumeInput], rays: &RayGenerator, settings: &Sett
                         let t = ta + 0.5 * len;
                         n += 1;
                         if mip {
-                            let v = placed[0].field.sample(placed[0].world_to_index.transform_point3(ray.origin + ray.dir * t));
+                            let (o, d) = index_rays[0];
+                            let v = placed[0].field.sample(o + d * t);
                             if v > max_v {
                                 max_v = v;
                                 max_t = t;
@@ -219,10 +227,10 @@ pub fn render_fused(inputs: &[VolumeInput], rays: &RayGenerator, settings: &Sett
                             continue;
                         }
                         let (alpha, col) = if let [k] = active[..] {
-                            let (_, alpha, col) = placed[k].classify(ray.origin, ray.dir, t, len);
+                            let (_, alpha, col) = placed[k].classify(index_rays[k], ray.origin, ray.dir, t, len);
                             (alpha, col)
                         } else {
-                            fuse(active.iter().map(|&k| placed[k].classify(ray.origin, ray.dir, t, len)))
+                            fuse(active.iter().map(|&k| placed[k].classify(index_rays[k], ray.origin, ray.dir, t, len)))
                         };
                         if alpha > 0.0 {
                             let w = (1.0 - a) * alpha;

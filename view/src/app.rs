@@ -9,7 +9,7 @@
 use super::files::{start_dir, FileDialog};
 use super::navigate::{self, AxisView};
 use super::slices::{Overlay, Plane, SliceImage, SliceSource};
-use super::transfer_editor::TfEditor;
+use super::transfer_editor::{srgb, TfEditor};
 use super::worker::{Done, Job, Quality, RenderWorker};
 use anyhow::{anyhow, Result};
 use egui::{Color32, Pos2, Rect, Sense, Vec2};
@@ -1358,14 +1358,13 @@ impl Viewer {
             let painter = ui.painter_at(rect);
             let steps = 64;
             for k in 0..steps {
-                let c = o.colormap.at((k as f64 + 0.5) / steps as f64);
-                let enc = |c: f32| (255.0 * if c <= 0.0031308 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 }) as u8;
+                let c = o.colormap.at((k as f64 + 0.5) / steps as f64).map(f64::from);
                 let x0 = rect.left() + rect.width() * k as f32 / steps as f32;
                 let x1 = rect.left() + rect.width() * (k + 1) as f32 / steps as f32;
                 painter.rect_filled(
                     Rect::from_min_max(Pos2::new(x0, rect.top()), Pos2::new(x1, rect.bottom())),
                     0.0,
-                    Color32::from_rgb(enc(c[0]), enc(c[1]), enc(c[2])),
+                    Color32::from_rgb(srgb(c[0]), srgb(c[1]), srgb(c[2])),
                 );
             }
             ui.horizontal(|ui| {

@@ -162,7 +162,6 @@ pub fn fused(img: &SliceImage, overlay: Option<&Overlay>) -> Vec<[u8; 3]> {
     let mut out: Vec<[u8; 3]> = img.grey.iter().map(|&g| [g; 3]).collect();
     let Some(o) = overlay else { return out };
     let lo = o.level - 0.5 * o.window;
-    let encode = |c: f32| (255.0 * if c <= 0.0031308 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 }).round().clamp(0.0, 255.0);
     for y in 0..img.height {
         for x in 0..img.width {
             let Some(v) = o.source.value_at(img.world_at(x as f64 + 0.5, y as f64 + 0.5)) else { continue };
@@ -173,7 +172,7 @@ pub fn fused(img: &SliceImage, overlay: Option<&Overlay>) -> Vec<[u8; 3]> {
             let c = o.colormap.at(t.min(1.0));
             let p = &mut out[y * img.width + x];
             for k in 0..3 {
-                p[k] = (p[k] as f64 * (1.0 - o.opacity) + encode(c[k]) as f64 * o.opacity).round() as u8;
+                p[k] = (p[k] as f64 * (1.0 - o.opacity) + crate::transfer_editor::srgb(c[k] as f64) as f64 * o.opacity).round() as u8;
             }
         }
     }

@@ -25,7 +25,8 @@ pub struct TfEditor {
 
 const HANDLE_PX: f32 = 7.0;
 
-fn srgb(c: f64) -> u8 {
+/// A linear colour component as an 8-bit sRGB value (clamped to [0, 1], rounded).
+pub(crate) fn srgb(c: f64) -> u8 {
     (volterra_formats::image::linear_to_srgb(c.clamp(0.0, 1.0) as f32) * 255.0).round() as u8
 }
 
