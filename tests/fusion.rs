@@ -265,7 +265,7 @@ fn scenes_fuse_overlapping_volume_nodes_by_themselves() {
     let pair = render_fused(&[input(&scene.volume(0).unwrap(), &ta), input(&scene.volume(1).unwrap(), &tb)], &rays, &s).unwrap();
     let tf_far = scene.transfer_function(2).unwrap();
     let lone = reference_volume::render(&input(&scene.volume(2).unwrap(), &tf_far), &rays, &s).unwrap();
-    let by_hand = Frame::composite(48, 40, &[lone, pair]);
+    let by_hand = Frame::composite(48, 40, &[lone, pair.clone()]);
     assert_eq!(frame.rgba, by_hand.rgba);
     // Shear-warp nodes that overlap are fused too, by the reference at its preview step,
     // which the frame says.
@@ -275,4 +275,34 @@ fn scenes_fuse_overlapping_volume_nodes_by_themselves() {
     // MIP volumes stay layers.
     let scene = load(format!("{head}{}{}", node_with("a", "reference", "blend = \"mip\"\n"), node("b", "reference")));
     assert!(volterra::render::fusion_groups(&scene).unwrap().is_empty());
+
+    // opacity_scale fades one volume of the pair: s = 0.5 draws as if its opacity 0.1 per
+    // unit distance were 1 − 0.9^0.5 (points written out here, not the unit distance the
+    // scene divides), s = 0 as if it were not there.
+    let faded = |scale: f64| {
+        let scene = load(format!("{head}{}{}", node_with("a", "reference", &format!("opacity_scale = {scale}\n")), node("b", "reference")));
+        volterra::render::render_scene(&scene, None).unwrap()
+    };
+    let a_alpha = 1.0 - 0.9f64.sqrt();
+    let ta_half = TransferFunction {
+        scalar_opacity: vec![[0.0, 0.0], [0.5, 0.0], [0.5000001, a_alpha], [2.0, a_alpha]],
+        ..scene.transfer_function(0).unwrap()
+    };
+    let (va, vb) = (scene.volume(0).unwrap(), scene.volume(1).unwrap());
+    let want = render_fused(&[input(&va, &ta_half), input(&vb, &tb)], &rays, &s).unwrap();
+    let got = faded(0.5);
+    let diff = got.rgba.iter().zip(&want.rgba).map(|(p, q)| (0..4).map(|k| (p[k] - q[k]).abs()).fold(0.0f32, f32::max)).fold(0.0, f32::max);
+    let unfaded = pair.rgba.iter().zip(&want.rgba).map(|(p, q)| (p[3] - q[3]).abs()).fold(0.0f32, f32::max);
+    eprintln!("opacity_scale 0.5 vs faded points: {diff:e} (the unfaded pair differs by {unfaded})");
+    assert!(diff < 1e-5, "opacity_scale 0.5 differs from the faded transfer function by {diff}");
+    assert!(unfaded > 0.02, "the fading is visible: {unfaded}");
+    let b_alone = reference_volume::render(&input(&vb, &tb), &rays, &s).unwrap();
+    let gone = faded(0.0);
+    let diff =
+        gone.rgba.iter().zip(&b_alone.rgba).map(|(p, q)| (0..4).map(|k| (p[k] - q[k]).abs()).fold(0.0f32, f32::max)).fold(0.0, f32::max);
+    assert!(diff < 1e-5, "opacity_scale 0 leaves b alone: {diff}");
+    // A scale on a node that is not a volume, or out of range, is refused at load.
+    std::fs::write(dir.path().join("s.toml"), format!("{head}{}", node_with("a", "reference", "opacity_scale = -1.0\n"))).unwrap();
+    let err = volterra::scene::Scene::load(&dir.path().join("s.toml"), &[]).err().unwrap().to_string();
+    assert!(err.contains("opacity_scale -1 must be between 0 and 1000"), "{err}");
 }

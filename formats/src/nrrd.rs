@@ -21,6 +21,8 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 const MAX_HEADER: u64 = 1 << 20;
+/// The most data files a `printf` pattern may name.
+const MAX_DATA_FILES: usize = 1 << 16;
 
 struct Header {
     fields: Vec<(String, String)>,
@@ -235,9 +237,15 @@ pub fn read_nrrd(path: &Path, limits: &Limits) -> Result<Volume> {
             if line_skip > 0 {
                 let mut r = std::io::BufReader::new(open_data(path, f)?);
                 std::io::Seek::seek(&mut r, std::io::SeekFrom::Start(from)).map_err(|e| data_error(path, f, e))?;
-                for _ in 0..line_skip {
-                    let mut line = Vec::new();
-                    at += std::io::BufRead::read_until(&mut r, b'\n', &mut line).map_err(|e| data_error(path, f, e))? as u64;
+                let mut line = Vec::new();
+                for k in 0..line_skip {
+                    line.clear();
+                    let read = std::io::BufRead::read_until(&mut r, b'\n', &mut line).map_err(|e| data_error(path, f, e))?;
+                    if read == 0 {
+                        // A lying count must not spin at the end of the file.
+                        return Err(FormatError::invalid(path, format!("line skip {line_skip}: the data ends after {k} lines")));
+                    }
+                    at += read as u64;
                 }
             }
             Ok(at)
@@ -317,11 +325,14 @@ fn data_files(path: &Path, h: &Header, dir: &Path, slices: usize) -> Result<Vec<
         let num =
             |w: &str| w.parse::<i64>().map_err(|_| FormatError::invalid(path, format!("data file '{spec}': '{w}' is not an integer")));
         let (lo, hi, step) = (num(words[1])?, num(words[2])?, num(words[3])?);
-        if step == 0 || (hi - lo) / step < 0 {
+        let span = hi.checked_sub(lo).and_then(|d| d.checked_div(step)).filter(|&s| s >= 0 && step != 0);
+        let Some(span) = span else {
             return Err(FormatError::invalid(path, format!("data file '{spec}': min, max and step do not make a range")));
-        }
-        let count = ((hi - lo) / step + 1) as usize;
-        if count > slices.max(1) {
+        };
+        let count = usize::try_from(span).unwrap_or(usize::MAX).saturating_add(1);
+        // One file per slice at most, and no more files than a real series would split into
+        // (the list is built before the first file is opened).
+        if count > slices.max(1) || count > MAX_DATA_FILES {
             return Err(FormatError::invalid(path, format!("data file '{spec}' names {count} files for {slices} slices")));
         }
         return (0..count).map(|k| Ok((dir.join(printf_int(path, words[0], lo + k as i64 * step)?), false))).collect();

@@ -87,7 +87,11 @@ impl<'a> Cursor<'a> {
             self.pos = self.pos.saturating_add(count.saturating_mul(size));
             return Ok(());
         }
+        // Stops at the end of the data: a lying count must not spin past it.
         for _ in 0..count {
+            if self.pos >= self.b.len() {
+                break;
+            }
             while self.pos < self.b.len() && self.b[self.pos].is_ascii_whitespace() {
                 self.pos += 1;
             }

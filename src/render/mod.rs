@@ -138,7 +138,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     let t = Instant::now();
     let mut frame = match (settings, data) {
         (NodeSettings::Reference(s), NodeData::Volume(vol)) => {
-            let (tf, shading, crop) = (scene.transfer_function(node)?, scene.shading(node), scene.crop_region(node));
+            let (tf, shading, crop) = (scene.classification(node)?, scene.shading(node), scene.crop_region(node));
             let input = reference_volume::VolumeInput {
                 volume: &vol,
                 node_to_world,
@@ -152,7 +152,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         }
         (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
             let prepared = timed(&mut prepare, || cache.shear_warp(&vol, scene.limits()))?;
-            let (tf, shading, crop) = (scene.transfer_function(node)?, scene.shading(node), scene.crop_region(node));
+            let (tf, shading, crop) = (scene.classification(node)?, scene.shading(node), scene.crop_region(node));
             let input = shear_warp::Input {
                 prepared: &prepared,
                 node_to_world,
@@ -293,7 +293,7 @@ pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size:
     let t = Instant::now();
     let mut owned = Vec::with_capacity(nodes.len());
     for &i in nodes {
-        owned.push((scene.volume(i)?, scene.transfer_function(i)?, scene.shading(i), scene.crop_region(i), scene.world_transform(i)));
+        owned.push((scene.volume(i)?, scene.classification(i)?, scene.shading(i), scene.crop_region(i), scene.world_transform(i)));
     }
     let load = t.elapsed().as_secs_f64();
     let inputs: Vec<reference_volume::VolumeInput> = owned

@@ -42,6 +42,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         crop: None,
         clip: Vec::new(),
         blend: Default::default(),
+        opacity_scale: 1.0,
         png: None,
         texture: None,
         arrays: None,

@@ -160,6 +160,12 @@ pub struct NodeDesc {
     pub clip: Vec<ClipPlane>,
     #[serde(default)]
     pub blend: BlendMode,
+    /// Scales a volume's extinction: the transfer function's opacity a per unit distance
+    /// becomes 1 − (1 − a)^s (its unit distance divided by s), so one volume of a fused
+    /// pair fades (s < 1) or thickens (s > 1) without editing its points; 0 hides it,
+    /// opacity 1 stays 1. Colour and MIP are unchanged.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub opacity_scale: f64,
     // --- heightfields
     pub png: Option<PngHeightOptions>,
     /// Colour texture draped over the terrain, relative to the scene file.
@@ -179,6 +185,14 @@ fn yes() -> bool {
 
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
 }
 
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
@@ -496,6 +510,12 @@ impl Scene {
                 if n.transfer_function.is_some() {
                     bail!("{src}: node '{}': give a transfer_function or a preset, not both", n.name);
                 }
+            }
+            if n.opacity_scale != 1.0 && n.kind != NodeKind::Volume {
+                bail!("{src}: node '{}': opacity_scale applies to volume nodes only", n.name);
+            }
+            if !(n.opacity_scale.is_finite() && (0.0..=1000.0).contains(&n.opacity_scale)) {
+                bail!("{src}: node '{}': opacity_scale {} must be between 0 and 1000", n.name, n.opacity_scale);
             }
             if !n.preset_shift.is_finite() {
                 bail!("{src}: node '{}': preset_shift must be finite", n.name);
@@ -886,6 +906,18 @@ impl Scene {
         let NodeData::Volume(v) = self.data(node)? else { bail!("node '{}' is not a volume", n.name) };
         let unit = v.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
         Ok(preset.shifted(&*self.value_stats(node)?, unit, n.preset_shift))
+    }
+
+    /// The transfer function volume node `node` is drawn with: `transfer_function`'s,
+    /// its extinction scaled by the node's `opacity_scale`.
+    pub fn classification(&self, node: usize) -> Result<TransferFunction> {
+        let mut tf = self.transfer_function(node)?;
+        let s = self.file.nodes[node].opacity_scale;
+        if s != 1.0 {
+            // s = 0: an unreachable unit distance, every segment's opacity 0.
+            tf.scalar_opacity_unit_distance = if s > 0.0 { tf.scalar_opacity_unit_distance / s } else { f64::MAX };
+        }
+        Ok(tf)
     }
 
     /// The region volume node `node` keeps (its crop box and clipping planes) as

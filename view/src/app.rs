@@ -976,6 +976,17 @@ impl Viewer {
         if ui.checkbox(&mut mip, "Maximum intensity projection").changed() {
             self.edit(false, |f| f.nodes[i].blend = if mip { BlendMode::Mip } else { BlendMode::Composite });
         }
+        ui.add_enabled_ui(!mip, |ui| {
+            ui.horizontal(|ui| {
+                // Fades one volume of a fused pair (its extinction scaled; saved as opacity_scale).
+                let mut scale = n.opacity_scale;
+                let lbl = ui.label("Opacity scale");
+                let r = ui.add(egui::Slider::new(&mut scale, 0.0..=10.0).logarithmic(true)).labelled_by(lbl.id);
+                if r.changed() {
+                    self.edit(r.dragged(), |f| f.nodes[i].opacity_scale = scale);
+                }
+            });
+        });
         self.setting_controls(ui, i, renderer, &n.settings);
         ui.checkbox(&mut self.show_slices, "Slice views");
         ui.separator();
