@@ -806,43 +806,108 @@ fn a_pet_overlay_is_fused_over_the_ct_slices() {
     assert_eq!(coloured(&h), 0, "opacity 0: the grey alone");
 }
 
-/// Distance measurement in a slice view: with "Measure distance" on, two clicks on the
-/// axial slice place a ruler whose length is the distance between the two world points,
-/// in millimetres (checked against the slice's own pixel size); the cross-hair stays.
+/// Clicks at `p` (press and release, hovering first).
+fn click_at(h: &mut Harness<'_, Viewer>, p: egui::Pos2) {
+    h.hover_at(p);
+    h.run_steps(1);
+    for pressed in [true, false] {
+        h.event(egui::Event::PointerButton { pos: p, button: egui::PointerButton::Primary, pressed, modifiers: egui::Modifiers::NONE });
+        h.run_steps(1);
+    }
+}
+
+/// Chooses `tool` in the slice views' "Slice tool" menu.
+fn choose_slice_tool(h: &mut Harness<'_, Viewer>, tool: &str) {
+    h.get_by_label("Slice tool").scroll_to_me();
+    h.run_steps(2);
+    h.get_by_label("Slice tool").click();
+    h.run_steps(2);
+    h.get_by_label(tool).click();
+    h.run_steps(2);
+}
+
+/// Measurements in the slice views, in world millimetres: a distance (two clicks), an angle
+/// (three) and an elliptical ROI (two corners) on the axial slice. Each is checked against
+/// the world points under the clicks and, independently, against the click offsets times
+/// the slice's millimetres per screen point; the ROI over a volume whose value is the world
+/// x coordinate has that ramp's moments (mean at its centre, SD a/2). The cross-hair stays;
+/// the measurements are saved with the scene, reopen with it, and the CLI still renders it.
 #[test]
-fn a_distance_is_measured_on_a_slice_in_millimetres() {
+fn distances_angles_and_rois_are_measured_on_a_slice_and_saved() {
     let dir = tempfile::tempdir().unwrap();
-    volterra_formats::nifti::write_nifti(&dir.path().join("ct.nii"), &volterra::samples::ct_phantom(48, 48, 24)).unwrap();
+    // 48×48×24 voxels of 0.8×0.8×2 mm, value = world x (mm).
+    let (d, sp) = ([48usize, 48, 24], [0.8, 0.8, 2.0]);
+    let origin = [-18.8, -18.8, -23.0];
+    let data = (0..d[0] * d[1] * d[2]).map(|i| (origin[0] + sp[0] * (i % d[0]) as f64) as f32).collect();
+    let affine = [[sp[0], 0.0, 0.0, origin[0]], [0.0, sp[1], 0.0, origin[1]], [0.0, 0.0, sp[2], origin[2]], [0.0, 0.0, 0.0, 1.0]];
+    let ramp = volterra_formats::Volume::new(d, affine, volterra_formats::VoxelData::F32(data));
+    volterra_formats::nifti::write_nifti(&dir.path().join("ramp.nii"), &ramp).unwrap();
     std::fs::write(
-        dir.path().join("ct.toml"),
+        dir.path().join("ramp.toml"),
         "[image]\nwidth = 48\nheight = 48\n[camera]\nposition = [0.0, -300.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\n\
-         [[node]]\nname = \"ct\"\nkind = \"volume\"\nfile = \"ct.nii\"\nmodality = \"CT\"\npreset = \"CT-Bone\"\n",
+         [[node]]\nname = \"ramp\"\nkind = \"volume\"\nfile = \"ramp.nii\"\nmodality = \"CT\"\npreset = \"CT-Bone\"\n",
     )
     .unwrap();
-    let mut h = settled_on(&dir.path().join("ct.toml"));
+    let mut h = settled_on(&dir.path().join("ramp.toml"));
     let cross = h.state().slice_cross().unwrap();
-    click_in_panel(&mut h, "Measure distance");
-    let (rect, _) = h.state().slice_point(0, egui::Pos2::ZERO).unwrap();
-    let (pa, pb) = (rect.left_top() + egui::vec2(0.2, 0.3) * rect.size(), rect.left_top() + egui::vec2(0.7, 0.6) * rect.size());
-    let (_, a) = h.state().slice_point(0, pa).unwrap();
-    let (_, b) = h.state().slice_point(0, pb).unwrap();
-    for p in [pa, pb] {
-        h.hover_at(p);
-        h.run_steps(1);
-        for pressed in [true, false] {
-            h.event(egui::Event::PointerButton { pos: p, button: egui::PointerButton::Primary, pressed, modifiers: egui::Modifiers::NONE });
-            h.run_steps(1);
-        }
+    // Where the axial view lies (the panel may scroll or narrow as controls appear), a point
+    // at a fraction of it, and millimetres per screen point: an axial slice spans its voxel
+    // centres (47 spacings) plus one slice pixel (the finest spacing) across the view, and
+    // likewise in height.
+    let view = |h: &Harness<'_, Viewer>| h.state().slice_point(0, egui::Pos2::ZERO).unwrap().0;
+    let at = |r: egui::Rect, fx: f32, fy: f32| r.left_top() + egui::vec2(fx, fy) * r.size();
+    let mm = |r: egui::Rect, a: egui::Pos2, b: egui::Pos2| {
+        let (mx, my) = ((47.0 * sp[0] + 0.8) / r.width() as f64, (47.0 * sp[1] + 0.8) / r.height() as f64);
+        glam::DVec2::new((b.x - a.x) as f64 * mx, (b.y - a.y) as f64 * my)
+    };
+
+    choose_slice_tool(&mut h, "Distance");
+    let r = view(&h);
+    let (pa, pb) = (at(r, 0.2, 0.3), at(r, 0.7, 0.6));
+    let (a, b) = (h.state().slice_point(0, pa).unwrap().1, h.state().slice_point(0, pb).unwrap().1);
+    click_at(&mut h, pa);
+    click_at(&mut h, pb);
+    let dist = h.state().measured_mm().expect("both ends placed");
+    assert!((dist - (b - a).length()).abs() < 1e-6, "{dist} vs {}", (b - a).length());
+    let expected = mm(r, pa, pb).length();
+    assert!((dist - expected).abs() < 0.02 * expected, "{dist} mm, about {expected} mm from the pixel sizes");
+
+    choose_slice_tool(&mut h, "Angle");
+    let r = view(&h);
+    let (p0, vertex, p2) = (at(r, 0.25, 0.25), at(r, 0.5, 0.6), at(r, 0.8, 0.35));
+    for p in [p0, vertex, p2] {
+        click_at(&mut h, p);
     }
-    let mm = h.state().measured_mm().expect("both ends placed");
-    assert!((mm - (b - a).length()).abs() < 1e-6, "{mm} vs {}", (b - a).length());
-    // Independently: the click offset times millimetres per screen point. An axial slice of
-    // the phantom spans its voxel centres (47 spacings) plus one slice pixel (the finest
-    // spacing) across the view's width, and likewise in height.
-    let ct = volterra::samples::ct_phantom(48, 48, 24);
-    let pixel = ct.spacing.iter().cloned().fold(f64::INFINITY, f64::min);
-    let (mx, my) = ((47.0 * ct.spacing[0] + pixel) / rect.width() as f64, (47.0 * ct.spacing[1] + pixel) / rect.height() as f64);
-    let expected = ((pb.x - pa.x) as f64 * mx).hypot((pb.y - pa.y) as f64 * my);
-    assert!((mm - expected).abs() < 0.02 * expected, "{mm} mm, about {expected} mm from the pixel sizes");
+    let (angle, _) = h.state().measurements().last().cloned().unwrap();
+    assert_eq!(angle.kind, volterra::scene::MeasurementKind::Angle);
+    let expected = mm(r, vertex, p0).angle_to(mm(r, vertex, p2)).abs().to_degrees();
+    assert!((angle.value() - expected).abs() < 0.5, "{}° vs {expected}° from the pixel sizes", angle.value());
+
+    choose_slice_tool(&mut h, "Ellipse ROI");
+    let r = view(&h);
+    let (c0, c1) = (at(r, 0.3, 0.35), at(r, 0.7, 0.55));
+    click_at(&mut h, c0);
+    click_at(&mut h, c1);
+    let (roi, stats) = h.state().measurements().last().cloned().unwrap();
+    let stats = stats.expect("the ellipse lies in the volume");
+    let half = mm(r, c0, c1).abs() * 0.5;
+    let area = std::f64::consts::PI * half.x * half.y;
+    assert!((stats.area_mm2 - area).abs() < 0.04 * area, "area {} mm², about {area} from the pixel sizes", stats.area_mm2);
+    // Values = x: the mean is x at the ellipse's centre, SD = a/2 of its x semi-axis.
+    let centre_x = 0.5 * (roi.points[0][0] + roi.points[1][0]);
+    let ax = 0.5 * (roi.points[1][0] - roi.points[0][0]).abs();
+    assert!((stats.mean - centre_x).abs() < 0.05, "mean {} vs x at the centre {centre_x}", stats.mean);
+    assert!((stats.sd - 0.5 * ax).abs() < 0.03 * ax, "SD {} vs a/2 = {}", stats.sd, 0.5 * ax);
+    assert!((stats.min - (centre_x - ax)).abs() < 0.9 && (stats.max - (centre_x + ax)).abs() < 0.9, "{stats:?} for a = {ax}");
     assert_eq!(h.state().slice_cross().unwrap(), cross, "measuring leaves the cross-hair");
+
+    // Saved with the scene and reopened with it; the CLI renders the saved scene.
+    let saved = dir.path().join("measured.toml");
+    h.state().save_scene(&saved).unwrap();
+    let text = std::fs::read_to_string(&saved).unwrap();
+    assert_eq!(text.matches("[[measurement]]").count(), 3, "{text}");
+    let taken: Vec<_> = h.state().measurements().to_vec();
+    let h2 = settled_on(&saved);
+    assert_eq!(h2.state().measurements(), taken.as_slice());
+    render_with_cli(&saved, dir.path());
 }

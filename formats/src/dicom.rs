@@ -236,8 +236,12 @@ fn units_for(obj: &Obj, modality: &str) -> Option<String> {
             None | Some("") | Some("HU") => Some("HU".into()),
             Some(other) => Some(other.into()),
         },
+        // PS3.3 C.8.9.1.1.3: BQML is activity concentration; GML, CM2ML and CM2 are the
+        // standardised uptake values by body weight, body surface area and lean body mass.
         "PT" | "NM" => text(obj, tags::UNITS).filter(|u| !u.is_empty()).map(|u| match u.as_str() {
             "BQML" => "Bq/ml".to_string(),
+            "GML" => "SUVbw g/ml".to_string(),
+            "CM2ML" => "SUVbsa cm²/ml".to_string(),
             _ => u,
         }),
         "RTDOSE" => text(obj, tags::DOSE_UNITS).map(|u| if u == "GY" { "Gy".into() } else { u }),
@@ -1048,4 +1052,24 @@ fn resample_uniform(data: &VoxelData, rescale: Rescale, plane: usize, d: &[f64],
         }
     }
     (out, k)
+}
+
+#[cfg(test)]
+mod units_tests {
+    use super::*;
+    use dicom_core::{DataElement, PrimitiveValue, VR};
+
+    fn with_units(u: &str) -> Obj {
+        let mut o = Obj::new_empty();
+        o.put(DataElement::new(tags::UNITS, VR::CS, PrimitiveValue::from(u)));
+        o
+    }
+
+    #[test]
+    fn pet_units_are_named_as_people_read_them() {
+        assert_eq!(units_for(&with_units("BQML"), "PT").as_deref(), Some("Bq/ml"));
+        assert_eq!(units_for(&with_units("GML"), "PT").as_deref(), Some("SUVbw g/ml"));
+        assert_eq!(units_for(&with_units("CNTS"), "NM").as_deref(), Some("CNTS"));
+        assert_eq!(units_for(&Obj::new_empty(), "CT").as_deref(), Some("HU"));
+    }
 }

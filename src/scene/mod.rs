@@ -8,11 +8,13 @@ pub mod animation;
 pub mod auto;
 pub mod camera;
 pub mod crop;
+pub mod measurement;
 pub mod presets;
 pub mod transfer;
 
 pub use camera::{Camera, Ray, RayGenerator};
 pub use crop::{ClipPlane, CropBox, HalfSpace};
+pub use measurement::{Measurement, MeasurementKind, SlicePlane};
 pub use transfer::{TransferFunction, VolumeShading};
 
 use crate::render::registry::{self, NodeSettings, RendererDecl};
@@ -292,6 +294,9 @@ pub struct SceneFile {
     pub lights: Vec<Light>,
     #[serde(default, rename = "node")]
     pub nodes: Vec<NodeDesc>,
+    /// Measurements taken in the viewer's slice views (not drawn by renders).
+    #[serde(default, rename = "measurement", skip_serializing_if = "Vec::is_empty")]
+    pub measurements: Vec<Measurement>,
 }
 
 /// A node's data, loaded on first use.
@@ -561,6 +566,13 @@ impl Scene {
                         .map_err(|e| anyhow!("{src}:{}: node '{}': {} {e}", lines.at(&n.name, Some(&e.key)), n.name, d.name))?,
                 )),
             });
+        }
+        for (k, m) in file.measurements.iter().enumerate() {
+            let node = index.get(m.node.as_str()).ok_or_else(|| anyhow!("{src}: measurement {}: no node named '{}'", k + 1, m.node))?;
+            if file.nodes[*node].kind != NodeKind::Volume {
+                bail!("{src}: measurement {}: node '{}' is not a volume", k + 1, m.node);
+            }
+            m.validate().map_err(|e| anyhow!("{src}: measurement {}: {e}", k + 1))?;
         }
         if let Some(w) = &file.walk {
             let node = index.get(w.node.as_str()).ok_or_else(|| anyhow!("{src}: walk: no node named '{}'", w.node))?;

@@ -7,6 +7,7 @@
 //! `volterra render` draws for the scene "Save scene" writes.
 
 use super::files::{start_dir, FileDialog};
+use super::measure::{RoiStats, Tool};
 use super::navigate::{self, AxisView};
 use super::slices::{Overlay, Plane, SliceImage, SliceSource};
 use super::transfer_editor::{srgb, TfEditor};
@@ -21,7 +22,7 @@ use volterra::render::registry;
 use volterra::render::Frame;
 use volterra::scene::auto::{data_bounds, fit_camera, relative_path, scene_for_file};
 use volterra::scene::presets::ValueStats;
-use volterra::scene::{BlendMode, Camera, NodeData, NodeKind, Scene, VolumeShading};
+use volterra::scene::{BlendMode, Camera, Measurement, MeasurementKind, NodeData, NodeKind, Scene, VolumeShading};
 use volterra_formats::LoadOptions;
 
 /// How long the view must stay unchanged before the full-resolution frame is requested.
@@ -90,6 +91,20 @@ struct Document {
     stats: Vec<Option<Arc<ValueStats>>>,
     /// The camera "Reset camera" returns to.
     home: Camera,
+    /// The measurements taken on the slices (saved as the scene's `[[measurement]]`s),
+    /// each with an ellipse's statistics.
+    measurements: Vec<(Measurement, Option<RoiStats>)>,
+}
+
+/// An ellipse measurement's statistics on its volume node (None for other kinds).
+fn measurement_stats(scene: &Scene, m: &Measurement) -> Option<RoiStats> {
+    if m.kind != MeasurementKind::Ellipse {
+        return None;
+    }
+    let node = scene.nodes().iter().position(|n| n.name == m.node)?;
+    let source = SliceSource::new(scene.volume(node).ok()?, scene.world_transform(node));
+    let plane = Plane::ALL.into_iter().find(|p| p.scene_plane() == m.plane)?;
+    super::measure::roi_stats(&source, plane, m)
 }
 
 struct Shown {
@@ -112,21 +127,14 @@ struct SliceState {
     /// Each slice's colours as shown (the grey, fused with the overlay).
     shown: Vec<Vec<[u8; 3]>>,
     overlay: Option<OverlayState>,
-    /// Clicks on a slice place a ruler's ends instead of moving the cross-hair.
-    measuring: bool,
-    ruler: Option<Ruler>,
+    /// What a click on a slice does: move the cross-hair or place a measurement's points.
+    tool: Tool,
+    /// The points of the measurement being placed, and the slice they are on.
+    pending: Vec<DVec3>,
+    pending_plane: usize,
     /// Where each slice was drawn last frame.
     rects: Vec<Rect>,
     dirty: bool,
-}
-
-/// A distance measured on one slice: its plane (index into `Plane::ALL`) and its ends in
-/// world millimetres (the second once placed).
-#[derive(Debug, Clone, Copy)]
-struct Ruler {
-    plane: usize,
-    a: DVec3,
-    b: Option<DVec3>,
 }
 
 /// A second volume fused over the slices.
@@ -344,7 +352,8 @@ impl Viewer {
         self.dialog.dir = start_dir(Some(&o.path));
         self.save_path = default_save_path(&o.path);
         self.message = Some(format!("opened {}", o.path.display()));
-        self.doc = Some(Document { home: self.camera.clone(), scene: Arc::new(o.scene), stats: o.stats });
+        let measurements = o.scene.file.measurements.iter().map(|m| (m.clone(), measurement_stats(&o.scene, m))).collect();
+        self.doc = Some(Document { home: self.camera.clone(), scene: Arc::new(o.scene), stats: o.stats, measurements });
         self.tf_editor = TfEditor::default();
         self.slices = None;
         self.shown = None;
@@ -382,10 +391,21 @@ impl Viewer {
         Some((img.width, img.height, s.shown.get(plane)?.as_slice()))
     }
 
-    /// The distance the slice views' ruler measures, in millimetres (once both ends are placed).
+    /// The measurements taken (in the order taken), with each ellipse's statistics.
+    pub fn measurements(&self) -> &[(Measurement, Option<RoiStats>)] {
+        self.doc.as_ref().map_or(&[], |d| &d.measurements)
+    }
+
+    /// The newest distance measured on the slices, in millimetres.
     pub fn measured_mm(&self) -> Option<f64> {
-        let r = self.slices.as_ref()?.ruler?;
-        Some((r.b? - r.a).length())
+        self.measurements().iter().rev().find(|(m, _)| m.kind == MeasurementKind::Distance).map(|(m, _)| m.value())
+    }
+
+    /// Drops every measurement.
+    pub fn clear_measurements(&mut self) {
+        if let Some(d) = &mut self.doc {
+            d.measurements.clear();
+        }
     }
 
     /// Where slice view `plane` (0 axial, 1 coronal, 2 sagittal) was drawn, and the world
@@ -459,6 +479,7 @@ impl Viewer {
         let doc = self.doc.as_ref().ok_or_else(|| anyhow!("nothing is open"))?;
         let mut file = doc.scene.file.clone();
         file.camera = self.camera.clone();
+        file.measurements = doc.measurements.iter().map(|(m, _)| m.clone()).collect();
         if let Some(s) = &self.shown {
             let (w, h) = if s.quality == Quality::Full { s.size } else { (s.size.0 * PREVIEW_DIV, s.size.1 * PREVIEW_DIV) };
             file.image.width = w;
@@ -1260,8 +1281,9 @@ impl Viewer {
                 images: vec![],
                 shown: vec![],
                 overlay: None,
-                measuring: false,
-                ruler: None,
+                tool: Tool::CrossHair,
+                pending: vec![],
+                pending_plane: 0,
                 rects: vec![],
                 dirty: true,
             });
@@ -1410,9 +1432,26 @@ impl Viewer {
                 .collect();
             s.dirty = false;
         }
-        ui.checkbox(&mut s.measuring, "Measure distance").on_hover_text("Click two points on a slice: their distance in millimetres");
+        let mut clear = false;
+        ui.horizontal(|ui| {
+            let before = s.tool;
+            egui::ComboBox::from_label("Slice tool").selected_text(s.tool.label()).show_ui(ui, |ui| {
+                for t in Tool::ALL {
+                    ui.selectable_value(&mut s.tool, t, t.label()).on_hover_text(t.hint());
+                }
+            });
+            if s.tool != before {
+                s.pending.clear();
+            }
+            if !doc.measurements.is_empty() && ui.button("Clear measurements").clicked() {
+                clear = true;
+            }
+        });
         let width = ui.available_width();
         let mut new_cross = None;
+        let mut taken = None;
+        let node_name = doc.scene.nodes()[i].name.clone();
+        let units = volume.units.clone();
         s.rects.clear();
         for (k, plane) in Plane::ALL.iter().enumerate() {
             let (img, tex) = &s.images[k];
@@ -1447,30 +1486,39 @@ impl Viewer {
             painter.text(Pos2::new(r.right() - 4.0, r.center().y), egui::Align2::RIGHT_CENTER, rt, font.clone(), c);
             painter.text(Pos2::new(r.center().x, r.top() + 2.0), egui::Align2::CENTER_TOP, t, font.clone(), c);
             painter.text(Pos2::new(r.center().x, r.bottom() - 2.0), egui::Align2::CENTER_BOTTOM, b, font, c);
-            // The ruler: a line between its ends and the distance in millimetres.
-            if let Some(ruler) = s.ruler.filter(|ru| ru.plane == k) {
-                let orange = Color32::from_rgb(255, 120, 40);
-                let a = on_screen(ruler.a);
-                painter.circle_filled(a, 3.0, orange);
-                if let Some(b) = ruler.b {
-                    let b2 = on_screen(b);
-                    painter.line_segment([a, b2], egui::Stroke::new(2.0, orange));
-                    painter.circle_filled(b2, 3.0, orange);
-                    let label = format!("{:.1} mm", (b - ruler.a).length());
-                    painter.text(b2 + Vec2::new(6.0, -6.0), egui::Align2::LEFT_BOTTOM, label, egui::FontId::proportional(14.0), orange);
+            // The measurements on this slice (this volume, this plane, this slice position:
+            // within half a slice pixel of the cross-hair along the normal).
+            let axis = plane.scene_plane().normal_axis();
+            let on_this_slice = |p: &[f64; 3]| (p[axis] - s.cross[axis]).abs() <= 0.5 * s.source.slice_pixel(*plane);
+            let clip = painter.with_clip_rect(r);
+            for (m, stats) in &doc.measurements {
+                if m.node == node_name && m.plane == plane.scene_plane() && on_this_slice(&m.points[0]) {
+                    let pts: Vec<Pos2> = m.points.iter().map(|&q| on_screen(DVec3::from(q))).collect();
+                    super::measure::draw(&clip, m.kind, &pts, &super::measure::describe(m, stats.as_ref(), units.as_deref()));
                 }
             }
-            if let Some(pos) = resp.interact_pointer_pos().filter(|_| resp.clicked() || (resp.dragged() && !s.measuring)) {
+            if let (Tool::Measure(kind), true) = (s.tool, s.pending_plane == k && !s.pending.is_empty()) {
+                let pts: Vec<Pos2> = s.pending.iter().map(|&q| on_screen(q)).collect();
+                super::measure::draw(&clip, kind, &pts, &[]);
+            }
+            if let Some(pos) = resp.interact_pointer_pos().filter(|_| resp.clicked() || (resp.dragged() && s.tool == Tool::CrossHair)) {
                 let u = (pos.x - r.left()) / r.width() * img.width as f32;
                 let v = (pos.y - r.top()) / r.height() * img.height as f32;
                 let world = img.world_at(u as f64, v as f64);
-                if s.measuring {
-                    s.ruler = match s.ruler {
-                        Some(ru) if ru.plane == k && ru.b.is_none() => Some(Ruler { b: Some(world), ..ru }),
-                        _ => Some(Ruler { plane: k, a: world, b: None }),
-                    };
-                } else {
-                    new_cross = Some(world);
+                match s.tool {
+                    Tool::CrossHair => new_cross = Some(world),
+                    Tool::Measure(kind) => {
+                        // A click on another slice starts over there.
+                        if s.pending_plane != k {
+                            s.pending.clear();
+                            s.pending_plane = k;
+                        }
+                        s.pending.push(world);
+                        if s.pending.len() == kind.points() {
+                            let points = s.pending.drain(..).map(|p| p.to_array()).collect();
+                            taken = Some(Measurement { kind, node: node_name.clone(), plane: plane.scene_plane(), points });
+                        }
+                    }
                 }
             }
         }
@@ -1478,6 +1526,14 @@ impl Viewer {
             let (lo, hi) = s.source.bounds();
             s.cross = c.clamp(lo, hi);
             s.dirty = true;
+        }
+        let Some(doc) = &mut self.doc else { return };
+        if clear {
+            doc.measurements.clear();
+        }
+        if let Some(m) = taken {
+            let stats = measurement_stats(&doc.scene, &m);
+            doc.measurements.push((m, stats));
         }
     }
 

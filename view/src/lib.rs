@@ -6,12 +6,14 @@
 //! - `transfer_editor`: opacity and colour over the histogram, presets;
 //! - `settings_controls`: widgets for the renderer settings the renderers declare;
 //! - `slices`: axial, coronal and sagittal views with a cross-hair;
+//! - `measure`: distances, angles and elliptical ROIs on the slices;
 //! - `crop`: a volume's crop box and clipping planes, with handles in the 3-D view;
 //! - `files`: the open dialog.
 
 pub mod app;
 pub mod crop;
 pub mod files;
+pub mod measure;
 pub mod navigate;
 pub mod settings_controls;
 pub mod slices;

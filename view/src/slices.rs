@@ -37,6 +37,15 @@ impl Plane {
         }
     }
 
+    /// The plane as scene files name it (`[[measurement]]`).
+    pub fn scene_plane(self) -> volterra::scene::SlicePlane {
+        match self {
+            Plane::Axial => volterra::scene::SlicePlane::Axial,
+            Plane::Coronal => volterra::scene::SlicePlane::Coronal,
+            Plane::Sagittal => volterra::scene::SlicePlane::Sagittal,
+        }
+    }
+
     /// Labels at the screen's (left, right, top, bottom) edges.
     pub fn edge_labels(self) -> [&'static str; 4] {
         match self {
@@ -118,12 +127,20 @@ impl SliceSource {
     }
 
     /// The slice through `cross` in `plane`, grey = (value − (level − window/2)) / window.
+    /// The world size of a slice pixel in `plane`: the finest voxel spacing, coarser where
+    /// the slice would exceed 512 pixels.
+    pub fn slice_pixel(&self, plane: Plane) -> f64 {
+        let (u, v, _) = plane.axes();
+        let ext = |axis: DVec3| ((self.hi - self.lo).dot(axis.abs())).max(self.pixel);
+        self.pixel.max(ext(u).max(ext(v)) / 512.0)
+    }
+
     pub fn slice(&self, plane: Plane, cross: DVec3, window: f64, level: f64) -> SliceImage {
         let (u, v, _) = plane.axes();
         // Extent along u and v: the box's, at the finest voxel spacing, at most 512 pixels.
         let ext = |axis: DVec3| ((self.hi - self.lo).dot(axis.abs())).max(self.pixel);
         let (eu, ev) = (ext(u), ext(v));
-        let pixel = self.pixel.max(eu.max(ev) / 512.0);
+        let pixel = self.slice_pixel(plane);
         let (w, h) = ((eu / pixel).round() as usize + 1, (ev / pixel).round() as usize + 1);
         // Screen-left/top corner: where u and v start (their negative ends).
         let start = |axis: DVec3| if axis.max_element() > 0.0 { self.lo.dot(axis.abs()) } else { self.hi.dot(axis.abs()) };

@@ -1,0 +1,125 @@
+//! Measurements taken in the viewer's slice views — distances, angles and elliptical
+//! regions of interest — kept in the scene file (`[[measurement]]`) so that a saved scene
+//! reopens with them. Points are world millimetres (RAS+), so they stay where they were
+//! taken whatever camera or window the scene is opened with. Renders do not draw them.
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum MeasurementKind {
+    /// Two points: the ends.
+    Distance,
+    /// Three points: one arm's end, the vertex, the other arm's end.
+    Angle,
+    /// Two points: opposite corners of the ellipse's box along the slice's axes.
+    Ellipse,
+}
+
+impl MeasurementKind {
+    pub fn points(self) -> usize {
+        match self {
+            MeasurementKind::Angle => 3,
+            MeasurementKind::Distance | MeasurementKind::Ellipse => 2,
+        }
+    }
+}
+
+/// The slice plane a measurement lies in (world axes: axial ⟂ z, coronal ⟂ y, sagittal ⟂ x).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum SlicePlane {
+    Axial,
+    Coronal,
+    Sagittal,
+}
+
+impl SlicePlane {
+    pub const ALL: [SlicePlane; 3] = [SlicePlane::Axial, SlicePlane::Coronal, SlicePlane::Sagittal];
+
+    /// The world axis the plane is normal to.
+    pub fn normal_axis(self) -> usize {
+        match self {
+            SlicePlane::Axial => 2,
+            SlicePlane::Coronal => 1,
+            SlicePlane::Sagittal => 0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Measurement {
+    pub kind: MeasurementKind,
+    /// The volume node it was taken on.
+    pub node: String,
+    pub plane: SlicePlane,
+    /// World points in millimetres, as many as the kind takes, all on one slice.
+    pub points: Vec<[f64; 3]>,
+}
+
+impl Measurement {
+    pub fn validate(&self) -> Result<(), String> {
+        if self.points.len() != self.kind.points() {
+            return Err(format!("a {:?} measurement takes {} points, not {}", self.kind, self.kind.points(), self.points.len()));
+        }
+        if self.points.iter().flatten().any(|c| !c.is_finite()) {
+            return Err("measurement points must be finite".into());
+        }
+        let a = self.plane.normal_axis();
+        let spread = self.points.iter().map(|p| (p[a] - self.points[0][a]).abs()).fold(0.0, f64::max);
+        if spread > 1e-6 * (1.0 + self.points[0][a].abs()) {
+            return Err(format!("measurement points must lie on one {:?} slice (they differ by {spread} mm across it)", self.plane));
+        }
+        Ok(())
+    }
+
+    /// Distance: the length (mm). Angle: the angle at the vertex (degrees). Ellipse: its
+    /// area (mm²).
+    pub fn value(&self) -> f64 {
+        let p: Vec<glam::DVec3> = self.points.iter().map(|&q| glam::DVec3::from(q)).collect();
+        match self.kind {
+            MeasurementKind::Distance => (p[1] - p[0]).length(),
+            MeasurementKind::Angle => (p[0] - p[1]).angle_between(p[2] - p[1]).to_degrees(),
+            MeasurementKind::Ellipse => {
+                let (ra, rb) = self.semi_axes();
+                std::f64::consts::PI * ra * rb
+            }
+        }
+    }
+
+    /// An ellipse's semi-axes (mm) along the slice's two in-plane world axes, in axis order.
+    pub fn semi_axes(&self) -> (f64, f64) {
+        let n = self.plane.normal_axis();
+        let d: Vec<f64> = (0..3).filter(|&a| a != n).map(|a| 0.5 * (self.points[1][a] - self.points[0][a]).abs()).collect();
+        (d[0], d[1])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn m(kind: MeasurementKind, plane: SlicePlane, points: Vec<[f64; 3]>) -> Measurement {
+        Measurement { kind, node: "ct".into(), plane, points }
+    }
+
+    #[test]
+    fn values_and_refusals() {
+        let d = m(MeasurementKind::Distance, SlicePlane::Axial, vec![[0.0, 0.0, 5.0], [3.0, 4.0, 5.0]]);
+        assert_eq!(d.validate(), Ok(()));
+        assert_eq!(d.value(), 5.0);
+        let a = m(MeasurementKind::Angle, SlicePlane::Coronal, vec![[1.0, 2.0, 0.0], [0.0, 2.0, 0.0], [0.0, 2.0, 1.0]]);
+        assert!((a.value() - 90.0).abs() < 1e-12);
+        // A sagittal ellipse (y, z axes): box 4 × 2 mm, semi-axes 2 and 1.
+        let e = m(MeasurementKind::Ellipse, SlicePlane::Sagittal, vec![[7.0, -2.0, 3.0], [7.0, 2.0, 1.0]]);
+        assert_eq!(e.semi_axes(), (2.0, 1.0));
+        assert!((e.value() - 2.0 * std::f64::consts::PI).abs() < 1e-12);
+        let few = m(MeasurementKind::Angle, SlicePlane::Axial, vec![[0.0; 3], [1.0, 0.0, 0.0]]);
+        assert!(few.validate().unwrap_err().contains("takes 3 points, not 2"));
+        let off = m(MeasurementKind::Distance, SlicePlane::Axial, vec![[0.0; 3], [1.0, 0.0, 0.5]]);
+        assert!(off.validate().unwrap_err().contains("one Axial slice"));
+        let nan = m(MeasurementKind::Distance, SlicePlane::Axial, vec![[0.0; 3], [f64::NAN, 0.0, 0.0]]);
+        assert!(nan.validate().unwrap_err().contains("finite"));
+    }
+}
