@@ -112,6 +112,8 @@ fn open_edit_switch_save_and_rerender_gives_the_same_image() {
 
     // Transfer function: choose the CT-Bone preset from the editor's combo box; the node
     // keeps it by name (what a saved scene says), drawn by the preset's points.
+    h.get_by_label("Preset").scroll_to_me();
+    h.run_steps(3);
     h.get_by_label("Preset").click();
     h.run_steps(3);
     h.get_by_label("CT-Bone").click();
@@ -217,6 +219,29 @@ fn shading_switched_on_in_the_viewer_is_rendered_and_saved() {
     let b = render_with_cli(&scene_path, out.path());
     let r = b.channel("R").unwrap();
     let diff = glossy.rgba.iter().zip(r).map(|(p, q)| (p[0] - q).abs()).fold(0.0f32, f32::max);
+    assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
+}
+
+/// "Opacity scale" fades a volume: less opacity drawn, `opacity_scale` saved, and the CLI
+/// render of the saved scene equals the viewer's frame.
+#[test]
+fn the_opacity_scale_fades_a_volume_and_is_saved() {
+    let dir = samples();
+    let mut h = settled_on(&dir.path().join("angio_shear_warp.toml"));
+    let plain = mean_rgba(h.state().current_full_frame().unwrap());
+    set_in_panel(&mut h, egui::accesskit::Role::Slider, "Opacity scale", 0.25);
+    settle(&mut h);
+    assert_eq!(h.state().scene().unwrap().nodes()[0].opacity_scale, 0.25);
+    let faded = h.state().current_full_frame().unwrap().clone();
+    assert!(mean_rgba(&faded)[3] < 0.9 * plain[3], "less opaque: {plain:?} → {:?}", mean_rgba(&faded));
+    let out = tempfile::tempdir().unwrap();
+    let scene_path = out.path().join("faded.toml");
+    save_through_toolbar(&mut h, &scene_path);
+    let text = std::fs::read_to_string(&scene_path).unwrap();
+    assert!(text.contains("opacity_scale = 0.25"), "{text}");
+    let b = render_with_cli(&scene_path, out.path());
+    let a = b.channel("A").unwrap();
+    let diff = faded.rgba.iter().zip(a).map(|(p, q)| (p[3] - q).abs()).fold(0.0f32, f32::max);
     assert_eq!(diff, 0.0, "the CLI render of the saved scene equals the viewer's frame");
 }
 
@@ -816,11 +841,9 @@ fn click_at(h: &mut Harness<'_, Viewer>, p: egui::Pos2) {
     }
 }
 
-/// Chooses `tool` in the slice views' "Slice tool" menu.
+/// Chooses `tool` in the toolbar's "Measuring tool" menu.
 fn choose_slice_tool(h: &mut Harness<'_, Viewer>, tool: &str) {
-    h.get_by_label("Slice tool").scroll_to_me();
-    h.run_steps(2);
-    h.get_by_label("Slice tool").click();
+    h.get_by_label("Measuring tool").click();
     h.run_steps(2);
     h.get_by_label(tool).click();
     h.run_steps(2);
@@ -910,4 +933,72 @@ fn distances_angles_and_rois_are_measured_on_a_slice_and_saved() {
     let h2 = settled_on(&saved);
     assert_eq!(h2.state().measurements(), taken.as_slice());
     render_with_cli(&saved, dir.path());
+}
+
+/// On the 3-D view: with the distance tool, two clicks on an opaque cube's front face place
+/// a measurement between surface points (from the full frame's depth): both lie on the face,
+/// and their distance is the click offset times the parallel view's millimetres per point.
+/// The orientation marker follows the camera (a view from the front: R to the screen's
+/// right, S up, A into the screen) and the scale bar's length over its points is the view's
+/// millimetres per point; "Axes and scale" hides both.
+#[test]
+fn distances_on_the_3d_surface_and_the_orientation_marker_and_scale_bar() {
+    let dir = tempfile::tempdir().unwrap();
+    // 32³ voxels of 1 mm centred on the origin; value 100 in the central 20³ block.
+    let n = 32;
+    let data = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
+            if [x, y, z].iter().all(|&c| (6..26).contains(&c)) {
+                100.0f32
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let affine = [[1.0, 0.0, 0.0, -15.5], [0.0, 1.0, 0.0, -15.5], [0.0, 0.0, 1.0, -15.5], [0.0, 0.0, 0.0, 1.0]];
+    let cube = volterra_formats::Volume::new([n, n, n], affine, volterra_formats::VoxelData::F32(data));
+    volterra_formats::nifti::write_nifti(&dir.path().join("cube.nii"), &cube).unwrap();
+    std::fs::write(
+        dir.path().join("cube.toml"),
+        "[image]\nwidth = 64\nheight = 64\n[camera]\nposition = [0.0, -200.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\n\
+         parallel_projection = true\nparallel_scale = 30.0\n\
+         [[node]]\nname = \"cube\"\nkind = \"volume\"\nfile = \"cube.nii\"\nrenderer = \"reference\"\n\
+         [node.transfer_function]\nscalar_opacity = [[0.0, 0.0], [40.0, 0.0], [60.0, 1.0], [100.0, 1.0]]\n",
+    )
+    .unwrap();
+    let mut h = settled_on(&dir.path().join("cube.toml"));
+    let rect = h.state().viewport_rect().unwrap();
+    let mpp = 60.0 / rect.height() as f64;
+
+    // The marker and the bar.
+    let (axes, (bar_mm, bar_points)) = h.state().view_marks().expect("shown by default");
+    let close = |v: egui::Vec2, x: f32, y: f32| (v - egui::vec2(x, y)).length() < 1e-6;
+    assert!(close(axes[0], 1.0, 0.0) && close(axes[1], 0.0, 0.0) && close(axes[2], 0.0, -1.0), "{axes:?}");
+    assert!((bar_mm / bar_points as f64 - mpp).abs() < 1e-6 * mpp, "{bar_mm} mm over {bar_points} points, {mpp} mm a point");
+
+    // Two surface points on the cube's front face (y = 6 − 15.5 − 0.5 = −10 at the voxels'
+    // edge; the surface, where opacity passes 0.5, lies within a voxel of it).
+    choose_slice_tool(&mut h, "Distance");
+    let rect = h.state().viewport_rect().unwrap();
+    let (pa, pb) = (rect.center() + egui::vec2(-0.12, -0.1) * rect.height(), rect.center() + egui::vec2(0.1, 0.12) * rect.height());
+    click_at(&mut h, pa);
+    click_at(&mut h, pb);
+    let (m, _) = h.state().measurements().last().cloned().expect("a surface distance");
+    assert_eq!(m.plane, None);
+    for p in &m.points {
+        assert!((p[1] + 10.0).abs() < 1.0, "{p:?} lies on the front face");
+    }
+    let mpp = 60.0 / rect.height() as f64;
+    let expected = ((pb.x - pa.x) as f64 * mpp).hypot((pb.y - pa.y) as f64 * mpp);
+    let across = glam::DVec3::from(m.points[1]) - glam::DVec3::from(m.points[0]);
+    let in_face = across.x.hypot(across.z);
+    assert!((in_face - expected).abs() < 0.02 * expected + 0.1, "{in_face} mm across the face, {expected} from the clicks");
+    assert_eq!(m.value(), across.length());
+
+    // (The toolbar gained "Clear measurements" with the measurement: let it settle first.)
+    h.run_steps(3);
+    h.get_by_label("Axes and scale").click();
+    h.run_steps(3);
+    assert!(h.state().view_marks().is_none());
 }

@@ -1,6 +1,6 @@
-//! Measurements taken in the viewer's slice views — distances, angles and elliptical
-//! regions of interest — kept in the scene file (`[[measurement]]`) so that a saved scene
-//! reopens with them. Points are world millimetres (RAS+), so they stay where they were
+//! Measurements taken in the viewer — distances, angles and elliptical regions of interest
+//! on its slice views, distances and angles between points on the 3-D view's surface —
+//! kept in the scene file (`[[measurement]]`) so that a saved scene reopens with them. Points are world millimetres (RAS+), so they stay where they were
 //! taken whatever camera or window the scene is opened with. Renders do not draw them.
 
 use serde::{Deserialize, Serialize};
@@ -51,10 +51,12 @@ impl SlicePlane {
 #[serde(deny_unknown_fields)]
 pub struct Measurement {
     pub kind: MeasurementKind,
-    /// The volume node it was taken on.
+    /// The node it was taken on (a volume, for a slice measurement).
     pub node: String,
-    pub plane: SlicePlane,
-    /// World points in millimetres, as many as the kind takes, all on one slice.
+    /// The slice plane it lies in; none: between points on the 3-D view's surface.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane: Option<SlicePlane>,
+    /// World points, as many as the kind takes; on a slice, all on it.
     pub points: Vec<[f64; 3]>,
 }
 
@@ -66,10 +68,16 @@ impl Measurement {
         if self.points.iter().flatten().any(|c| !c.is_finite()) {
             return Err("measurement points must be finite".into());
         }
-        let a = self.plane.normal_axis();
+        let Some(plane) = self.plane else {
+            if self.kind == MeasurementKind::Ellipse {
+                return Err("an ellipse lies on a slice: give its plane".into());
+            }
+            return Ok(());
+        };
+        let a = plane.normal_axis();
         let spread = self.points.iter().map(|p| (p[a] - self.points[0][a]).abs()).fold(0.0, f64::max);
         if spread > 1e-6 * (1.0 + self.points[0][a].abs()) {
-            return Err(format!("measurement points must lie on one {:?} slice (they differ by {spread} mm across it)", self.plane));
+            return Err(format!("measurement points must lie on one {plane:?} slice (they differ by {spread} mm across it)"));
         }
         Ok(())
     }
@@ -88,9 +96,10 @@ impl Measurement {
         }
     }
 
-    /// An ellipse's semi-axes (mm) along the slice's two in-plane world axes, in axis order.
+    /// An ellipse's semi-axes (mm) along the slice's two in-plane world axes, in axis order
+    /// (an ellipse always has its plane: `validate`).
     pub fn semi_axes(&self) -> (f64, f64) {
-        let n = self.plane.normal_axis();
+        let n = self.plane.map_or(2, SlicePlane::normal_axis);
         let d: Vec<f64> = (0..3).filter(|&a| a != n).map(|a| 0.5 * (self.points[1][a] - self.points[0][a]).abs()).collect();
         (d[0], d[1])
     }
@@ -101,7 +110,7 @@ mod tests {
     use super::*;
 
     fn m(kind: MeasurementKind, plane: SlicePlane, points: Vec<[f64; 3]>) -> Measurement {
-        Measurement { kind, node: "ct".into(), plane, points }
+        Measurement { kind, node: "ct".into(), plane: Some(plane), points }
     }
 
     #[test]
@@ -121,5 +130,10 @@ mod tests {
         assert!(off.validate().unwrap_err().contains("one Axial slice"));
         let nan = m(MeasurementKind::Distance, SlicePlane::Axial, vec![[0.0; 3], [f64::NAN, 0.0, 0.0]]);
         assert!(nan.validate().unwrap_err().contains("finite"));
+        // On the 3-D surface: points anywhere; an ellipse needs a slice.
+        let surface = Measurement { plane: None, ..off };
+        assert_eq!(surface.validate(), Ok(()));
+        let loose = Measurement { plane: None, ..e };
+        assert!(loose.validate().unwrap_err().contains("give its plane"));
     }
 }

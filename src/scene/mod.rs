@@ -294,7 +294,7 @@ pub struct SceneFile {
     pub lights: Vec<Light>,
     #[serde(default, rename = "node")]
     pub nodes: Vec<NodeDesc>,
-    /// Measurements taken in the viewer's slice views (not drawn by renders).
+    /// Measurements taken in the viewer, on slices or the 3-D surface (not drawn by renders).
     #[serde(default, rename = "measurement", skip_serializing_if = "Vec::is_empty")]
     pub measurements: Vec<Measurement>,
 }
@@ -569,8 +569,8 @@ impl Scene {
         }
         for (k, m) in file.measurements.iter().enumerate() {
             let node = index.get(m.node.as_str()).ok_or_else(|| anyhow!("{src}: measurement {}: no node named '{}'", k + 1, m.node))?;
-            if file.nodes[*node].kind != NodeKind::Volume {
-                bail!("{src}: measurement {}: node '{}' is not a volume", k + 1, m.node);
+            if m.plane.is_some() && file.nodes[*node].kind != NodeKind::Volume {
+                bail!("{src}: measurement {}: node '{}' is not a volume (slices are a volume's)", k + 1, m.node);
             }
             m.validate().map_err(|e| anyhow!("{src}: measurement {}: {e}", k + 1))?;
         }

@@ -103,7 +103,7 @@ fn measurement_stats(scene: &Scene, m: &Measurement) -> Option<RoiStats> {
     }
     let node = scene.nodes().iter().position(|n| n.name == m.node)?;
     let source = SliceSource::new(scene.volume(node).ok()?, scene.world_transform(node));
-    let plane = Plane::ALL.into_iter().find(|p| p.scene_plane() == m.plane)?;
+    let plane = Plane::ALL.into_iter().find(|p| Some(p.scene_plane()) == m.plane)?;
     super::measure::roi_stats(&source, plane, m)
 }
 
@@ -127,11 +127,6 @@ struct SliceState {
     /// Each slice's colours as shown (the grey, fused with the overlay).
     shown: Vec<Vec<[u8; 3]>>,
     overlay: Option<OverlayState>,
-    /// What a click on a slice does: move the cross-hair or place a measurement's points.
-    tool: Tool,
-    /// The points of the measurement being placed, and the slice they are on.
-    pending: Vec<DVec3>,
-    pending_plane: usize,
     /// Where each slice was drawn last frame.
     rects: Vec<Rect>,
     dirty: bool,
@@ -167,6 +162,15 @@ pub struct Viewer {
     tf_editor: TfEditor,
     slices: Option<SliceState>,
     show_slices: bool,
+    /// The orientation marker and scale bar over the 3-D view.
+    show_view_marks: bool,
+    /// What a click does: move the cross-hair (3-D view: nothing) or place a measurement's
+    /// points on a slice or the 3-D view's surface.
+    tool: Tool,
+    /// The points of the measurement being placed, and where: slice k, or None for the 3-D
+    /// view's surface.
+    pending: Vec<DVec3>,
+    pending_on: Option<usize>,
     dialog: FileDialog,
     save_path: String,
     mode: NavMode,
@@ -243,6 +247,10 @@ impl Viewer {
             tf_editor: TfEditor::default(),
             slices: None,
             show_slices: true,
+            show_view_marks: true,
+            tool: Tool::CrossHair,
+            pending: vec![],
+            pending_on: None,
             dialog: FileDialog::new(start_dir(None)),
             save_path: String::new(),
             mode: NavMode::Orbit,
@@ -421,6 +429,14 @@ impl Viewer {
     /// The slice views' window and level.
     pub fn window_level(&self) -> Option<(f64, f64)> {
         self.slices.as_ref().map(|s| (s.window, s.level))
+    }
+
+    /// The 3-D view's orientation marker (the world axes' screen directions) and scale bar
+    /// (world length, points), as drawn; None while they are hidden or nothing is shown.
+    pub fn view_marks(&self) -> Option<([Vec2; 3], (f64, f32))> {
+        let rect = self.viewport_rect?;
+        (self.show_view_marks && self.doc.is_some())
+            .then(|| (super::view_marks::marker_axes(&self.camera), super::view_marks::scale_bar(&self.camera, rect)))
     }
 
     /// Where the 3-D view lies in the window (points).
@@ -723,6 +739,9 @@ impl Viewer {
                 navigate::set_parallel(&mut self.camera, parallel);
                 self.bump(false);
             }
+            self.tool_menu(ui, has_doc);
+            ui.checkbox(&mut self.show_view_marks, "Axes and scale")
+                .on_hover_text("An orientation marker and a scale bar over the 3-D view (the bar holds at the focal point's depth)");
             ui.separator();
             for (m, label) in [(NavMode::Orbit, "Orbit"), (NavMode::Fly, "Fly"), (NavMode::Walk, "Walk")] {
                 if ui.selectable_label(self.mode == m, label).clicked() && self.mode != m {
@@ -738,6 +757,26 @@ impl Viewer {
 
     /// The DICOM series browser: a folder's series (patient, study, series description,
     /// modality, size, images); a double-click or "Open series" opens the selected one.
+    /// The measuring tool: distances and angles on the slices or the 3-D view's surface,
+    /// elliptical ROIs on the slices.
+    fn tool_menu(&mut self, ui: &mut egui::Ui, enabled: bool) {
+        if !enabled {
+            return;
+        }
+        let before = self.tool;
+        egui::ComboBox::from_label("Measuring tool").selected_text(self.tool.label()).show_ui(ui, |ui| {
+            for t in Tool::ALL {
+                ui.selectable_value(&mut self.tool, t, t.label()).on_hover_text(t.hint());
+            }
+        });
+        if self.tool != before {
+            self.pending.clear();
+        }
+        if self.doc.as_ref().is_some_and(|d| !d.measurements.is_empty()) && ui.button("Clear measurements").clicked() {
+            self.clear_measurements();
+        }
+    }
+
     fn series_browser(&mut self, ctx: &egui::Context) {
         let Some(choice) = &mut self.series_choice else { return };
         let mut open = None;
@@ -1281,9 +1320,6 @@ impl Viewer {
                 images: vec![],
                 shown: vec![],
                 overlay: None,
-                tool: Tool::CrossHair,
-                pending: vec![],
-                pending_plane: 0,
                 rects: vec![],
                 dirty: true,
             });
@@ -1432,21 +1468,6 @@ impl Viewer {
                 .collect();
             s.dirty = false;
         }
-        let mut clear = false;
-        ui.horizontal(|ui| {
-            let before = s.tool;
-            egui::ComboBox::from_label("Slice tool").selected_text(s.tool.label()).show_ui(ui, |ui| {
-                for t in Tool::ALL {
-                    ui.selectable_value(&mut s.tool, t, t.label()).on_hover_text(t.hint());
-                }
-            });
-            if s.tool != before {
-                s.pending.clear();
-            }
-            if !doc.measurements.is_empty() && ui.button("Clear measurements").clicked() {
-                clear = true;
-            }
-        });
         let width = ui.available_width();
         let mut new_cross = None;
         let mut taken = None;
@@ -1492,31 +1513,31 @@ impl Viewer {
             let on_this_slice = |p: &[f64; 3]| (p[axis] - s.cross[axis]).abs() <= 0.5 * s.source.slice_pixel(*plane);
             let clip = painter.with_clip_rect(r);
             for (m, stats) in &doc.measurements {
-                if m.node == node_name && m.plane == plane.scene_plane() && on_this_slice(&m.points[0]) {
+                if m.node == node_name && m.plane == Some(plane.scene_plane()) && on_this_slice(&m.points[0]) {
                     let pts: Vec<Pos2> = m.points.iter().map(|&q| on_screen(DVec3::from(q))).collect();
                     super::measure::draw(&clip, m.kind, &pts, &super::measure::describe(m, stats.as_ref(), units.as_deref()));
                 }
             }
-            if let (Tool::Measure(kind), true) = (s.tool, s.pending_plane == k && !s.pending.is_empty()) {
-                let pts: Vec<Pos2> = s.pending.iter().map(|&q| on_screen(q)).collect();
+            if let (Tool::Measure(kind), true) = (self.tool, self.pending_on == Some(k) && !self.pending.is_empty()) {
+                let pts: Vec<Pos2> = self.pending.iter().map(|&q| on_screen(q)).collect();
                 super::measure::draw(&clip, kind, &pts, &[]);
             }
-            if let Some(pos) = resp.interact_pointer_pos().filter(|_| resp.clicked() || (resp.dragged() && s.tool == Tool::CrossHair)) {
+            if let Some(pos) = resp.interact_pointer_pos().filter(|_| resp.clicked() || (resp.dragged() && self.tool == Tool::CrossHair)) {
                 let u = (pos.x - r.left()) / r.width() * img.width as f32;
                 let v = (pos.y - r.top()) / r.height() * img.height as f32;
                 let world = img.world_at(u as f64, v as f64);
-                match s.tool {
+                match self.tool {
                     Tool::CrossHair => new_cross = Some(world),
                     Tool::Measure(kind) => {
                         // A click on another slice starts over there.
-                        if s.pending_plane != k {
-                            s.pending.clear();
-                            s.pending_plane = k;
+                        if self.pending_on != Some(k) {
+                            self.pending.clear();
+                            self.pending_on = Some(k);
                         }
-                        s.pending.push(world);
-                        if s.pending.len() == kind.points() {
-                            let points = s.pending.drain(..).map(|p| p.to_array()).collect();
-                            taken = Some(Measurement { kind, node: node_name.clone(), plane: plane.scene_plane(), points });
+                        self.pending.push(world);
+                        if self.pending.len() == kind.points() {
+                            let points = self.pending.drain(..).map(|p| p.to_array()).collect();
+                            taken = Some(Measurement { kind, node: node_name.clone(), plane: Some(plane.scene_plane()), points });
                         }
                     }
                 }
@@ -1528,9 +1549,6 @@ impl Viewer {
             s.dirty = true;
         }
         let Some(doc) = &mut self.doc else { return };
-        if clear {
-            doc.measurements.clear();
-        }
         if let Some(m) = taken {
             let stats = measurement_stats(&doc.scene, &m);
             doc.measurements.push((m, stats));
@@ -1560,6 +1578,11 @@ impl Viewer {
                     painter.image(t.id(), rect, uv, Color32::from_white_alpha(200));
                 }
             }
+        }
+        self.draw_surface_measurements(&painter, rect);
+        if self.show_view_marks {
+            let world = self.doc.as_ref().map_or(super::view_marks::World::Plain, |d| view_world(&d.scene));
+            super::view_marks::draw(&painter, &self.camera, rect, world);
         }
         // Cross-hair of the slice views, projected.
         if let (Some(sl), true) = (&self.slices, self.show_slices && self.selected_volume().is_some()) {
@@ -1608,6 +1631,10 @@ impl Viewer {
         if resp.double_clicked() || (resp.clicked() && command) {
             if let Some(pos) = resp.interact_pointer_pos() {
                 self.jump_slices_to(rect, pos);
+            }
+        } else if resp.clicked() && self.tool != Tool::CrossHair {
+            if let Some(pos) = resp.interact_pointer_pos() {
+                self.place_surface_point(rect, pos);
             }
         }
         let mut moved = false;
@@ -1659,26 +1686,82 @@ impl Viewer {
     }
 
     /// Moves the slice views' cross-hair to the surface under window position `pos`.
-    fn jump_slices_to(&mut self, rect: Rect, pos: Pos2) {
-        let (Some(s), Some((v, f))) = (&mut self.slices, &self.last_full) else { return };
+    /// The world point on the surface under a window position in the 3-D view: along that
+    /// pixel's ray at the full frame's depth (where the accumulated opacity passed 0.5, for
+    /// volumes; the hit, for terrain and spheres). An error line where there is none.
+    fn surface_point(&self, rect: Rect, pos: Pos2) -> Result<DVec3, &'static str> {
+        let Some((v, f)) = &self.last_full else { return Err("no full frame yet") };
         if *v != self.version {
-            return;
+            return Err("the full frame is still being drawn");
         }
-        let x = ((pos.x - rect.left()) / rect.width() * f.width as f32).floor() as usize;
-        let y = ((pos.y - rect.top()) / rect.height() * f.height as f32).floor() as usize;
-        let Some(&depth) = f.depth.get(y.min(f.height - 1) * f.width + x.min(f.width - 1)) else { return };
+        let x = ((pos.x - rect.left()) / rect.width() * f.width as f32).floor().max(0.0) as usize;
+        let y = ((pos.y - rect.top()) / rect.height() * f.height as f32).floor().max(0.0) as usize;
+        let (x, y) = (x.min(f.width - 1), y.min(f.height - 1));
+        let depth = f.depth[y * f.width + x];
         if !depth.is_finite() {
-            self.message = Some("nothing opaque under the pointer".into());
-            return;
+            return Err("nothing opaque under the pointer");
         }
         let ray = self.camera.rays(f.width, f.height).ray(x as f64 + 0.5, y as f64 + 0.5);
-        let (lo, hi) = s.source.bounds();
-        s.cross = (ray.origin + ray.dir * depth as f64).clamp(lo, hi);
-        s.dirty = true;
+        Ok(ray.origin + ray.dir * depth as f64)
     }
 
-    /// Walk mode: puts the eye `eye_height` above the ground under it (the focal point
-    /// moves with it, so the view keeps its pitch).
+    fn jump_slices_to(&mut self, rect: Rect, pos: Pos2) {
+        match self.surface_point(rect, pos) {
+            Ok(p) => {
+                if let Some(s) = &mut self.slices {
+                    let (lo, hi) = s.source.bounds();
+                    s.cross = p.clamp(lo, hi);
+                    s.dirty = true;
+                }
+            }
+            Err(e) => self.message = Some(e.into()),
+        }
+    }
+
+    /// A click on the 3-D view with a distance or angle tool places a point on the surface.
+    fn place_surface_point(&mut self, rect: Rect, pos: Pos2) {
+        let Tool::Measure(kind) = self.tool else { return };
+        if kind == MeasurementKind::Ellipse {
+            self.message = Some("an elliptical ROI is drawn on a slice".into());
+            return;
+        }
+        let p = match self.surface_point(rect, pos) {
+            Ok(p) => p,
+            Err(e) => {
+                self.message = Some(e.into());
+                return;
+            }
+        };
+        if self.pending_on.is_some() {
+            self.pending.clear();
+            self.pending_on = None;
+        }
+        self.pending.push(p);
+        if self.pending.len() == kind.points() {
+            let Some(doc) = &mut self.doc else { return };
+            let node = doc.scene.nodes().get(self.selected).map(|n| n.name.clone()).unwrap_or_default();
+            let points = self.pending.drain(..).map(|p| p.to_array()).collect();
+            doc.measurements.push((Measurement { kind, node, plane: None, points }, None));
+        }
+    }
+
+    /// The measurements between surface points, and the one being placed, over the 3-D view.
+    fn draw_surface_measurements(&self, painter: &egui::Painter, rect: Rect) {
+        let Some(doc) = &self.doc else { return };
+        let screen = |q: DVec3| project(&self.camera, rect, q);
+        let clip = painter.with_clip_rect(rect);
+        for (m, _) in doc.measurements.iter().filter(|(m, _)| m.plane.is_none()) {
+            if let Some(pts) = m.points.iter().map(|&q| screen(DVec3::from(q))).collect::<Option<Vec<Pos2>>>() {
+                super::measure::draw(&clip, m.kind, &pts, &super::measure::describe_in(m, None, None, view_world(&doc.scene)));
+            }
+        }
+        if let (Tool::Measure(kind), None) = (self.tool, self.pending_on) {
+            if let Some(pts) = self.pending.iter().map(|&q| screen(q)).collect::<Option<Vec<Pos2>>>() {
+                super::measure::draw(&clip, kind, &pts, &[]);
+            }
+        }
+    }
+
     fn settle_walk(&mut self) {
         let Some(doc) = &self.doc else { return };
         let Some(i) = doc.scene.nodes().iter().position(|n| n.kind == NodeKind::Heightfield) else { return };
@@ -1752,6 +1835,19 @@ impl eframe::App for Viewer {
 }
 
 /// `dir/name.view.toml` beside the opened file.
+/// The world's axes and units as the scene's data sets them (docs/coordinates.md).
+fn view_world(scene: &Scene) -> super::view_marks::World {
+    use super::view_marks::World;
+    let has = |k: NodeKind| scene.nodes().iter().any(|n| n.kind == k);
+    if has(NodeKind::Volume) {
+        World::Patient
+    } else if has(NodeKind::Heightfield) {
+        World::Terrain
+    } else {
+        World::Plain
+    }
+}
+
 fn default_save_path(opened: &Path) -> String {
     let stem =
         opened.file_name().map(|n| n.to_string_lossy().split('.').next().unwrap_or("view").to_string()).unwrap_or_else(|| "view".into());

@@ -7,6 +7,7 @@
 //! - `settings_controls`: widgets for the renderer settings the renderers declare;
 //! - `slices`: axial, coronal and sagittal views with a cross-hair;
 //! - `measure`: distances, angles and elliptical ROIs on the slices;
+//! - `view_marks`: the 3-D view's orientation marker and scale bar;
 //! - `crop`: a volume's crop box and clipping planes, with handles in the 3-D view;
 //! - `files`: the open dialog.
 
@@ -18,6 +19,7 @@ pub mod navigate;
 pub mod settings_controls;
 pub mod slices;
 pub mod transfer_editor;
+pub mod view_marks;
 pub mod worker;
 
 pub use app::Viewer;

@@ -5,6 +5,7 @@
 //! (HU for CT, Bq/ml or SUV for PET), and its area. Kept as the scene's `[[measurement]]`s.
 
 use crate::slices::{Plane, SliceSource};
+use crate::view_marks::World;
 use egui::{Color32, Pos2, Stroke, Vec2};
 use glam::DVec3;
 use volterra::scene::{Measurement, MeasurementKind};
@@ -37,8 +38,12 @@ impl Tool {
     pub fn hint(self) -> &'static str {
         match self {
             Tool::CrossHair => "Click or drag on a slice to move the cross-hair",
-            Tool::Measure(MeasurementKind::Distance) => "Click two points on a slice: their distance in millimetres",
-            Tool::Measure(MeasurementKind::Angle) => "Click an arm's end, the vertex, then the other arm's end: the angle in degrees",
+            Tool::Measure(MeasurementKind::Distance) => {
+                "Click two points on a slice, or on the 3-D view's surface: their distance in millimetres"
+            }
+            Tool::Measure(MeasurementKind::Angle) => {
+                "Click an arm's end, the vertex, then the other arm's end, on a slice or the 3-D view's surface: the angle in degrees"
+            }
             Tool::Measure(MeasurementKind::Ellipse) => {
                 "Click two opposite corners of the ellipse's box: mean, SD, minimum, maximum and area of what lies inside"
             }
@@ -64,7 +69,7 @@ pub struct RoiStats {
 /// slice views' own sampling) on a square grid of the slice's pixel size centred on the
 /// ellipse, at the points inside it. None where no sample falls inside the volume.
 pub fn roi_stats(source: &SliceSource, plane: Plane, m: &Measurement) -> Option<RoiStats> {
-    let n = m.plane.normal_axis();
+    let n = m.plane?.normal_axis();
     let (a0, a1) = match n {
         0 => (1, 2),
         1 => (0, 2),
@@ -103,11 +108,21 @@ pub fn roi_stats(source: &SliceSource, plane: Plane, m: &Measurement) -> Option<
     Some(RoiStats { count, mean, sd, min, max, area_mm2: m.value() })
 }
 
-/// What a measurement reads, one line per quantity (`units`: the data's, if the file says).
+/// What a slice measurement reads, one line per quantity (`units`: the data's values', if
+/// the file says).
 pub fn describe(m: &Measurement, stats: Option<&RoiStats>, units: Option<&str>) -> Vec<String> {
+    describe_in(m, stats, units, World::Patient)
+}
+
+/// As `describe`, lengths in the world's units (a terrain's metres, …).
+pub fn describe_in(m: &Measurement, stats: Option<&RoiStats>, units: Option<&str>, world: World) -> Vec<String> {
     let u = units.map(|u| format!(" {u}")).unwrap_or_default();
     match m.kind {
-        MeasurementKind::Distance => vec![format!("{:.1} mm", m.value())],
+        MeasurementKind::Distance => vec![match world {
+            World::Patient => format!("{:.1} mm", m.value()),
+            World::Terrain => format!("{:.1} m", m.value()),
+            World::Plain => format!("{:.4}", m.value()),
+        }],
         MeasurementKind::Angle => vec![format!("{:.1}°", m.value())],
         MeasurementKind::Ellipse => match stats {
             Some(s) => vec![
@@ -179,7 +194,7 @@ mod tests {
         let m = Measurement {
             kind: MeasurementKind::Ellipse,
             node: "v".into(),
-            plane: SlicePlane::Axial,
+            plane: Some(SlicePlane::Axial),
             points: vec![[-5.0, -3.0, 1.0], [7.0, 3.0, 1.0]],
         };
         let s = roi_stats(&ramp(), Plane::Axial, &m).unwrap();
