@@ -771,16 +771,13 @@ fn a_folder_of_several_series_opens_the_series_browser() {
     assert_eq!(v.dims[2], 3);
 }
 
-/// PET over CT in the slice views: a second volume chosen as the overlay is drawn through
-/// the hot colour map over the CT's grey where its values are above the overlay window's
-/// bottom; elsewhere the slices stay grey; opacity 0 shows the grey alone.
-#[test]
-fn a_pet_overlay_is_fused_over_the_ct_slices() {
-    let dir = tempfile::tempdir().unwrap();
-    let ct = volterra::samples::ct_phantom(48, 48, 24);
-    volterra_formats::nifti::write_nifti(&dir.path().join("ct.nii"), &ct).unwrap();
-    // A hot ball (value 10 inside radius 8 mm, 0 outside) on a coarser grid about the CT's centre.
-    let centre = ct.index_to_world([23.5, 23.5, 11.5]);
+/// A CT (`ct.nii`) and a hot ball (value 10 inside radius
+/// 8 mm, 0 outside; 16³ voxels of 3 mm about the CT's centre: `pet.nii`), and the scene
+/// `fused.toml` showing both (CT-Bone and PET-Hot presets) with `extra` appended. The CT.
+fn write_pet_ct_pair(dir: &Path, ct: volterra_formats::Volume, extra: &str) -> volterra_formats::Volume {
+    volterra_formats::nifti::write_nifti(&dir.join("ct.nii"), &ct).unwrap();
+    let [nx, ny, nz] = ct.dims;
+    let centre = ct.index_to_world([0.5 * (nx - 1) as f64, 0.5 * (ny - 1) as f64, 0.5 * (nz - 1) as f64]);
     let n = 16;
     let spacing = 3.0;
     let mut data = Vec::new();
@@ -800,14 +797,26 @@ fn a_pet_overlay_is_fused_over_the_ct_slices() {
         [0.0, 0.0, 0.0, 1.0],
     ];
     let pet = volterra_formats::Volume::new([n, n, n], affine, volterra_formats::VoxelData::F32(data));
-    volterra_formats::nifti::write_nifti(&dir.path().join("pet.nii"), &pet).unwrap();
+    volterra_formats::nifti::write_nifti(&dir.join("pet.nii"), &pet).unwrap();
     std::fs::write(
-        dir.path().join("fused.toml"),
-        "[image]\nwidth = 48\nheight = 48\n[camera]\nposition = [0.0, -300.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\n\
-         [[node]]\nname = \"ct\"\nkind = \"volume\"\nfile = \"ct.nii\"\nmodality = \"CT\"\npreset = \"CT-Bone\"\n\
-         [[node]]\nname = \"pet\"\nkind = \"volume\"\nfile = \"pet.nii\"\npreset = \"PET-Hot\"\n",
+        dir.join("fused.toml"),
+        format!(
+            "[image]\nwidth = 48\nheight = 48\n[camera]\nposition = [0.0, -300.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\n\
+             [[node]]\nname = \"ct\"\nkind = \"volume\"\nfile = \"ct.nii\"\nmodality = \"CT\"\npreset = \"CT-Bone\"\n\
+             [[node]]\nname = \"pet\"\nkind = \"volume\"\nfile = \"pet.nii\"\npreset = \"PET-Hot\"\n{extra}"
+        ),
     )
     .unwrap();
+    ct
+}
+
+/// PET over CT in the slice views: a second volume chosen as the overlay is drawn through
+/// the hot colour map over the CT's grey where its values are above the overlay window's
+/// bottom; elsewhere the slices stay grey; opacity 0 shows the grey alone.
+#[test]
+fn a_pet_overlay_is_fused_over_the_ct_slices() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct = write_pet_ct_pair(dir.path(), volterra::samples::ct_phantom(48, 48, 24), "");
     let mut h = settled_on(&dir.path().join("fused.toml"));
     let coloured = |h: &Harness<'_, Viewer>| {
         let (_, _, px) = h.state().slice_colours(0).unwrap();
@@ -829,6 +838,73 @@ fn a_pet_overlay_is_fused_over_the_ct_slices() {
     set_in_panel(&mut h, egui::accesskit::Role::Slider, "Overlay opacity", 0.0);
     h.run_steps(3);
     assert_eq!(coloured(&h), 0, "opacity 0: the grey alone");
+}
+
+/// A fused PET/CT with measurements in a real window under Xvfb: the two volumes drawn
+/// fused in the 3-D view (the PET's hot colours), a distance between surface points over it
+/// and an elliptical ROI on the axial slice, both from the scene's `[[measurement]]`s (the
+/// orange of the measuring tools). The screenshot is kept as
+/// `target/test-pictures/fused_pet_ct_window.png`.
+#[test]
+fn a_fused_pet_ct_with_measurements_in_a_real_window() {
+    let Some(xvfb) = xvfb_run() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let measurements = "[[measurement]]\nkind = \"distance\"\nnode = \"ct\"\npoints = [[-30.0, 0.0, -10.0], [30.0, 0.0, 10.0]]\n\
+                        [[measurement]]\nkind = \"ellipse\"\nnode = \"ct\"\nplane = \"axial\"\npoints = [[-12.0, -9.0, 0.0], [12.0, 9.0, 0.0]]\n";
+    // The whole body at a PET/CT's CT resolution for speed: the phantom at 0.7 mm, every
+    // fourth voxel across (2.8 mm), 1 mm slices.
+    let fine = volterra::samples::ct_phantom(448, 384, 40);
+    let (nx, ny, nz) = (112, 96, 40);
+    let mut data = Vec::with_capacity(nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                data.push(fine.data.stored(4 * i + 1 + 448 * (4 * j + 1 + 384 * k)) as i16);
+            }
+        }
+    }
+    let mut affine = fine.affine;
+    (affine[0][0], affine[0][3]) = (2.8, -0.5 * (nx - 1) as f64 * 2.8);
+    (affine[1][1], affine[1][3]) = (2.8, -0.5 * (ny - 1) as f64 * 2.8);
+    let ct = volterra_formats::Volume {
+        rescale: fine.rescale,
+        modality: fine.modality.clone(),
+        ..volterra_formats::Volume::new([nx, ny, nz], affine, volterra_formats::VoxelData::I16(data))
+    };
+    write_pet_ct_pair(dir.path(), ct, measurements);
+    // From the front, right and above; the CT faded so that the PET inside shows.
+    let text = std::fs::read_to_string(dir.path().join("fused.toml"))
+        .unwrap()
+        .replace("position = [0.0, -300.0, 0.0]", "position = [260.0, 420.0, 200.0]")
+        .replace("preset = \"CT-Bone\"\n", "preset = \"CT-Bone\"\nopacity_scale = 0.1\n");
+    std::fs::write(dir.path().join("fused.toml"), text).unwrap();
+    let shot = dir.path().join("window.png");
+    let runtime = tempfile::tempdir().unwrap();
+    let out = Command::new(xvfb)
+        .args(["-a", "-s", "-screen 0 1280x800x24"])
+        .arg(common::volterra_bin())
+        .arg("view")
+        .arg(dir.path().join("fused.toml"))
+        .arg("--screenshot")
+        .arg(&shot)
+        .env("XDG_RUNTIME_DIR", runtime.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "viewer failed: {}", String::from_utf8_lossy(&out.stderr));
+    let keep = common::repo_path("target/test-pictures");
+    std::fs::create_dir_all(&keep).unwrap();
+    std::fs::copy(&shot, keep.join("fused_pet_ct_window.png")).unwrap();
+    let img = volterra::formats::image::decode_png(&shot, &Default::default()).unwrap();
+    let px: Vec<[u8; 4]> = img.samples.chunks_exact(4).map(|p| [p[0] as u8, p[1] as u8, p[2] as u8, p[3] as u8]).collect();
+    // The measuring tools' orange (255, 120, 40): lines, end points and labels.
+    let orange = px.iter().filter(|p| p[0] > 230 && (90..150).contains(&p[1]) && p[2] < 80).count();
+    assert!(orange > 400, "measurement-orange pixels: {orange}");
+    // The PET ball through PET-Hot: orange to yellow (the tools' orange has less green).
+    let hot = px.iter().filter(|p| p[0] > 200 && p[1] > 150 && p[2] < 120).count();
+    // Measured: about 950 orange and 1200 PET-hot pixels; with the CT not faded the ball
+    // is hidden and there are none.
+    eprintln!("orange {orange}, PET-hot {hot} pixels");
+    assert!(hot > 600, "PET-hot pixels: {hot}");
 }
 
 /// Clicks at `p` (press and release, hovering first).

@@ -1472,7 +1472,8 @@ impl Viewer {
         let mut new_cross = None;
         let mut taken = None;
         let node_name = doc.scene.nodes()[i].name.clone();
-        let units = volume.units.clone();
+        // The values' units: the file's, else HU for a CT (as the W/L presets take them).
+        let units = volume.units.clone().or_else(|| ct.then(|| "HU".to_string()));
         s.rects.clear();
         for (k, plane) in Plane::ALL.iter().enumerate() {
             let (img, tex) = &s.images[k];

@@ -135,14 +135,19 @@ pub fn describe_in(m: &Measurement, stats: Option<&RoiStats>, units: Option<&str
     }
 }
 
-/// Draws a measurement (complete or with the points placed so far) on a slice view.
+/// Draws a measurement (complete or with the points placed so far) on a view whose visible
+/// part is `painter`'s clip rectangle. A complete one gets its reading beside it, kept
+/// inside the view.
 pub fn draw(painter: &egui::Painter, kind: MeasurementKind, points: &[Pos2], lines: &[String]) {
     let orange = Color32::from_rgb(255, 120, 40);
     let stroke = Stroke::new(2.0, orange);
-    for &p in points {
-        painter.circle_filled(p, 3.0, orange);
-    }
     let complete = points.len() == kind.points();
+    // An ellipse's two points are its box's corners, not on it: marked only while placed.
+    if !(complete && kind == MeasurementKind::Ellipse) {
+        for &p in points {
+            painter.circle_filled(p, 3.0, orange);
+        }
+    }
     match kind {
         MeasurementKind::Distance | MeasurementKind::Angle => {
             for w in points.windows(2) {
@@ -161,12 +166,28 @@ pub fn draw(painter: &egui::Painter, kind: MeasurementKind, points: &[Pos2], lin
         }
         MeasurementKind::Ellipse => {}
     }
-    if complete {
-        let anchor = points.iter().fold(Pos2::new(f32::NEG_INFINITY, f32::INFINITY), |a, p| Pos2::new(a.x.max(p.x), a.y.min(p.y)));
+    if complete && !lines.is_empty() {
+        // Right of the shape, its top line level with the shape's top; moved left (then
+        // below) where that would leave the view.
         let font = egui::FontId::proportional(13.0);
-        for (k, line) in lines.iter().enumerate() {
-            let at = anchor + Vec2::new(6.0, -6.0 + 15.0 * k as f32);
-            painter.text(at, egui::Align2::LEFT_BOTTOM, line, font.clone(), orange);
+        let galleys: Vec<_> = lines.iter().map(|l| painter.layout_no_wrap(l.clone(), font.clone(), orange)).collect();
+        let width = galleys.iter().map(|g| g.size().x).fold(0.0, f32::max);
+        let height: f32 = galleys.iter().map(|g| g.size().y).sum();
+        let (lo, hi) = points
+            .iter()
+            .fold((Pos2::new(f32::INFINITY, f32::INFINITY), Pos2::new(f32::NEG_INFINITY, f32::NEG_INFINITY)), |(lo, hi), p| {
+                (lo.min(*p), hi.max(*p))
+            });
+        let view = painter.clip_rect();
+        let mut at = Pos2::new(hi.x + 8.0, lo.y);
+        if at.x + width > view.right() {
+            at = Pos2::new((view.right() - width - 2.0).max(view.left() + 2.0), hi.y + 6.0);
+        }
+        at.y = at.y.min(view.bottom() - height - 2.0).max(view.top() + 2.0);
+        for g in galleys {
+            let h = g.size().y;
+            painter.galley(at, g, orange);
+            at.y += h;
         }
     }
 }
