@@ -67,7 +67,16 @@ fn render_both_cropped(
     let rays = cam.rays(size, size);
     let prepared = shear_warp::Prepared::new(v, &Default::default()).unwrap();
     let sw = shear_warp::render(
-        &shear_warp::Input { prepared: &prepared, node_to_world: DMat4::IDENTITY, tf, blend, shading: None, lights: &[], crop },
+        &shear_warp::Input {
+            prepared: &prepared,
+            node_to_world: DMat4::IDENTITY,
+            tf,
+            blend,
+            shading: None,
+            lights: &[],
+            crop,
+            second: None,
+        },
         &rays,
         s,
     )
@@ -149,6 +158,7 @@ fn by_leaping_cropped(v: &Volume, tf: &TransferFunction, rays: &volterra::scene:
         shading: None,
         lights: &[],
         crop,
+        second: None,
     };
     [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped]
         .map(|leaping| shear_warp::render(&input, rays, &shear_warp::Settings { leaping, ..Default::default() }).unwrap())
@@ -317,6 +327,7 @@ fn shear_warp_only(v: &Volume, tf: &TransferFunction, cam: &Camera, size: usize)
             shading: None,
             lights: &[],
             crop: &[],
+            second: None,
         },
         &cam.rays(size, size),
         &Default::default(),

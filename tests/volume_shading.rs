@@ -86,6 +86,7 @@ fn render(
                 shading,
                 lights,
                 crop: &[],
+                second: None,
             };
             shear_warp::render(&input, &rays, &shear_warp::Settings::default()).unwrap()
         }
@@ -376,6 +377,7 @@ fn shaded_shear_warp_does_not_depend_on_leaping() {
         shading: Some(&shading),
         lights: &[],
         crop: &[],
+        second: None,
     };
     let rays = Camera { parallel_scale: 26.0, ..camera_from([35.0, 90.0, 25.0]) }.rays(80, 80);
     let frames: Vec<Frame> = [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped]

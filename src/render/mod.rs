@@ -40,7 +40,15 @@ pub struct RenderCache {
     /// Keyed by the heightfield's and texture's addresses; one placement each (a new one,
     /// such as the viewer's exaggeration slider, replaces the entry instead of adding one).
     terrain: Mutex<HashMap<TerrainKey, PreparedTerrain>>,
+    /// The second volume of each fused pair resampled onto the first's grid and prepared,
+    /// keyed by both volumes' addresses and the second's placement relative to the first.
+    fused: Mutex<HashMap<FusedKey, PreparedSecond>>,
 }
+
+type FusedKey = (usize, usize, [u64; 16]);
+/// Both volumes (held so their addresses stay taken) and the second's preparation on the
+/// first's grid.
+type PreparedSecond = (Arc<Volume>, Arc<Volume>, Arc<shear_warp::Prepared>);
 
 /// A volume and its shear-warp preparation (the volume is held so its address stays taken).
 type PreparedVolume = (Arc<Volume>, Arc<shear_warp::Prepared>);
@@ -64,6 +72,7 @@ impl RenderCache {
             })
             .collect();
         self.prepared.lock().unwrap().retain(|k, _| held.contains(k));
+        self.fused.lock().unwrap().retain(|k, _| held.contains(&k.0) && held.contains(&k.1));
         self.terrain.lock().unwrap().retain(|k, _| held.contains(&k.0));
     }
 
@@ -76,6 +85,25 @@ impl RenderCache {
         }
         let p = Arc::new(shear_warp::Prepared::shared(volume.clone(), limits)?);
         map.insert(key, (volume.clone(), p.clone()));
+        Ok(p)
+    }
+
+    /// `second` resampled onto `first`'s grid (`shear_warp::fusion`) and prepared, kept
+    /// while both volumes and the placement stay.
+    fn fused_second(
+        &self,
+        (first, first_to_world): (&Arc<Volume>, glam::DMat4),
+        (second, second_to_world): (&Arc<Volume>, glam::DMat4),
+        limits: &Limits,
+    ) -> Result<Arc<shear_warp::Prepared>> {
+        let relative = (first_to_world.inverse() * second_to_world).to_cols_array().map(f64::to_bits);
+        let key = (Arc::as_ptr(first) as usize, Arc::as_ptr(second) as usize, relative);
+        if let Some((_, _, p)) = self.fused.lock().unwrap().get(&key) {
+            return Ok(p.clone());
+        }
+        let resampled = shear_warp::fusion::resample_onto(first, first_to_world, second, second_to_world, limits)?;
+        let p = Arc::new(shear_warp::Prepared::shared(Arc::new(resampled), limits)?);
+        self.fused.lock().unwrap().insert(key, (first.clone(), second.clone(), p.clone()));
         Ok(p)
     }
 
@@ -161,6 +189,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 shading: shading.as_ref(),
                 lights: &scene.file.lights,
                 crop: &crop,
+                second: None,
             };
             shear_warp::render(&input, &rays, s)?
         }
@@ -231,7 +260,7 @@ pub fn render_view(scene: &Scene, camera: &Camera, size: (usize, usize), cache: 
         }
     }
     for g in &groups {
-        layers.push(render_fused_group(scene, g, camera, size).with_context(|| scene.source.display().to_string())?);
+        layers.push(render_fused_group(scene, g, camera, size, cache).with_context(|| scene.source.display().to_string())?);
     }
     if layers.len() == 1 {
         return Ok(layers.pop().unwrap());
@@ -285,11 +314,103 @@ pub fn fusion_groups(scene: &Scene) -> Result<Vec<Vec<usize>>> {
     Ok(groups)
 }
 
-/// Draws the volume nodes `nodes` (a group from [`fusion_groups`]) fused along every ray by
-/// the reference ray caster: at the finest step and latest termination the nodes' own
-/// reference settings give; where any node names shear-warp, which fuses no volumes yet, at
-/// the reference's preview step (0.25 voxel), said in the frame's notes.
-pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size: (usize, usize)) -> Result<Frame> {
+/// Which of two shear-warp volume nodes is the first (whose grid both are drawn on) and
+/// which the second, where shear-warp can fuse them; else why not. Shear-warp fuses two
+/// volumes when the second's box of voxel centres lies within the first's (half a voxel of
+/// slack; the first listed is tried first), neither is cropped, and the second is unshaded
+/// (no shading, no gradient opacity) and transparent at its lowest value (what it takes
+/// outside its box).
+pub fn shear_warp_pair(scene: &Scene, nodes: &[usize]) -> Result<(usize, usize), String> {
+    let [a, b] = nodes else { return Err(format!("{} volumes (it fuses two)", nodes.len())) };
+    let named = |i: usize| scene.nodes()[i].name.clone();
+    for &i in nodes {
+        if !matches!(scene.node_settings(i), Some(NodeSettings::ShearWarp(_))) {
+            return Err(format!("'{}' names another renderer", named(i)));
+        }
+        if !scene.crop_region(i).is_empty() {
+            return Err(format!("'{}' is cropped", named(i)));
+        }
+    }
+    let inside = |first: usize, second: usize| -> Result<bool, String> {
+        let volume = |i: usize| scene.volume(i).map_err(|e| format!("{e:#}"));
+        let (v1, v2) = (volume(first)?, volume(second)?);
+        let to1 = (scene.world_transform(first) * geometry::affine_matrix(&v1.affine)).inverse()
+            * scene.world_transform(second)
+            * geometry::affine_matrix(&v2.affine);
+        Ok((0..8).all(|c| {
+            let ijk = glam::DVec3::from(std::array::from_fn::<f64, 3, _>(|k| if c >> k & 1 == 0 { 0.0 } else { (v2.dims[k] - 1) as f64 }));
+            let q = to1.transform_point3(ijk);
+            (0..3).all(|k| q[k] >= -0.5 && q[k] <= v1.dims[k] as f64 - 0.5)
+        }))
+    };
+    let (first, second) = if inside(*a, *b)? {
+        (*a, *b)
+    } else if inside(*b, *a)? {
+        (*b, *a)
+    } else {
+        return Err("neither volume lies inside the other".into());
+    };
+    if scene.shading(second).is_some_and(|s| s.shade) {
+        return Err(format!("'{}' (inside '{}') is shaded", named(second), named(first)));
+    }
+    let tf = scene.classification(second).map_err(|e| format!("{e:#}"))?;
+    if !tf.gradient_opacity.is_empty() {
+        return Err(format!("'{}' (inside '{}') has gradient opacity", named(second), named(first)));
+    }
+    let lowest = scene.value_stats(second).map_err(|e| format!("{e:#}"))?.min;
+    if tf.opacity(lowest) > 0.0 {
+        return Err(format!("'{}' is not transparent at its lowest value", named(second)));
+    }
+    Ok((first, second))
+}
+
+/// Draws the volume nodes `nodes` (a group from [`fusion_groups`]) fused along every ray:
+/// by shear-warp where the nodes name it and it can fuse them (`shear_warp_pair`: the
+/// second resampled onto the first's grid, cached in `cache`), else by the reference ray
+/// caster at the finest step and latest termination the nodes' own reference settings
+/// give, or — where a node names shear-warp — at the reference's preview step (0.25
+/// voxel), with the reason in the frame's notes.
+pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size: (usize, usize), cache: &RenderCache) -> Result<Frame> {
+    let names: Vec<&str> = nodes.iter().map(|&i| scene.nodes()[i].name.as_str()).collect();
+    let pair = shear_warp_pair(scene, nodes);
+    if let Ok((first, second)) = pair {
+        let t = Instant::now();
+        let (v1, v2) = (scene.volume(first)?, scene.volume(second)?);
+        let load = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let (m1, m2) = (scene.world_transform(first), scene.world_transform(second));
+        let p1 = cache.shear_warp(&v1, scene.limits())?;
+        let p2 = cache.fused_second((&v1, m1), (&v2, m2), scene.limits())?;
+        let prepare = t.elapsed().as_secs_f64();
+        let (tf1, tf2, shading) = (scene.classification(first)?, scene.classification(second)?, scene.shading(first));
+        let Some(NodeSettings::ShearWarp(settings)) = scene.node_settings(first) else { unreachable!("shear_warp_pair checked") };
+        let input = shear_warp::Input {
+            prepared: &p1,
+            node_to_world: m1,
+            tf: &tf1,
+            blend: crate::scene::BlendMode::Composite,
+            shading: shading.as_ref(),
+            lights: &scene.file.lights,
+            crop: &[],
+            second: Some(shear_warp::fusion::Second { prepared: &p2, tf: &tf2 }),
+        };
+        let t = Instant::now();
+        let mut frame = shear_warp::render(&input, &camera.rays(size.0, size.1), settings)?;
+        frame.stats.notes.push(format!(
+            "volumes {} overlap: fused along each ray by shear-warp, '{}' resampled onto the grid of '{}'",
+            names.join(", "),
+            names[nodes.iter().position(|&i| i == second).unwrap()],
+            names[nodes.iter().position(|&i| i == first).unwrap()]
+        ));
+        frame.stats.nodes.push(NodeTime {
+            node: names.join("+"),
+            renderer: format!("{} (fused)", shear_warp::RENDERER.name),
+            load,
+            prepare,
+            render: t.elapsed().as_secs_f64(),
+        });
+        return Ok(frame);
+    }
     let t = Instant::now();
     let mut owned = Vec::with_capacity(nodes.len());
     for &i in nodes {
@@ -327,13 +448,12 @@ pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size:
     let settings = settings.unwrap_or_default();
     let t = Instant::now();
     let mut frame = reference_volume::render_fused(&inputs, &camera.rays(size.0, size.1), &settings)?;
-    let names: Vec<&str> = nodes.iter().map(|&i| scene.nodes()[i].name.as_str()).collect();
     if !shear_warp_nodes.is_empty() {
         frame.stats.notes.push(format!(
-            "volumes {} overlap: fused along each ray by the reference ray caster at step {} voxel (shear-warp fuses no volumes yet: {})",
+            "volumes {} overlap: fused along each ray by the reference ray caster at step {} voxel (not by shear-warp: {})",
             names.join(", "),
             settings.step,
-            shear_warp_nodes.join(", ")
+            pair.err().unwrap_or_default()
         ));
     }
     frame.stats.nodes.push(NodeTime {

@@ -161,7 +161,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         let ViewSet { cams, refs, refs_mip, refs_shaded, .. } = set;
         let shading = shade.then_some(&shading);
-        let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend, shading, lights, crop: &[] };
+        let input = shear_warp::Input { prepared: &prepared, node_to_world: to_world, tf, blend, shading, lights, crop: &[], second: None };
         let (mut ms, mut err, mut psnr, mut mpix) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (v, cam) in cams.iter().enumerate() {
             let rays = cam.rays(w, h);

@@ -42,6 +42,16 @@ impl<'a> SlabShading<'a> {
     }
 }
 
+/// The second volume of a fused pair on one slab: its slice rows (on the first volume's
+/// grid, so at the same points), its table and quanta-to-levels factor.
+pub(super) struct SlabSecond<'a> {
+    pub(super) back: SliceRows<'a>,
+    pub(super) front: Option<SliceRows<'a>>,
+    pub(super) axis: &'a Axis,
+    pub(super) table: &'a PreintTable,
+    pub(super) q_to_level: f32,
+}
+
 /// One slab (the front slice zp to the back slice z) of one intermediate row: what
 /// compositing its runs needs.
 pub(super) struct Slab<'a> {
@@ -77,6 +87,8 @@ pub(super) struct Slab<'a> {
     pub(super) shading: Option<SlabShading<'a>>,
     /// The crop region as half-spaces in permuted voxel coordinates (empty: none).
     pub(super) crop: &'a [HalfSpace],
+    /// The second volume of a fused pair (`fusion`), sampled at the same points.
+    pub(super) second: Option<SlabSecond<'a>>,
 }
 
 /// The part of [w0, w1] of the segment from `front` (w = 0) to `back` (w = 1), permuted
@@ -131,7 +143,7 @@ pub(super) fn for_length(e: Rgba, length: f32) -> ([f32; 3], f32) {
     (e.c.map(|c| c * scale), a)
 }
 
-impl Slab<'_> {
+impl<'a> Slab<'a> {
     /// x of pixel u's back sample.
     #[inline(always)]
     pub(super) fn xb(&self, u: usize) -> f64 {
@@ -157,13 +169,16 @@ impl Slab<'_> {
     /// Composites the live pixels of u..run_end through K segments per slab and returns
     /// the next live pixel at or after run_end. Generic over K so that the paper's one
     /// segment per slab compiles without the loop over samples between the slices (a
-    /// runtime count cost it a fifth of its speed).
+    /// runtime count cost it a fifth of its speed), and over FUSED (a second volume,
+    /// `second`, classified at the same points and fused segment by segment) so that one
+    /// volume pays nothing for it.
     #[allow(clippy::too_many_arguments)]
     #[inline(never)]
-    pub(super) fn composite_run<const K: usize>(
+    pub(super) fn composite_run<const K: usize, const FUSED: bool>(
         &self,
         links: &mut [u32],
         prev: &mut [f32],
+        prev2: &mut [f32],
         stamp: &mut [u32],
         grads: &mut Gradients,
         row: &mut [[f32; 4]],
@@ -173,36 +188,44 @@ impl Slab<'_> {
         n_samples: &mut u64,
     ) -> usize {
         let (table, q) = (self.table, self.q_to_level);
+        let sec = if FUSED { self.second.as_ref() } else { None };
         // Slices zp and z at the rows of the K − 1 samples between them: point j lies at
         // fraction j/K from the front slice to the back one, where the trilinear value is
         // the mix of both slices at that point's (x, y). Looked up once per run.
-        let between: Option<[(SliceRows, SliceRows); MAX_SLAB_SAMPLES - 1]> = (K > 1).then(|| {
+        let between_of = |axis: &'a Axis| -> [(SliceRows<'a>, SliceRows<'a>); MAX_SLAB_SAMPLES - 1] {
             std::array::from_fn(|i| {
                 let j = (i + 1).min(K.max(2) - 1);
                 let yj = self.y + self.dyo * (1.0 - j as f64 / K as f64);
-                let (r0, r1, rw) = rows(yj, self.axis.dims[1]);
-                (SliceRows::new(self.axis, self.zp, r0, r1, rw), SliceRows::new(self.axis, self.z, r0, r1, rw))
+                let (r0, r1, rw) = rows(yj, axis.dims[1]);
+                (SliceRows::new(axis, self.zp, r0, r1, rw), SliceRows::new(axis, self.z, r0, r1, rw))
             })
-        });
+        };
+        let between = (K > 1).then(|| between_of(self.axis));
+        let between2 = sec.filter(|_| K > 1).map(|s| between_of(s.axis));
         let mut uu = u;
         while uu < run_end {
             let (xb, dxo) = (self.xb(uu), self.dxo(uu));
             let length = self.length(uu);
             let back = self.back.at(xb) * q;
+            let back2 = sec.map_or(0.0, |s| s.back.at(xb) * s.q_to_level);
             *n_samples += 1;
-            let front = if stamp[uu] == self.zi - 1 {
-                Some(prev[uu])
+            let (front, front2) = if stamp[uu] == self.zi - 1 {
+                (Some(prev[uu]), if FUSED { prev2[uu] } else { 0.0 })
             } else {
                 let xf = xb + dxo;
                 match &self.front {
                     Some(front) if xf >= self.x_range.0 && xf <= self.x_range.1 => {
                         *n_samples += 1;
-                        Some(front.at(xf) * q)
+                        let f2 = sec.and_then(|s| s.front.as_ref().map(|f| f.at(xf) * s.q_to_level)).unwrap_or(0.0);
+                        (Some(front.at(xf) * q), f2)
                     }
-                    _ => None, // the ray entered the volume between these slices
+                    _ => (None, 0.0), // the ray entered the volume between these slices
                 }
             };
             prev[uu] = back;
+            if FUSED {
+                prev2[uu] = back2;
+            }
             stamp[uu] = self.zi;
             let mut g_back = None;
             if let Some(front) = front {
@@ -210,22 +233,36 @@ impl Slab<'_> {
                 // slices; stop once the pixel is opaque. The gradients at the slab's ends
                 // are computed at the first visible segment (shading only).
                 let mut g_front = None;
-                let mut f = front;
+                let (mut f, mut f2) = (front, front2);
                 for j in 0..K {
-                    let b = if j + 1 == K {
-                        back
+                    let (b, b2) = if j + 1 == K {
+                        (back, back2)
                     } else {
                         let (fs, bs) = &between.as_ref().unwrap()[j];
                         let w = (j + 1) as f32 / K as f32;
                         let xj = xb + dxo * (1.0 - w as f64);
                         let (sf, sb) = (fs.at(xj), bs.at(xj));
                         *n_samples += 2;
-                        (sf + w * (sb - sf)) * q
+                        let b2 = match (sec, &between2) {
+                            (Some(s), Some(bt)) => {
+                                let (fs, bs) = &bt[j];
+                                let (sf, sb) = (fs.at(xj), bs.at(xj));
+                                (sf + w * (sb - sf)) * s.q_to_level
+                            }
+                            _ => 0.0,
+                        };
+                        ((sf + w * (sb - sf)) * q, b2)
                     };
-                    if f.max(b) >= table.clear_below {
-                        let (c, a) = for_length(table.lookup(f, b), length);
-                        if a > 0.0 {
+                    let second_clear = sec.is_none_or(|s| f2.max(b2) < s.table.clear_below);
+                    if f.max(b) >= table.clear_below || !second_clear {
+                        let (c, a) = if f.max(b) >= table.clear_below { for_length(table.lookup(f, b), length) } else { ([0.0; 3], 0.0) };
+                        let (c2, a2) = match sec {
+                            Some(s) if !second_clear => for_length(s.table.lookup(f2, b2), length),
+                            _ => ([0.0; 3], 0.0),
+                        };
+                        if a > 0.0 || a2 > 0.0 {
                             let (c, a) = match &self.shading {
+                                _ if a <= 0.0 => (c, a),
                                 None => (c, a),
                                 Some(sh) => {
                                     let gb = *g_back.get_or_insert_with(|| sh.back().at(xb));
@@ -238,6 +275,7 @@ impl Slab<'_> {
                                     self.shade(sh, c, a, gf + (gb - gf) * w, (xb, dxo), w as f64, length)
                                 }
                             };
+                            let (c, a) = if FUSED { super::fusion::fuse(c, a, c2, a2) } else { (c, a) };
                             let seg = (j as f64 / K as f64, (j + 1) as f64 / K as f64);
                             if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, a, seg) {
                                 links[uu] = uu as u32 + 1; // early ray termination
@@ -246,14 +284,15 @@ impl Slab<'_> {
                         }
                     }
                     f = b;
+                    f2 = b2;
                 }
             } else if let Some((w0, _)) = self.inside((xb, dxo)) {
                 // The ray entered the volume between these slices, through a side face:
                 // the piece from there to the back sample.
                 let g = self.shading.as_ref().map(|sh| *g_back.get_or_insert_with(|| sh.back().at(xb)));
-                let f0 = self.value_at((xb, dxo), w0);
+                let f0 = (self.value_at((xb, dxo), w0), self.value_at2((xb, dxo), w0));
                 *n_samples += 2;
-                if self.composite_piece(K, row, depth, uu, (xb, dxo), (w0, f0), (1.0, back), g) {
+                if self.composite_piece(K, row, depth, uu, (xb, dxo), (w0, f0), (1.0, (back, back2)), g) {
                     links[uu] = uu as u32 + 1;
                 }
             }
@@ -278,6 +317,7 @@ impl Slab<'_> {
         k: usize,
         links: &mut [u32],
         prev: &[f32],
+        prev2: &[f32],
         stamp: &[u32],
         grads: &Gradients,
         row: &mut [[f32; 4]],
@@ -304,7 +344,13 @@ impl Slab<'_> {
                     Some(front) if front_inside => front.at(xf) * self.q_to_level,
                     _ => self.value_at(ray, w0),
                 };
-                let f1 = self.value_at(ray, w1);
+                let f0b = match self.second.as_ref().and_then(|s| s.front.as_ref().map(|f| (s, f))) {
+                    _ if self.second.is_none() => 0.0,
+                    _ if front_inside && stamp[uu] == self.zi - 1 => prev2[uu],
+                    Some((s, front)) if front_inside => front.at(xf) * s.q_to_level,
+                    _ => self.value_at2(ray, w0),
+                };
+                let (f0, f1) = ((f0, f0b), (self.value_at(ray, w1), self.value_at2(ray, w1)));
                 *n_samples += 3;
                 let g = self.shading.as_ref().map(|sh| match sh.front() {
                     _ if grads.stamp[uu] == self.zi - 1 => grads.value[uu],
@@ -377,6 +423,13 @@ impl Slab<'_> {
         between_slices(self.axis, (self.zp, self.z), xb + dxo * t, self.y + self.dyo * t, w) * self.q_to_level
     }
 
+    /// The second volume's value (in its table's levels) at the same point; 0 without one.
+    fn value_at2(&self, (xb, dxo): (f64, f64), w: f64) -> f32 {
+        let Some(s) = &self.second else { return 0.0 };
+        let t = 1.0 - w;
+        between_slices(s.axis, (self.zp, self.z), xb + dxo * t, self.y + self.dyo * t, w) * s.q_to_level
+    }
+
     /// Composites the piece [w0, w1] of the slab (values f0, f1 at its ends) for pixel
     /// uu: the parts of the k segments it overlaps, each pre-integrated over its own
     /// length (the table's opacity scaled to the shorter length, exact for a constant
@@ -390,8 +443,8 @@ impl Slab<'_> {
         depth: &mut [f32],
         uu: usize,
         ray: (f64, f64),
-        (w0, f0): (f64, f32),
-        (w1, f1): (f64, f32),
+        (w0, f0): (f64, (f32, f32)),
+        (w1, f1): (f64, (f32, f32)),
         g: Option<Vec3>,
     ) -> bool {
         let mut f = f0;
@@ -400,20 +453,27 @@ impl Slab<'_> {
             if sb <= sa {
                 continue;
             }
-            let b = if sb >= w1 { f1 } else { self.value_at(ray, sb) };
-            if f.max(b) >= self.table.clear_below {
+            let b = if sb >= w1 { f1 } else { (self.value_at(ray, sb), self.value_at2(ray, sb)) };
+            let first = f.0.max(b.0) >= self.table.clear_below;
+            let second = self.second.as_ref().filter(|s| f.1.max(b.1) >= s.table.clear_below);
+            if first || second.is_some() {
                 // The table is for a whole segment, 1/k of the slab: this one is r of it.
                 let r = ((sb - sa) * k as f64) as f32;
                 let length = r * self.length(uu);
-                let (c, a) = for_length(self.table.lookup(f, b), length);
-                if a > 0.0 {
-                    let (c, a) = match (&self.shading, g) {
-                        (Some(sh), Some(g)) => self.shade(sh, c, a, g, ray, 0.5 * (sa + sb), length),
-                        _ => (c, a),
-                    };
-                    if self.accumulate(&mut row[uu], &mut depth[uu], uu, c, a, (sa, sb)) {
-                        return true;
+                let (c, a) = if first { for_length(self.table.lookup(f.0, b.0), length) } else { ([0.0; 3], 0.0) };
+                let (c, a) = match (&self.shading, g) {
+                    (Some(sh), Some(g)) if a > 0.0 => self.shade(sh, c, a, g, ray, 0.5 * (sa + sb), length),
+                    _ => (c, a),
+                };
+                let (c, a) = match second {
+                    Some(s) => {
+                        let (c2, a2) = for_length(s.table.lookup(f.1, b.1), length);
+                        super::fusion::fuse(c, a, c2, a2)
                     }
+                    None => (c, a),
+                };
+                if a > 0.0 && self.accumulate(&mut row[uu], &mut depth[uu], uu, c, a, (sa, sb)) {
+                    return true;
                 }
             }
             f = b;

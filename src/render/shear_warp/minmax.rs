@@ -183,6 +183,12 @@ pub struct ClearMask {
 }
 
 impl ClearMask {
+    /// Blocks clear in both masks (of one grid and block size: a fused pair's).
+    pub fn and(&self, other: &ClearMask) -> ClearMask {
+        assert_eq!((self.ny, self.nbx, self.bits.len()), (other.ny, other.nbx, other.bits.len()), "masks of one layout");
+        ClearMask { ny: self.ny, nbx: self.nbx, words: self.words, bits: self.bits.iter().zip(&other.bits).map(|(a, b)| a & b).collect() }
+    }
+
     /// The words of one (slab, row start, variant), in the overlapped map's layout.
     #[inline]
     pub fn row(&self, zs: usize, row_start: isize, variant: usize) -> &[u64] {

@@ -16,8 +16,12 @@
 //! Empty-space leaping applies where a ray's sideways step between slices stays within the
 //! voxel the overlapped map's blocks reach (always, in a parallel view); elsewhere the
 //! slabs are sampled. A view from inside the volume is refused with that reason.
+//!
+//! Fusion (`fusion`): a second volume resampled onto this one's grid is classified by its
+//! own table at the same points and fused with it segment by segment (`Input::second`).
 mod composite;
 pub mod factor;
+pub mod fusion;
 pub mod minmax;
 pub mod preint;
 mod prepare;
@@ -25,7 +29,7 @@ mod scanline;
 mod shading;
 mod warp;
 
-use composite::{Slab, SlabShading};
+use composite::{Slab, SlabSecond, SlabShading};
 pub use prepare::Prepared;
 use scanline::{next_live, rows, RowState, SliceRows, SliceRuns};
 use warp::warp;
@@ -43,6 +47,7 @@ use preint::PreintTable;
 use rayon::prelude::*;
 use shading::{FrameShading, SliceGradient};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 
 crate::setting_choice! {
     /// Empty-space leaping.
@@ -117,6 +122,9 @@ pub struct Input<'a> {
     /// The region drawn (`Scene::crop_region`: half-spaces in node coordinates; empty:
     /// the whole volume).
     pub crop: &'a [HalfSpace],
+    /// A second volume fused with this one along every ray, resampled onto its grid
+    /// (`fusion`; composite blending, no crop region).
+    pub second: Option<fusion::Second<'a>>,
 }
 
 /// The intermediate image.
@@ -140,6 +148,19 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let axis_copy = prep.axis(fac.perm)?;
     let axis = &*axis_copy;
     let [nx, ny, nz] = axis.dims;
+    // The second volume of a fused pair: its slices along the same axis, on the same grid.
+    let second_axis = match &input.second {
+        Some(sec) => {
+            if sec.prepared.dims != prep.dims {
+                anyhow::bail!("{}: the fused volume is not on the first one's grid", RENDERER.name);
+            }
+            if input.blend == BlendMode::Mip || !input.crop.is_empty() || nz == 1 {
+                anyhow::bail!("{}: fusion needs composite blending, no crop region and more than one slice", RENDERER.name);
+            }
+            Some(sec.prepared.axis(fac.perm)?)
+        }
+        None => None,
+    };
     // The crop region in permuted voxel coordinates (permuted axis a is index axis perm[a]).
     let crop: Vec<HalfSpace> = input
         .crop
@@ -160,16 +181,35 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let q_to_level = (n_levels - 1) as f32 / 65535.0;
     let level_to_value = |l: f32| prep.lo + (prep.hi - prep.lo) * l as f64 / (n_levels - 1) as f64;
     let mip = input.blend == BlendMode::Mip;
+    // The second volume's table (its own levels, over its own value range) and quanta.
+    let second = input.second.as_ref().map(|sec| {
+        let levels = if settings.table_levels >= 2 {
+            settings.table_levels.min(4096)
+        } else {
+            preint::level_count(sec.tf, sec.prepared.lo, sec.prepared.hi)
+        };
+        (PreintTable::new(sec.tf, sec.prepared.lo, sec.prepared.hi, levels, fac.slab_length / k as f64), (levels - 1) as f32 / 65535.0)
+    });
     // Shading and the gradient opacity read the gradient at the segments they touch.
     let seg_units = (fac.slab_length / k as f64 / tf.scalar_opacity_unit_distance) as f32;
     let shading = if mip { None } else { FrameShading::new(input.shading, input.lights, &fac, (prep.lo, prep.hi), tf, seg_units)? };
-    let leaping = if mip && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
+    // (Fused: one transparency test for both volumes, the overlapped map's masks ANDed.)
+    let leaping =
+        if (mip || second.is_some()) && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
     let n = settings.block;
     let clear = table.clear_quanta(q_to_level);
     // Built once per volume, axis and block size; reused across views and transfer functions.
     let over_map = (leaping == Leaping::Overlapped && nz > 1).then(|| axis.overlapped(n));
     let scan_map = (leaping == Leaping::MultiScanline && nz > 1).then(|| axis.scanline(n));
     let clear_mask = over_map.as_ref().filter(|_| !mip).map(|m| axis.clear_mask(m, &clear));
+    // A block is clear for a fused pair where it is clear for both volumes.
+    let clear_mask = match (clear_mask, &second_axis, &second) {
+        (Some(m1), Some(a2), Some((t2, q2))) => {
+            let m2 = a2.clear_mask(&a2.overlapped(n), &t2.clear_quanta(*q2));
+            Some(Arc::new(m1.and(&m2)))
+        }
+        (m, _, _) => m,
+    };
     let (over_map, scan_map, clear_mask) = (over_map.as_deref(), scan_map.as_deref(), clear_mask.as_deref());
 
     // View clipping: only intermediate pixels the final image can see (in perspective the
@@ -296,7 +336,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             for r in (0..band_rows).filter(|&r| live(r)) {
                 let vf = (v_first + r) as f64;
                 let (row, depth) = (&mut band_rgba[r * iw..(r + 1) * iw], &mut band_depth[r * iw..(r + 1) * iw]);
-                let RowState { links, prev, stamp, max_level, max_z, grads } = &mut states[r];
+                let RowState { links, prev, prev2, stamp, max_level, max_z, grads } = &mut states[r];
                 let z = slice_at(zi);
                 let y = y_at(vf, z);
                 if nz == 1 {
@@ -457,6 +497,16 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     fac: &fac,
                     shading: slab_shading,
                     crop: &crop,
+                    second: second_axis.as_deref().zip(second.as_ref()).map(|(a2, (t2, q2))| SlabSecond {
+                        back: SliceRows::new(a2, z, y0, y1, wy),
+                        front: (yp >= y_lo && yp <= y_hi).then(|| {
+                            let (f0, f1, fw) = rows(yp, ny);
+                            SliceRows::new(a2, zp, f0, f1, fw)
+                        }),
+                        axis: a2,
+                        table: t2,
+                        q_to_level: *q2,
+                    }),
                 };
                 // With a crop region, composite_run takes the pixels whose whole segment
                 // it keeps; composite_exits the ones it cuts (between `reach`'s ends).
@@ -554,11 +604,31 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         u = if end > ub { ub + 1 } else { next_live(links, end) };
                         continue;
                     }
-                    u = match k {
-                        1 => slab.composite_run::<1>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
-                        2 => slab.composite_run::<2>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
-                        3 => slab.composite_run::<3>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
-                        _ => slab.composite_run::<4>(links, prev, stamp, grads, row, depth, u, run_end, &mut n_samples),
+                    u = match (k, slab.second.is_some()) {
+                        (1, false) => {
+                            slab.composite_run::<1, false>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
+                        (2, false) => {
+                            slab.composite_run::<2, false>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
+                        (3, false) => {
+                            slab.composite_run::<3, false>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
+                        (_, false) => {
+                            slab.composite_run::<4, false>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
+                        (1, true) => {
+                            slab.composite_run::<1, true>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
+                        (2, true) => {
+                            slab.composite_run::<2, true>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
+                        (3, true) => {
+                            slab.composite_run::<3, true>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
+                        (_, true) => {
+                            slab.composite_run::<4, true>(links, prev, prev2, stamp, grads, row, depth, u, run_end, &mut n_samples)
+                        }
                     };
                 }
                 // The rays that leave the volume through a side face between the slices.
@@ -570,8 +640,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         (a <= b).then_some((a as usize, b as usize))
                     }
                 });
-                if let Some(span) = span.filter(|_| !table.all_clear()) {
-                    slab.composite_exits(k, links, prev, stamp, grads, row, depth, span, back_span, run_span, &mut n_samples);
+                let all_clear = table.all_clear() && second.as_ref().is_none_or(|(t2, _)| t2.all_clear());
+                if let Some(span) = span.filter(|_| !all_clear) {
+                    slab.composite_exits(k, links, prev, prev2, stamp, grads, row, depth, span, back_span, run_span, &mut n_samples);
                 }
             }
         }

@@ -52,6 +52,8 @@ pub(super) struct RowState {
     /// links[u] == u while pixel u is live; otherwise it points further right.
     pub(super) links: Vec<u32>,
     pub(super) prev: Vec<f32>,
+    /// The second volume's previous samples (fused pairs; same stamps).
+    pub(super) prev2: Vec<f32>,
     /// The slice index (in compositing order) each pixel's `prev` sample comes from.
     pub(super) stamp: Vec<u32>,
     pub(super) max_level: Vec<f32>,
@@ -72,6 +74,7 @@ impl RowState {
         RowState {
             links: (0..=iw as u32).collect(),
             prev: vec![0.0; iw],
+            prev2: vec![0.0; iw],
             stamp: vec![u32::MAX; iw],
             max_level: vec![f32::NEG_INFINITY; iw],
             max_z: vec![0.0; iw],
