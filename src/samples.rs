@@ -27,6 +27,7 @@ pub const SCENES: &[(&str, &str)] = &[
     ("smoke.toml", include_str!("../samples/smoke.toml")),
     ("smoke_series.toml", include_str!("../samples/smoke_series.toml")),
     ("plume_points.toml", include_str!("../samples/plume_points.toml")),
+    ("pet_ct.toml", include_str!("../samples/pet_ct.toml")),
 ];
 
 pub fn write_samples(dir: &Path) -> Result<()> {
@@ -40,10 +41,48 @@ pub fn write_samples(dir: &Path) -> Result<()> {
     image::write_png_rgb8(&dir.join("fractal_dem_texture.png"), &dem_texture(&dem))?;
     write_smoke_plume(dir)?;
     write_plume_series(&dir.join("plume_series"), 8, 12_000)?;
+    let (ct, pet) = pet_ct_pair();
+    volterra_formats::nifti::write_nifti(&dir.join("pet_ct_ct.nii.gz"), &ct)?;
+    volterra_formats::nifti::write_nifti(&dir.join("pet_ct_pet.nii.gz"), &pet)?;
     for (name, text) in SCENES {
         volterra_formats::atomic::write_bytes_atomically(&dir.join(name), text.as_bytes())?;
     }
     Ok(())
+}
+
+/// A PET/CT pair as a scanner gives it: the CT phantom of `ct_phantom` (the whole body,
+/// 192 × 160 × 64 voxels of 1.75 × 1.75 × 2.5 mm) and a PET on its own coarser grid (80 ×
+/// 64 × 36 voxels of 4 mm, inside the CT's box) in SUV: 1 in soft tissue, 1.8 in the
+/// aorta's blood, 2 in the spine's marrow, 2.5 in a liver on the right, and two lesions
+/// (8 mm radius, SUV 9, in front of the spine; 5 mm, SUV 6, in the left lung region),
+/// edges blurred as a PET's resolution blurs them (≈ 6 mm). Deterministic.
+pub fn pet_ct_pair() -> (Volume, Volume) {
+    let ct = ct_phantom_spaced([192, 160, 64], 1.75, 2.5);
+    let (n, s) = ([80usize, 64, 36], 4.0);
+    let origin = [-0.5 * (n[0] - 1) as f64 * s, -0.5 * (n[1] - 1) as f64 * s, -0.5 * (n[2] - 1) as f64 * s];
+    // Soft inside-ness: 1 well inside, ½ on the edge, 0 well outside (edge width ≈ 6 mm).
+    let soft = |signed_distance: f64| 0.5 * (1.0 - (signed_distance / 2.5).tanh());
+    let ball = |p: [f64; 3], c: [f64; 3], r: f64| soft(((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt() - r);
+    let mut data = Vec::with_capacity(n[0] * n[1] * n[2]);
+    for k in 0..n[2] {
+        for j in 0..n[1] {
+            for i in 0..n[0] {
+                let p = [origin[0] + s * i as f64, origin[1] + s * j as f64, origin[2] + s * k as f64];
+                // The body (the CT's ellipse, 150 × 110 mm) scaled to a signed distance in mm.
+                let body = soft((((p[0] / 150.0).powi(2) + (p[1] / 110.0).powi(2)).sqrt() - 1.0) * 120.0);
+                let aorta = soft((p[0].powi(2) + (p[1] + 35.0).powi(2)).sqrt() - 12.0);
+                let spine = soft((p[0].powi(2) + (p[1] + 70.0).powi(2)).sqrt() - 15.0);
+                let liver = ball(p, [-70.0, 20.0, -10.0], 45.0);
+                let suv = body * (1.0 + 0.8 * aorta + 1.0 * spine + 1.5 * liver)
+                    + 8.0 * ball(p, [15.0, -5.0, 10.0], 8.0)
+                    + 5.0 * ball(p, [75.0, 30.0, -25.0], 5.0);
+                data.push(suv as f32);
+            }
+        }
+    }
+    let affine = [[s, 0.0, 0.0, origin[0]], [0.0, s, 0.0, origin[1]], [0.0, 0.0, s, origin[2]], [0.0, 0.0, 0.0, 1.0]];
+    let pet = Volume { modality: Some("PT".into()), ..Volume::new(n, affine, VoxelData::F32(data)) };
+    (ct, pet)
 }
 
 /// Metres per grey level of `fractal_dem.png` (its scene sets the same).
@@ -354,8 +393,12 @@ pub fn smoke_plume(count: usize, seed: u64) -> ParticleSet {
 /// bone (700–1200 HU), a contrast-filled aorta (320 HU) along z with two branches, and
 /// ±20 HU of noise; a table (200 HU) under the patient touches nothing. Deterministic.
 pub fn ct_phantom(nx: usize, ny: usize, nz: usize) -> Volume {
+    ct_phantom_spaced([nx, ny, nz], 0.7, 1.0)
+}
+
+/// `ct_phantom` on voxels of `sx` × `sx` × `sz` mm.
+pub fn ct_phantom_spaced([nx, ny, nz]: [usize; 3], sx: f64, sz: f64) -> Volume {
     use rayon::prelude::*;
-    let (sx, sz) = (0.7, 1.0);
     let mut data = vec![0i16; nx * ny * nz];
     data.par_chunks_mut(nx * ny).enumerate().for_each(|(z, slice)| {
         let mut rng = SplitMix64(0xC7_0000 + z as u64);
