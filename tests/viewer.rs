@@ -835,6 +835,14 @@ fn a_pet_overlay_is_fused_over_the_ct_slices() {
     assert!((hot as f64) > 0.4 * expected && (hot as f64) < 1.6 * expected, "{hot} hot pixels, about {expected:.0} expected ({w}×{hh})");
     let greys = px.iter().filter(|p| p[0] == p[1] && p[1] == p[2]).count();
     assert!(greys > px.len() / 2, "the rest stays grey: {greys} of {}", px.len());
+    // Saved with the scene ([slices]) and reopened as it was: the same fused slices.
+    let saved = dir.path().join("fused_saved.toml");
+    h.state().save_scene(&saved).unwrap();
+    let text = std::fs::read_to_string(&saved).unwrap();
+    assert!(text.contains("[slices.overlay]") && text.contains("colormap = \"hot\""), "{text}");
+    let reopened = settled_on(&saved);
+    assert_eq!(reopened.state().window_level(), h.state().window_level());
+    assert_eq!(reopened.state().slice_colours(0).unwrap().2, px, "the reopened slices are the saved ones");
     set_in_panel(&mut h, egui::accesskit::Role::Slider, "Overlay opacity", 0.0);
     h.run_steps(3);
     assert_eq!(coloured(&h), 0, "opacity 0: the grey alone");

@@ -392,6 +392,11 @@ macro_rules! setting_choice {
             pub fn name(self) -> &'static str {
                 match self { $( $name::$variant => $text, )* }
             }
+            /// The choice a scene file names `name`, if any.
+            #[allow(dead_code)]
+            pub fn from_name(name: &str) -> Option<$name> {
+                Self::ALL.iter().copied().find(|c| c.name() == name)
+            }
         }
 
         impl $crate::render::settings::SettingValue for $name {

@@ -92,7 +92,17 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
     let bounds =
         data_bounds(&data, DMat4::IDENTITY).ok_or_else(|| anyhow!("{}: the data has no finite extent to frame", path.display()))?;
     let camera = fit_camera(kind, bounds);
-    let file = SceneFile { image, camera, walk: None, keyframes: vec![], orbit: None, lights, nodes: vec![node], measurements: vec![] };
+    let file = SceneFile {
+        image,
+        camera,
+        walk: None,
+        keyframes: vec![],
+        orbit: None,
+        lights,
+        nodes: vec![node],
+        measurements: vec![],
+        slices: None,
+    };
     let scene = Scene::from_file(file, dir, path.to_path_buf())?.with_limits(opts.limits);
     scene.provide_data(0, data);
     Ok(scene)

@@ -105,6 +105,59 @@ impl Measurement {
     }
 }
 
+/// What the viewer's slice views show, saved with the scene (`[slices]`) so that it
+/// reopens as it was left: the volume node, its window and level, the cross-hair, and a
+/// second volume fused over the slices through a colour map. Renders do not use it.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SliceViews {
+    pub node: String,
+    pub window: f64,
+    pub level: f64,
+    /// The cross-hair (world mm) the three slices pass through.
+    pub cross: [f64; 3],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub overlay: Option<SliceOverlay>,
+}
+
+/// A volume fused over the slices: its values through `colormap` between level ∓ window/2
+/// (transparent below), blended over the grey at `opacity`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SliceOverlay {
+    pub node: String,
+    pub colormap: String,
+    pub window: f64,
+    pub level: f64,
+    pub opacity: f64,
+}
+
+impl SliceViews {
+    pub fn validate(&self) -> Result<(), String> {
+        let window_level = |w: f64, l: f64| {
+            if !(w.is_finite() && w > 0.0 && l.is_finite()) {
+                return Err(format!("window {w} and level {l} must be finite, the window positive"));
+            }
+            Ok(())
+        };
+        window_level(self.window, self.level)?;
+        if self.cross.iter().any(|c| !c.is_finite()) {
+            return Err("the cross-hair must be finite".into());
+        }
+        if let Some(o) = &self.overlay {
+            window_level(o.window, o.level).map_err(|e| format!("overlay: {e}"))?;
+            if !(0.0..=1.0).contains(&o.opacity) {
+                return Err(format!("overlay: opacity {} must be between 0 and 1", o.opacity));
+            }
+            if crate::render::colormap::Colormap::from_name(&o.colormap).is_none() {
+                let names: Vec<&str> = crate::render::colormap::Colormap::ALL.iter().map(|c| c.name()).collect();
+                return Err(format!("overlay: unknown colormap '{}' (known: {})", o.colormap, names.join(", ")));
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -135,5 +188,17 @@ mod tests {
         assert_eq!(surface.validate(), Ok(()));
         let loose = Measurement { plane: None, ..e };
         assert!(loose.validate().unwrap_err().contains("give its plane"));
+    }
+
+    #[test]
+    fn slice_views_are_checked() {
+        let overlay = SliceOverlay { node: "pet".into(), colormap: "hot".into(), window: 8.0, level: 4.0, opacity: 0.5 };
+        let v = SliceViews { node: "ct".into(), window: 400.0, level: 40.0, cross: [0.0; 3], overlay: Some(overlay.clone()) };
+        assert_eq!(v.validate(), Ok(()));
+        let bad = |o: SliceOverlay| SliceViews { overlay: Some(o), ..v.clone() }.validate().unwrap_err();
+        assert!(bad(SliceOverlay { colormap: "jet".into(), ..overlay.clone() }).contains("unknown colormap 'jet' (known: viridis"));
+        assert!(bad(SliceOverlay { opacity: 1.5, ..overlay.clone() }).contains("opacity 1.5"));
+        assert!(bad(SliceOverlay { window: 0.0, ..overlay }).contains("window 0"));
+        assert!(SliceViews { cross: [f64::NAN, 0.0, 0.0], ..v }.validate().unwrap_err().contains("cross-hair"));
     }
 }

@@ -14,7 +14,7 @@ pub mod transfer;
 
 pub use camera::{Camera, Ray, RayGenerator};
 pub use crop::{ClipPlane, CropBox, HalfSpace};
-pub use measurement::{Measurement, MeasurementKind, SlicePlane};
+pub use measurement::{Measurement, MeasurementKind, SliceOverlay, SlicePlane, SliceViews};
 pub use transfer::{TransferFunction, VolumeShading};
 
 use crate::render::registry::{self, NodeSettings, RendererDecl};
@@ -297,6 +297,9 @@ pub struct SceneFile {
     /// Measurements taken in the viewer, on slices or the 3-D surface (not drawn by renders).
     #[serde(default, rename = "measurement", skip_serializing_if = "Vec::is_empty")]
     pub measurements: Vec<Measurement>,
+    /// What the viewer's slice views showed when the scene was saved (not used by renders).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slices: Option<SliceViews>,
 }
 
 /// A node's data, loaded on first use.
@@ -573,6 +576,15 @@ impl Scene {
                 bail!("{src}: measurement {}: node '{}' is not a volume (slices are a volume's)", k + 1, m.node);
             }
             m.validate().map_err(|e| anyhow!("{src}: measurement {}: {e}", k + 1))?;
+        }
+        if let Some(v) = &file.slices {
+            for name in std::iter::once(&v.node).chain(v.overlay.as_ref().map(|o| &o.node)) {
+                let node = index.get(name.as_str()).ok_or_else(|| anyhow!("{src}: slices: no node named '{name}'"))?;
+                if file.nodes[*node].kind != NodeKind::Volume {
+                    bail!("{src}: slices: node '{name}' is not a volume");
+                }
+            }
+            v.validate().map_err(|e| anyhow!("{src}: slices: {e}"))?;
         }
         if let Some(w) = &file.walk {
             let node = index.get(w.node.as_str()).ok_or_else(|| anyhow!("{src}: walk: no node named '{}'", w.node))?;

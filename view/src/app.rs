@@ -171,6 +171,8 @@ pub struct Viewer {
     /// view's surface.
     pending: Vec<DVec3>,
     pending_on: Option<usize>,
+    /// The slice views a scene was saved with, applied when they are next built.
+    restore_slices: Option<volterra::scene::SliceViews>,
     dialog: FileDialog,
     save_path: String,
     mode: NavMode,
@@ -251,6 +253,7 @@ impl Viewer {
             tool: Tool::CrossHair,
             pending: vec![],
             pending_on: None,
+            restore_slices: None,
             dialog: FileDialog::new(start_dir(None)),
             save_path: String::new(),
             mode: NavMode::Orbit,
@@ -357,6 +360,12 @@ impl Viewer {
             self.mode = NavMode::Orbit;
         }
         self.selected = o.scene.nodes().iter().position(|n| n.kind != NodeKind::Group).unwrap_or(0);
+        // The slice views as the scene was saved: their volume selected, the rest restored
+        // when the slice panel is built.
+        self.restore_slices = o.scene.file.slices.clone();
+        if let Some(i) = self.restore_slices.as_ref().and_then(|v| o.scene.nodes().iter().position(|n| n.name == v.node)) {
+            self.selected = i;
+        }
         self.dialog.dir = start_dir(Some(&o.path));
         self.save_path = default_save_path(&o.path);
         self.message = Some(format!("opened {}", o.path.display()));
@@ -496,6 +505,23 @@ impl Viewer {
         let mut file = doc.scene.file.clone();
         file.camera = self.camera.clone();
         file.measurements = doc.measurements.iter().map(|(m, _)| m.clone()).collect();
+        // The slice views as shown (else as the scene had them, if never built).
+        if let Some(s) = &self.slices {
+            let name = |i: usize| doc.scene.nodes()[i].name.clone();
+            file.slices = Some(volterra::scene::SliceViews {
+                node: name(s.node),
+                window: s.window,
+                level: s.level,
+                cross: s.cross.to_array(),
+                overlay: s.overlay.as_ref().map(|o| volterra::scene::SliceOverlay {
+                    node: name(o.node),
+                    colormap: o.colormap.name().to_string(),
+                    window: o.window,
+                    level: o.level,
+                    opacity: o.opacity,
+                }),
+            });
+        }
         if let Some(s) = &self.shown {
             let (w, h) = if s.quality == Quality::Full { s.size } else { (s.size.0 * PREVIEW_DIV, s.size.1 * PREVIEW_DIV) };
             file.image.width = w;
@@ -1311,15 +1337,31 @@ impl Viewer {
                     (b - a, 0.5 * (a + b))
                 })
                 .unwrap_or((1.0, 0.5));
+            let restore = self.restore_slices.take().filter(|r| r.node == doc.scene.nodes()[i].name);
+            let (window, level, cross) = match &restore {
+                Some(r) => (r.window, r.level, DVec3::from(r.cross)),
+                None => (window, level, source.centre()),
+            };
+            let overlay = restore.and_then(|r| r.overlay).and_then(|o| {
+                let j = doc.scene.nodes().iter().position(|n| n.name == o.node)?;
+                Some(OverlayState {
+                    node: j,
+                    source: SliceSource::new(doc.scene.volume(j).ok()?, doc.scene.world_transform(j)),
+                    window: o.window,
+                    level: o.level,
+                    colormap: volterra::render::colormap::Colormap::from_name(&o.colormap)?,
+                    opacity: o.opacity,
+                })
+            });
             self.slices = Some(SliceState {
                 node: i,
-                cross: source.centre(),
+                cross,
                 source,
                 window,
                 level,
                 images: vec![],
                 shown: vec![],
-                overlay: None,
+                overlay,
                 rects: vec![],
                 dirty: true,
             });
