@@ -279,7 +279,7 @@ fn scenes_fuse_overlapping_volume_nodes_by_themselves() {
         frame.stats.notes
     );
     // A volume inside another, both shear-warp: fused by shear-warp, the inner one resampled
-    // onto the outer one's grid (whichever is listed first); a shaded inner one is not.
+    // onto the outer one's grid (whichever is listed first).
     let inner = placed([8, 8, 8], 1.5, 10.0, [6.0, 4.0, 4.0], |p| ((p - DVec3::new(10.0, 9.5, 9.0)).length() < 4.0) as u8 as f32);
     volterra_formats::nifti::write_nifti(&dir.path().join("inner.nii"), &inner).unwrap();
     let scene = load(format!("{head}{}{}", node("inner", "shear-warp"), node("a", "shear-warp")));
@@ -291,8 +291,10 @@ fn scenes_fuse_overlapping_volume_nodes_by_themselves() {
         frame.stats.notes
     );
     assert!(frame.rgba.iter().any(|p| p[3] > 0.05));
-    let shaded = load(format!("{head}{}{}", node_with("inner", "shear-warp", "[node.shading]\nshade = true\n"), node("a", "shear-warp")));
-    assert_eq!(volterra::render::shear_warp_pair(&shaded, &[0, 1]), Err("'inner' (inside 'a') is shaded".to_string()));
+    // One that is not transparent at its lowest value (what it takes outside its box) is not.
+    let opaque_low = node("inner", "shear-warp").replace("[[0.0, 0.0], [0.5, 0.0]", "[[0.0, 0.2], [0.5, 0.2]");
+    let scene = load(format!("{head}{opaque_low}{}", node("a", "shear-warp")));
+    assert_eq!(volterra::render::shear_warp_pair(&scene, &[0, 1]), Err("'inner' is not transparent at its lowest value".to_string()));
     // MIP volumes stay layers.
     let scene = load(format!("{head}{}{}", node_with("a", "reference", "blend = \"mip\"\n"), node("b", "reference")));
     assert!(volterra::render::fusion_groups(&scene).unwrap().is_empty());
@@ -430,6 +432,7 @@ fn relative_rmse(f: &Frame, truth: &Frame) -> f64 {
 #[test]
 fn shear_warp_fuses_a_second_volume_resampled_onto_the_first_ones_grid() {
     use volterra::render::shear_warp::{self, fusion};
+    use volterra::scene::VolumeShading;
     let boxed = placed([17, 17, 17], 1.5, 0.0, [0.0, 0.0, 0.0], |_| 1.0);
     let ball = placed([25, 25, 25], 0.6, 20.0, [6.0, 4.0, 4.0], |p| {
         let r = (p - DVec3::new(11.0, 12.0, 11.0)).length();
@@ -441,22 +444,26 @@ fn shear_warp_fuses_a_second_volume_resampled_onto_the_first_ones_grid() {
     let first = shear_warp::Prepared::new(&boxed, &limits).unwrap();
     let on_grid = fusion::resample_onto(&boxed, DMat4::IDENTITY, &ball, DMat4::IDENTITY, &limits).unwrap();
     let second = shear_warp::Prepared::new(&on_grid, &limits).unwrap();
-    fn sw_input<'a>(
-        first: &'a shear_warp::Prepared,
-        tf: &'a TransferFunction,
-        second: Option<fusion::Second<'a>>,
-    ) -> shear_warp::Input<'a> {
-        shear_warp::Input {
-            prepared: first,
-            node_to_world: DMat4::IDENTITY,
-            tf,
-            blend: BlendMode::Composite,
-            shading: None,
-            lights: &[],
-            crop: &[],
-            second,
-        }
-    }
+    let ball_alone = shear_warp::Prepared::new(&ball, &limits).unwrap();
+    let sw_input = |prepared, tf, shading, second| shear_warp::Input {
+        prepared,
+        node_to_world: DMat4::IDENTITY,
+        tf,
+        blend: BlendMode::Composite,
+        shading,
+        lights: &[],
+        crop: &[],
+        second,
+    };
+    let ref_input = |volume, tf, shading| VolumeInput {
+        volume,
+        node_to_world: DMat4::IDENTITY,
+        tf,
+        blend: BlendMode::Composite,
+        shading,
+        lights: &[],
+        crop: &[],
+    };
     let views = [
         ("perspective oblique", [-20.0, -30.0, 40.0], false),
         ("perspective along y", [12.0, -60.0, 12.0], false),
@@ -464,39 +471,42 @@ fn shear_warp_fuses_a_second_volume_resampled_onto_the_first_ones_grid() {
         ("parallel near 45°", [52.0, -28.0, 12.0], true),
     ];
     let s = reference_volume::Settings::default();
-    for (name, position, parallel) in views {
-        let cam = Camera {
-            position,
-            focal_point: [12.0, 12.0, 12.0],
-            view_up: [0.0, 0.0, 1.0],
-            view_angle: 40.0,
-            parallel_projection: parallel,
-            parallel_scale: 18.0,
-        };
-        let rays = cam.rays(96, 96);
-        let truth = render_fused(&[input(&boxed, &tb), input(&ball, &ts)], &rays, &s).unwrap();
-        let t = std::time::Instant::now();
-        let fused =
-            shear_warp::render(&sw_input(&first, &tb, Some(fusion::Second { prepared: &second, tf: &ts })), &rays, &Default::default())
-                .unwrap();
-        let sw_s = t.elapsed().as_secs_f64();
-        // Each volume by shear-warp as its own layer (the ball on its own grid).
-        let ball_alone = shear_warp::Prepared::new(&ball, &limits).unwrap();
-        let ball_layer = shear_warp::render(&sw_input(&ball_alone, &ts, None), &rays, &Default::default()).unwrap();
-        let box_layer = shear_warp::render(&sw_input(&first, &tb, None), &rays, &Default::default()).unwrap();
-        let layered = Frame::composite(96, 96, &[box_layer, ball_layer]);
-        let (e_fused, e_layered) = (relative_rmse(&fused, &truth), relative_rmse(&layered, &truth));
-        // What the resampling adds: the reference on the resampled ball against the truth.
-        let on_first_grid = render_fused(&[input(&boxed, &tb), input(&on_grid, &ts)], &rays, &s).unwrap();
-        let (e_resampling, e_own) = (relative_rmse(&on_first_grid, &truth), relative_rmse(&fused, &on_first_grid));
-        eprintln!(
-            "{name}: shear-warp fused {:.2} % in {sw_s:.3} s (resampling alone {:.2} %, shear-warp on the resampled pair {:.2} %), shear-warp layers {:.2} %",
-            100.0 * e_fused,
-            100.0 * e_resampling,
-            100.0 * e_own,
-            100.0 * e_layered
-        );
-        assert!(e_fused < 0.03, "{name}: fused shear-warp is {:.2} % from the reference", 100.0 * e_fused);
-        assert!(e_layered > 2.0 * e_fused, "{name}: layers {:.2} % vs fused {:.2} %", 100.0 * e_layered, 100.0 * e_fused);
+    // Unshaded, then both volumes shaded (VTK's coefficients, a headlight).
+    let lit = VolumeShading { shade: true, ..Default::default() };
+    for shading in [None, Some(&lit)] {
+        for (name, position, parallel) in views {
+            let name = format!("{name}{}", if shading.is_some() { ", shaded" } else { "" });
+            let cam = Camera {
+                position,
+                focal_point: [12.0, 12.0, 12.0],
+                view_up: [0.0, 0.0, 1.0],
+                view_angle: 40.0,
+                parallel_projection: parallel,
+                parallel_scale: 18.0,
+            };
+            let rays = cam.rays(96, 96);
+            let truth = render_fused(&[ref_input(&boxed, &tb, shading), ref_input(&ball, &ts, shading)], &rays, &s).unwrap();
+            let t = std::time::Instant::now();
+            let with_second = Some(fusion::Second { prepared: &second, tf: &ts, shading });
+            let fused = shear_warp::render(&sw_input(&first, &tb, shading, with_second), &rays, &Default::default()).unwrap();
+            let sw_s = t.elapsed().as_secs_f64();
+            // Each volume by shear-warp as its own layer (the ball on its own grid).
+            let ball_layer = shear_warp::render(&sw_input(&ball_alone, &ts, shading, None), &rays, &Default::default()).unwrap();
+            let box_layer = shear_warp::render(&sw_input(&first, &tb, shading, None), &rays, &Default::default()).unwrap();
+            let layered = Frame::composite(96, 96, &[box_layer, ball_layer]);
+            let (e_fused, e_layered) = (relative_rmse(&fused, &truth), relative_rmse(&layered, &truth));
+            // What the resampling adds: the reference on the resampled ball against the truth.
+            let on_first_grid = render_fused(&[ref_input(&boxed, &tb, shading), ref_input(&on_grid, &ts, shading)], &rays, &s).unwrap();
+            let (e_resampling, e_own) = (relative_rmse(&on_first_grid, &truth), relative_rmse(&fused, &on_first_grid));
+            eprintln!(
+                "{name}: shear-warp fused {:.2} % in {sw_s:.3} s (resampling alone {:.2} %, shear-warp on the resampled pair {:.2} %), shear-warp layers {:.2} %",
+                100.0 * e_fused,
+                100.0 * e_resampling,
+                100.0 * e_own,
+                100.0 * e_layered
+            );
+            assert!(e_fused < 0.03, "{name}: fused shear-warp is {:.2} % from the reference", 100.0 * e_fused);
+            assert!(e_layered > 2.0 * e_fused, "{name}: layers {:.2} % vs fused {:.2} %", 100.0 * e_layered, 100.0 * e_fused);
+        }
     }
 }

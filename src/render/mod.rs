@@ -317,9 +317,8 @@ pub fn fusion_groups(scene: &Scene) -> Result<Vec<Vec<usize>>> {
 /// Which of two shear-warp volume nodes is the first (whose grid both are drawn on) and
 /// which the second, where shear-warp can fuse them; else why not. Shear-warp fuses two
 /// volumes when the second's box of voxel centres lies within the first's (half a voxel of
-/// slack; the first listed is tried first), neither is cropped, and the second is unshaded
-/// (no shading, no gradient opacity) and transparent at its lowest value (what it takes
-/// outside its box).
+/// slack; the first listed is tried first), neither is cropped, and the second is
+/// transparent at its lowest value (what it takes outside its box).
 pub fn shear_warp_pair(scene: &Scene, nodes: &[usize]) -> Result<(usize, usize), String> {
     let [a, b] = nodes else { return Err(format!("{} volumes (it fuses two)", nodes.len())) };
     let named = |i: usize| scene.nodes()[i].name.clone();
@@ -350,13 +349,7 @@ pub fn shear_warp_pair(scene: &Scene, nodes: &[usize]) -> Result<(usize, usize),
     } else {
         return Err("neither volume lies inside the other".into());
     };
-    if scene.shading(second).is_some_and(|s| s.shade) {
-        return Err(format!("'{}' (inside '{}') is shaded", named(second), named(first)));
-    }
     let tf = scene.classification(second).map_err(|e| format!("{e:#}"))?;
-    if !tf.gradient_opacity.is_empty() {
-        return Err(format!("'{}' (inside '{}') has gradient opacity", named(second), named(first)));
-    }
     let lowest = scene.value_stats(second).map_err(|e| format!("{e:#}"))?.min;
     if tf.opacity(lowest) > 0.0 {
         return Err(format!("'{}' is not transparent at its lowest value", named(second)));
@@ -382,17 +375,18 @@ pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size:
         let p1 = cache.shear_warp(&v1, scene.limits())?;
         let p2 = cache.fused_second((&v1, m1), (&v2, m2), scene.limits())?;
         let prepare = t.elapsed().as_secs_f64();
-        let (tf1, tf2, shading) = (scene.classification(first)?, scene.classification(second)?, scene.shading(first));
+        let (tf1, tf2) = (scene.classification(first)?, scene.classification(second)?);
+        let (shading1, shading2) = (scene.shading(first), scene.shading(second));
         let Some(NodeSettings::ShearWarp(settings)) = scene.node_settings(first) else { unreachable!("shear_warp_pair checked") };
         let input = shear_warp::Input {
             prepared: &p1,
             node_to_world: m1,
             tf: &tf1,
             blend: crate::scene::BlendMode::Composite,
-            shading: shading.as_ref(),
+            shading: shading1.as_ref(),
             lights: &scene.file.lights,
             crop: &[],
-            second: Some(shear_warp::fusion::Second { prepared: &p2, tf: &tf2 }),
+            second: Some(shear_warp::fusion::Second { prepared: &p2, tf: &tf2, shading: shading2.as_ref() }),
         };
         let t = Instant::now();
         let mut frame = shear_warp::render(&input, &camera.rays(size.0, size.1), settings)?;

@@ -50,6 +50,18 @@ pub(super) struct SlabSecond<'a> {
     pub(super) axis: &'a Axis,
     pub(super) table: &'a PreintTable,
     pub(super) q_to_level: f32,
+    /// Its own shading (its gradients from its own slices); None: unshaded.
+    pub(super) shading: Option<SlabShading<'a>>,
+}
+
+impl SlabSecond<'_> {
+    /// Its gradient at fraction w of the slab on the ray whose back sample is at xb (front
+    /// at xb + dxo): linear between its back and front samples' gradients.
+    fn gradient(&self, sh: &SlabShading, (xb, dxo): (f64, f64), w: f32) -> Vec3 {
+        let gb = sh.back().at(xb);
+        let gf = sh.front().map_or(gb, |f| f.at(xb + dxo));
+        gf + (gb - gf) * w
+    }
 }
 
 /// One slab (the front slice zp to the back slice z) of one intermediate row: what
@@ -257,7 +269,16 @@ impl<'a> Slab<'a> {
                     if f.max(b) >= table.clear_below || !second_clear {
                         let (c, a) = if f.max(b) >= table.clear_below { for_length(table.lookup(f, b), length) } else { ([0.0; 3], 0.0) };
                         let (c2, a2) = match sec {
-                            Some(s) if !second_clear => for_length(s.table.lookup(f2, b2), length),
+                            Some(s) if !second_clear => {
+                                let (c2, a2) = for_length(s.table.lookup(f2, b2), length);
+                                match &s.shading {
+                                    Some(sh) if a2 > 0.0 => {
+                                        let w = (j as f32 + 0.5) / K as f32;
+                                        self.shade(sh, c2, a2, s.gradient(sh, (xb, dxo), w), (xb, dxo), w as f64, length)
+                                    }
+                                    _ => (c2, a2),
+                                }
+                            }
                             _ => ([0.0; 3], 0.0),
                         };
                         if a > 0.0 || a2 > 0.0 {
@@ -468,6 +489,11 @@ impl<'a> Slab<'a> {
                 let (c, a) = match second {
                     Some(s) => {
                         let (c2, a2) = for_length(s.table.lookup(f.1, b.1), length);
+                        let w = 0.5 * (sa + sb);
+                        let (c2, a2) = match &s.shading {
+                            Some(sh) if a2 > 0.0 => self.shade(sh, c2, a2, s.gradient(sh, ray, w as f32), ray, w, length),
+                            _ => (c2, a2),
+                        };
                         super::fusion::fuse(c, a, c2, a2)
                     }
                     None => (c, a),

@@ -3,8 +3,8 @@
 //! sampled at the same points of every slab: each segment is classified by each volume's
 //! own pre-integrated table and the two fused as the reference fuses samples — extinctions
 //! add, α = 1 − (1 − α₁)(1 − α₂), and the colour is the extinction-weighted mean of the two
-//! mean colours (`fuse`). Only the first volume is shaded (a shaded second volume is drawn
-//! by the reference instead; see `render::render_fused_group`).
+//! mean colours (`fuse`). Each is shaded by its own gradient (the second's from its
+//! resampled copy) and lights, and its own gradient opacity applied, before they are fused.
 //!
 //! What the resampling costs: one trilinear sample of the second volume per voxel of the
 //! first (time), an f32 copy on the first's grid and its u16 axis copies (memory); and in
@@ -14,7 +14,7 @@
 //! transparent).
 
 use super::prepare::Prepared;
-use crate::scene::TransferFunction;
+use crate::scene::{TransferFunction, VolumeShading};
 use anyhow::Result;
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
@@ -26,6 +26,8 @@ use volterra_formats::{Limits, Volume, VoxelData};
 pub struct Second<'a> {
     pub prepared: &'a Prepared,
     pub tf: &'a TransferFunction,
+    /// Its gradient shading (None or `shade = false`: none).
+    pub shading: Option<&'a VolumeShading>,
 }
 
 /// `secondary`'s real values at the voxel centres of `primary` (trilinear; outside the

@@ -193,6 +193,14 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     // Shading and the gradient opacity read the gradient at the segments they touch.
     let seg_units = (fac.slab_length / k as f64 / tf.scalar_opacity_unit_distance) as f32;
     let shading = if mip { None } else { FrameShading::new(input.shading, input.lights, &fac, (prep.lo, prep.hi), tf, seg_units)? };
+    // The second volume's own shading and gradient opacity, on its own value range.
+    let shading2 = match &input.second {
+        Some(sec) => {
+            let units = (fac.slab_length / k as f64 / sec.tf.scalar_opacity_unit_distance) as f32;
+            FrameShading::new(sec.shading, input.lights, &fac, (sec.prepared.lo, sec.prepared.hi), sec.tf, units)?
+        }
+        None => None,
+    };
     // (Fused: one transparency test for both volumes, the overlapped map's masks ANDed.)
     let leaping =
         if (mip || second.is_some()) && settings.leaping == Leaping::MultiScanline { Leaping::Overlapped } else { settings.leaping };
@@ -506,6 +514,9 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         axis: a2,
                         table: t2,
                         q_to_level: *q2,
+                        shading: shading2
+                            .as_ref()
+                            .map(|frame| SlabShading::new(frame, a2, (z, y), (yp >= y_lo && yp <= y_hi).then_some((zp, yp)))),
                     }),
                 };
                 // With a crop region, composite_run takes the pixels whose whole segment
