@@ -149,3 +149,53 @@ fn every_fixture_matches_its_reference_library() {
     assert!(errors.is_empty(), "{}", errors.join("\n"));
     assert!(checked >= 51, "only {checked} fixtures");
 }
+
+/// A PET slice in Bq/ml with what SUV needs: the body-weight SUV factor is read as the
+/// standard rule gives it (worked out here by hand, apart from the reader), for images
+/// decay-corrected to the scan's start, to the injection, and across midnight; without the
+/// patient's weight, or with another correction, there is none.
+#[test]
+fn pet_in_bq_per_ml_gets_its_suv_factor() {
+    use dicom_core::{value::DataSetSequence, DataElement, PrimitiveValue, VR};
+    use dicom_dictionary_std::tags;
+    use dicom_object::InMemDicomObject;
+    let dir = tempfile::tempdir().unwrap();
+    // F-18 (half-life 109.77 min), 370 MBq injected at `start`, the series at `series`,
+    // a 72.5 kg patient.
+    let write = |name: &str, start: &str, series: &str, correction: &str, weight: Option<&str>| {
+        let mut obj = dicom_object::open_file(repo_path("tests/fixtures/dicom/oblique/z5.dcm")).unwrap();
+        let put =
+            |obj: &mut dicom_object::DefaultDicomObject, tag, vr, v: &str| obj.put(DataElement::new(tag, vr, PrimitiveValue::from(v)));
+        put(&mut obj, tags::MODALITY, VR::CS, "PT");
+        put(&mut obj, tags::UNITS, VR::CS, "BQML");
+        put(&mut obj, tags::DECAY_CORRECTION, VR::CS, correction);
+        put(&mut obj, tags::SERIES_TIME, VR::TM, series);
+        if let Some(w) = weight {
+            put(&mut obj, tags::PATIENT_WEIGHT, VR::DS, w);
+        }
+        let item = InMemDicomObject::from_element_iter([
+            DataElement::new(tags::RADIOPHARMACEUTICAL_START_TIME, VR::TM, PrimitiveValue::from(start)),
+            DataElement::new(tags::RADIONUCLIDE_TOTAL_DOSE, VR::DS, PrimitiveValue::from("370000000")),
+            DataElement::new(tags::RADIONUCLIDE_HALF_LIFE, VR::DS, PrimitiveValue::from("6586.2")),
+        ]);
+        obj.put(DataElement::new(tags::RADIOPHARMACEUTICAL_INFORMATION_SEQUENCE, VR::SQ, DataSetSequence::from(vec![item])));
+        let path = dir.path().join(name);
+        obj.write_to_file(&path).unwrap();
+        dicom::read_dicom(&path, &Default::default(), &Default::default()).unwrap()
+    };
+    // 62.5 min after injection: the dose left is 370 MBq · 2^(−3750 / 6586.2).
+    let at_start = 72_500.0 / (370e6 * 2f64.powf(-3750.0 / 6586.2));
+    let v = write("start.dcm", "101500", "111730", "START", Some("72.5"));
+    assert_eq!(v.units.as_deref(), Some("Bq/ml"));
+    let f = v.suv_bw.expect("a factor");
+    assert!((f / at_start - 1.0).abs() < 1e-12, "{f} vs {at_start}");
+    assert!(v.notes.iter().any(|n| n.contains("SUVbw") && n.contains("62.5 min")), "{:?}", v.notes);
+    // Fractional seconds and an injection before midnight.
+    let v = write("midnight.dcm", "235500.5", "005730.5", "START", Some("72.5"));
+    assert!((v.suv_bw.unwrap() / at_start - 1.0).abs() < 1e-12);
+    // Corrected to the injection: no decay.
+    let v = write("admin.dcm", "101500", "111730", "ADMIN", Some("72.5"));
+    assert!((v.suv_bw.unwrap() - 72_500.0 / 370e6).abs() < 1e-15);
+    assert_eq!(write("noweight.dcm", "101500", "111730", "START", None).suv_bw, None);
+    assert_eq!(write("none.dcm", "101500", "111730", "NONE", Some("72.5")).suv_bw, None);
+}

@@ -60,6 +60,8 @@ struct ImageInfo {
     signed: bool,
     rescale: Rescale,
     units: Option<String>,
+    /// SUVbw per Bq/ml (`suv_bw_factor`), where the file gives what it needs.
+    suv_bw: Option<(f64, String)>,
     orientation: Option<[f64; 6]>,
     pixel_spacing: Option<[f64; 2]>,
     slice_spacing: Option<f64>,
@@ -249,6 +251,51 @@ fn units_for(obj: &Obj, modality: &str) -> Option<String> {
     }
 }
 
+/// Seconds since midnight of a DICOM time (HHMMSS.FFFFFF, or HH:MM:SS of old files).
+fn seconds_of_day(tm: &str) -> Option<f64> {
+    let t: String = tm.trim().chars().filter(|c| *c != ':').collect();
+    let (hms, frac) = t.split_once('.').unwrap_or((&t, ""));
+    if hms.len() < 2 || hms.len() % 2 != 0 || !hms.chars().all(|c| c.is_ascii_digit()) {
+        return None;
+    }
+    let part = |k: usize| hms.get(2 * k..2 * k + 2).map_or(Some(0.0), |p| p.parse::<f64>().ok());
+    let fraction = if frac.is_empty() { 0.0 } else { format!("0.{frac}").parse::<f64>().ok()? };
+    Some(part(0)? * 3600.0 + part(1)? * 60.0 + part(2)? + fraction)
+}
+
+/// The body-weight SUV factor of a PET in Bq/ml (PS3.3 C.8.9.1, the QIBA/Vendor-neutral
+/// rule): SUVbw = value · weight [g] / dose at the reference time [Bq], where the dose is
+/// the injected RadionuclideTotalDose decayed with RadionuclideHalfLife from
+/// RadiopharmaceuticalStartTime to SeriesTime when the images are decay-corrected to the
+/// scan's START, undecayed when corrected to the injection (ADMIN). None where a value is
+/// missing or not positive, or the correction is another; with a note saying what it used.
+fn suv_bw_factor(obj: &Obj) -> Option<(f64, String)> {
+    let weight_kg = float(obj, tags::PATIENT_WEIGHT).filter(|w| *w > 0.0)?;
+    let item = obj.get(tags::RADIOPHARMACEUTICAL_INFORMATION_SEQUENCE)?.items()?.first()?;
+    let dose = float(item, tags::RADIONUCLIDE_TOTAL_DOSE).filter(|d| *d > 0.0)?;
+    let half_life = float(item, tags::RADIONUCLIDE_HALF_LIFE).filter(|h| *h > 0.0)?;
+    let correction = text(obj, tags::DECAY_CORRECTION).unwrap_or_default();
+    let (decay, elapsed) = match correction.as_str() {
+        "ADMIN" => (1.0, 0.0),
+        "START" => {
+            let start = seconds_of_day(&text(item, tags::RADIOPHARMACEUTICAL_START_TIME)?)?;
+            let series = seconds_of_day(&text(obj, tags::SERIES_TIME)?)?;
+            // A scan after midnight of an injection before it.
+            let elapsed = if series >= start { series - start } else { series + 86400.0 - start };
+            ((-std::f64::consts::LN_2 * elapsed / half_life).exp(), elapsed)
+        }
+        _ => return None,
+    };
+    let factor = weight_kg * 1000.0 / (dose * decay);
+    let how = format!(
+        "SUVbw = Bq/ml x {factor:.6e} (weight {weight_kg} kg, dose {:.1} MBq decayed over {:.1} min, half-life {:.1} min, corrected to {correction})",
+        dose / 1e6,
+        elapsed / 60.0,
+        half_life / 60.0
+    );
+    Some((factor, how))
+}
+
 fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject, read_note: Option<String>) -> Result<ImageInfo> {
     let obj: &Obj = file;
     BIG_ENDIAN_DATA_SET.with(|b| b.set(file.meta().transfer_syntax().trim_end_matches('\0') == crate::dicom_scan::EXPLICIT_VR_BIG_ENDIAN));
@@ -347,6 +394,7 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject, read_note: O
         series_uid: text(obj, tags::SERIES_INSTANCE_UID).unwrap_or_default(),
         series_description: text(obj, tags::SERIES_DESCRIPTION).unwrap_or_default(),
         units: units_for(obj, &modality),
+        suv_bw: (units_for(obj, &modality).as_deref() == Some("Bq/ml")).then(|| suv_bw_factor(obj)).flatten(),
         modality,
         rows: rows as u32,
         columns: columns as u32,
@@ -994,6 +1042,9 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions, limits: &Lim
     if let Some(n) = &first.read_note {
         notes.push(n.clone());
     }
+    if let Some((_, how)) = &first.suv_bw {
+        notes.push(how.clone());
+    }
     if first.photometric == "MONOCHROME1" {
         notes.push("MONOCHROME1: low values display bright; values kept as stored".to_string());
     }
@@ -1010,6 +1061,7 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions, limits: &Lim
         rescale,
         modality: Some(first.modality.clone()).filter(|m| !m.is_empty()),
         units: first.units.clone(),
+        suv_bw: first.suv_bw.as_ref().map(|(f, _)| *f),
         volume_count: 1,
         volume_index: 0,
         notes,

@@ -547,6 +547,7 @@ impl OpenedNifti {
             rescale: self.rescale,
             modality: None,
             units: None,
+            suv_bw: None,
             volume_count: self.volume_count as usize,
             volume_index: index,
             notes,

@@ -236,6 +236,10 @@ pub struct Volume {
     pub modality: Option<String>,
     /// Units of the real-world values ("HU", "Bq/ml", …) where the file says.
     pub units: Option<String>,
+    /// A PET in Bq/ml whose file gives what SUV needs (patient weight, injected dose, its
+    /// half-life, injection and series times): the factor taking its real values to the
+    /// body-weight standardised uptake value SUVbw (g/ml).
+    pub suv_bw: Option<f64>,
     /// For 4-D inputs: how many volumes the file holds and which one this is.
     pub volume_count: usize,
     pub volume_index: usize,
@@ -260,6 +264,7 @@ impl Volume {
             rescale: Rescale::IDENTITY,
             modality: None,
             units: None,
+            suv_bw: None,
             volume_count: 1,
             volume_index: 0,
             notes: Vec::new(),

@@ -1558,7 +1558,8 @@ impl Viewer {
             for (m, stats) in &doc.measurements {
                 if m.node == node_name && m.plane == Some(plane.scene_plane()) && on_this_slice(&m.points[0]) {
                     let pts: Vec<Pos2> = m.points.iter().map(|&q| on_screen(DVec3::from(q))).collect();
-                    super::measure::draw(&clip, m.kind, &pts, &super::measure::describe(m, stats.as_ref(), units.as_deref()));
+                    let lines = super::measure::describe(m, stats.as_ref(), units.as_deref(), volume.suv_bw);
+                    super::measure::draw(&clip, m.kind, &pts, &lines);
                 }
             }
             if let (Tool::Measure(kind), true) = (self.tool, self.pending_on == Some(k) && !self.pending.is_empty()) {

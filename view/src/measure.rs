@@ -109,9 +109,14 @@ pub fn roi_stats(source: &SliceSource, plane: Plane, m: &Measurement) -> Option<
 }
 
 /// What a slice measurement reads, one line per quantity (`units`: the data's values', if
-/// the file says).
-pub fn describe(m: &Measurement, stats: Option<&RoiStats>, units: Option<&str>) -> Vec<String> {
-    describe_in(m, stats, units, World::Patient)
+/// the file says; `suv_bw`: a PET's factor to SUVbw, which adds the ROI's SUV mean and
+/// maximum).
+pub fn describe(m: &Measurement, stats: Option<&RoiStats>, units: Option<&str>, suv_bw: Option<f64>) -> Vec<String> {
+    let mut lines = describe_in(m, stats, units, World::Patient);
+    if let (Some(s), Some(f)) = (stats, suv_bw) {
+        lines.push(format!("SUVbw mean {:.2}, max {:.2}", s.mean * f, s.max * f));
+    }
+    lines
 }
 
 /// As `describe`, lengths in the world's units (a terrain's metres, …).
@@ -225,6 +230,11 @@ mod tests {
         assert!((s.area_mm2 - std::f64::consts::PI * 18.0).abs() < 1e-9);
         // The samples cover the ellipse: count × pixel² ≈ its area.
         assert!((s.count as f64 * 0.25 / s.area_mm2 - 1.0).abs() < 0.05, "{s:?}");
+        // Read as the data's units, and as SUV where the PET gives its factor.
+        let lines = describe(&m, Some(&s), Some("Bq/ml"), Some(0.5));
+        assert_eq!(lines[0], "mean 1.0 Bq/ml, SD 3.0", "{lines:?}");
+        assert_eq!(lines.last().unwrap(), "SUVbw mean 0.50, max 3.50");
+        assert_eq!(describe(&m, Some(&s), None, None).len(), 3);
         // Half outside the volume (x beyond 10): only the inside counts.
         let out = Measurement { points: vec![[4.0, -3.0, 1.0], [16.0, 3.0, 1.0]], ..m };
         let s = roi_stats(&ramp(), Plane::Axial, &out).unwrap();
