@@ -8,6 +8,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod compare;
+pub mod dem;
 pub mod info;
 
 pub use volterra_formats as formats;

@@ -14,9 +14,10 @@
 #                   a single-node Slurm cluster the tests start (tests/slurm.rs) to run
 #                   `volterra slurm`'s job arrays for real
 #   ffmpeg          `volterra movie` (frames to MP4/GIF)
+#   gdal-bin        gdaldem and gdalinfo, the reference for `volterra dem` (tests only)
 set -euo pipefail
 need=()
-for pkg in libcharls-dev cmake python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0 slurmctld slurmd slurm-client munge ffmpeg; do
+for pkg in libcharls-dev cmake python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0 slurmctld slurmd slurm-client munge ffmpeg gdal-bin; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

@@ -231,6 +231,49 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// DEM products as gdaldem makes them (Horn's gradient, its NoData and edge rules):
+    /// hillshade (byte, NoData 0), slope and aspect (float, NoData −9999), written as
+    /// GeoTIFF on the input's grid with its georeferencing.
+    Dem {
+        #[arg(value_enum)]
+        product: DemProduct,
+        /// A GeoTIFF or PNG heightmap.
+        input: PathBuf,
+        /// The GeoTIFF written.
+        output: PathBuf,
+        /// Vertical exaggeration (gdaldem -z).
+        #[arg(long, default_value_t = 1.0)]
+        z: f64,
+        /// Horizontal units per elevation unit (gdaldem -s): 111120 for a DEM in degrees
+        /// with elevations in metres.
+        #[arg(long, default_value_t = 1.0)]
+        scale: f64,
+        /// Light azimuth, degrees clockwise from north (hillshade).
+        #[arg(long, default_value_t = 315.0)]
+        azimuth: f64,
+        /// Light altitude above the horizon, degrees (hillshade).
+        #[arg(long, default_value_t = 45.0)]
+        altitude: f64,
+        /// Slope in percent instead of degrees.
+        #[arg(long)]
+        percent: bool,
+        /// Aspect 0 instead of NoData where the ground is flat.
+        #[arg(long)]
+        zero_for_flat: bool,
+        /// Complete the 3 × 3 windows at the raster's edges and around NoData instead of
+        /// leaving those cells NoData.
+        #[arg(long)]
+        compute_edges: bool,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum DemProduct {
+    Hillshade,
+    Slope,
+    Aspect,
 }
 
 /// On SIGINT or SIGTERM: remove the temporary files of outputs being written (outputs are
@@ -510,6 +553,10 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
         Command::Info { path, json, read } => cmd_info(&path, json, read.volume.is_none(), &read.options(limits)?),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read, &read.options(limits)?),
         Command::Compare { a, b, json } => cmd_compare(&a, &b, json, &limits),
+        Command::Dem { product, input, output, z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges, read } => {
+            let options = volterra::dem::Options { z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges };
+            cmd_dem(product, &input, &output, &options, &read.options(limits)?)
+        }
         Command::Renderers => {
             print!("{}", volterra::render::registry::markdown());
             Ok(())
@@ -728,6 +775,25 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
         }
     }
     eprintln!("wrote {}", output.display());
+    Ok(())
+}
+
+fn cmd_dem(product: DemProduct, input: &Path, output: &Path, options: &volterra::dem::Options, load: &LoadOptions) -> Result<()> {
+    use volterra::dem::{self, Product, Raster};
+    let product = match product {
+        DemProduct::Hillshade => Product::Hillshade,
+        DemProduct::Slope => Product::Slope,
+        DemProduct::Aspect => Product::Aspect,
+    };
+    let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
+        anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
+    };
+    let raster = dem::compute(&hf, product, options).with_context(|| input.display().to_string())?;
+    let band = match &raster {
+        Raster::F32(v) => formats::geotiff::Band::F32(v),
+        Raster::U8(v) => formats::geotiff::Band::U8(v),
+    };
+    formats::geotiff::write_band(output, &hf, band, Some(dem::nodata_value(product)), false)?;
     Ok(())
 }
 

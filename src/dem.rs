@@ -1,0 +1,265 @@
+//! DEM products as `gdaldem` makes them (GDAL's `gdaldem_lib.cpp`, Horn's 3 × 3 gradient):
+//! hillshade, slope and aspect of a heightfield, written as GeoTIFF on the input's grid
+//! with its georeferencing. The same window rules as GDAL's: a cell whose 3 × 3 window
+//! reaches past the raster's edge, or holds a NoData cell, is NoData in the output (with
+//! `compute_edges`: the window is completed — beyond the edge by linear extrapolation
+//! 2a − b, a NoData neighbour by the centre — and only a NoData centre stays NoData).
+//!
+//! Horn's gradient over the window w0..w8 (row by row, north first): x = ((w0 + 2w3 + w6)
+//! − (w2 + 2w5 + w8)) / (ewres · xscale), y = ((w6 + 2w7 + w8) − (w0 + 2w1 + w2)) / (nsres
+//! · yscale), with nsres negative for a north-up raster, both multiplied by `z`.
+//! Slope: atan(√(x² + y²) / 8) in degrees (or 100 · √(x² + y²) / 8 percent). Aspect: the
+//! azimuth clockwise from north of the downhill direction, from the unscaled differences
+//! (as GDAL: it assumes square cells), NoData where flat (0 with `zero_for_flat`).
+//! Hillshade: (sin alt − (y cos az − x sin az) cos alt · z/8) / √(1 + (z/8)² (x² + y²)),
+//! as a byte 1 + 254 · that (1 where ≤ 0), 0 for NoData. A geographic DEM (degrees) needs
+//! `scale` = 111120 (metres per degree), as with gdaldem's -s.
+
+use anyhow::{bail, Result};
+use volterra_formats::heightfield::Heightfield;
+
+/// Which product.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Product {
+    Hillshade,
+    Slope,
+    Aspect,
+}
+
+/// gdaldem's options for these products, with its defaults.
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    /// Vertical exaggeration (gdaldem -z).
+    pub z: f64,
+    /// Horizontal units per elevation unit (gdaldem -s; 111120 for degrees and metres).
+    pub scale: f64,
+    /// Light azimuth, degrees clockwise from north (hillshade; gdaldem -az).
+    pub azimuth: f64,
+    /// Light altitude above the horizon, degrees (hillshade; gdaldem -alt).
+    pub altitude: f64,
+    /// Slope in percent instead of degrees (gdaldem -p).
+    pub percent: bool,
+    /// Aspect 0 instead of NoData where flat (gdaldem -zero_for_flat).
+    pub zero_for_flat: bool,
+    /// Complete windows at the edges and around NoData (gdaldem -compute_edges).
+    pub compute_edges: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { z: 1.0, scale: 1.0, azimuth: 315.0, altitude: 45.0, percent: false, zero_for_flat: false, compute_edges: false }
+    }
+}
+
+/// A product's cells, row by row from the north, and its NoData value.
+pub enum Raster {
+    /// Slope and aspect (NoData −9999, as gdaldem writes them).
+    F32(Vec<f32>),
+    /// Hillshade (NoData 0).
+    U8(Vec<u8>),
+}
+
+/// The NoData value gdaldem gives each product.
+pub fn nodata_value(p: Product) -> f64 {
+    match p {
+        Product::Hillshade => 0.0,
+        Product::Slope | Product::Aspect => -9999.0,
+    }
+}
+
+/// The product of `hf` (elevations as read; NoData cells flagged).
+pub fn compute(hf: &Heightfield, product: Product, o: &Options) -> Result<Raster> {
+    let (w, h) = (hf.width, hf.height);
+    if w < 3 || h < 3 {
+        bail!("a {w}×{h} raster has no 3×3 window");
+    }
+    for (name, v) in [("z", o.z), ("scale", o.scale), ("azimuth", o.azimuth), ("altitude", o.altitude)] {
+        if !v.is_finite() {
+            bail!("{name} {v} must be finite");
+        }
+    }
+    if o.scale == 0.0 {
+        bail!("scale must not be 0");
+    }
+    let (ewres, nsres) = (hf.cell_size_native[0], -hf.cell_size_native[1]);
+    let (inv_ew, inv_ns) = (1.0 / (ewres * o.scale), 1.0 / (nsres * o.scale));
+    let nodata = |c: usize, r: usize| hf.is_nodata(c, r) || !hf.elevations[r * w + c].is_finite();
+    // Window sums in f32, in GDAL's order (it sums a float raster's window in float and an
+    // integer one's in int32, which f32 matches exactly below 2^24): the same cells give
+    // the same bits.
+    let at = |c: usize, r: usize| hf.elevations[r * w + c];
+    let (sin_alt, cos_alt) = o.altitude.to_radians().sin_cos();
+    let (sin_az, cos_az) = o.azimuth.to_radians().sin_cos();
+    let zf = 1.0 / 8.0;
+    let out_nodata = nodata_value(product);
+    let mut values = vec![out_nodata; w * h];
+    for r in 0..h {
+        for c in 0..w {
+            let Some(win) = window(c, r, w, h, &nodata, &at, o.compute_edges) else { continue };
+            let west_minus_east = ((win[0] + win[3] + win[3] + win[6]) - (win[2] + win[5] + win[5] + win[8])) as f64;
+            let south_minus_north = ((win[6] + win[7] + win[7] + win[8]) - (win[0] + win[1] + win[1] + win[2])) as f64;
+            let (x, y) = (west_minus_east * o.z * inv_ew, south_minus_north * o.z * inv_ns);
+            values[r * w + c] = match product {
+                Product::Slope => {
+                    let g = (x * x + y * y).sqrt() * zf;
+                    if o.percent {
+                        100.0 * g
+                    } else {
+                        g.atan().to_degrees()
+                    }
+                }
+                Product::Aspect => {
+                    let (dx, dy) = (((win[2] + win[5] + win[5] + win[8]) - (win[0] + win[3] + win[3] + win[6])) as f64, south_minus_north);
+                    if dx == 0.0 && dy == 0.0 {
+                        if o.zero_for_flat {
+                            0.0
+                        } else {
+                            out_nodata
+                        }
+                    } else {
+                        // As GDAL: in f32, the angle from east counter-clockwise made an azimuth.
+                        let a = (dy.atan2(-dx).to_degrees()) as f32;
+                        let a = if a > 90.0 { 450.0 - a } else { 90.0 - a };
+                        if a == 360.0 {
+                            0.0
+                        } else {
+                            a as f64
+                        }
+                    }
+                }
+                Product::Hillshade => {
+                    let cang = (sin_alt - (y * cos_az - x * sin_az) * cos_alt * zf) / (1.0 + zf * zf * (x * x + y * y)).sqrt();
+                    if cang <= 0.0 {
+                        1.0
+                    } else {
+                        1.0 + 254.0 * cang
+                    }
+                }
+            };
+        }
+    }
+    Ok(match product {
+        // GDAL writes its float results into the byte band rounded to the nearest.
+        Product::Hillshade => Raster::U8(values.iter().map(|v| v.round().clamp(0.0, 255.0) as u8).collect()),
+        _ => Raster::F32(values.iter().map(|&v| v as f32).collect()),
+    })
+}
+
+/// The 3 × 3 window about (c, r), or None where the output is NoData there.
+fn window(
+    c: usize,
+    r: usize,
+    w: usize,
+    h: usize,
+    nodata: &impl Fn(usize, usize) -> bool,
+    at: &impl Fn(usize, usize) -> f32,
+    compute_edges: bool,
+) -> Option<[f32; 9]> {
+    if nodata(c, r) {
+        return None;
+    }
+    let centre = at(c, r);
+    // With compute_edges, as GDAL completes a window: in the first and last rows the
+    // columns beyond the edge repeat the edge column, and the rows beyond are extrapolated
+    // from it (2a − b); elsewhere the columns beyond are extrapolated along the row. A
+    // NoData cell (or an extrapolation from one) is replaced by the centre.
+    let edge_row = r == 0 || r == h - 1;
+    let inside = |cc: isize, rr: isize| cc >= 0 && rr >= 0 && (cc as usize) < w && (rr as usize) < h;
+    let value = |cc: isize, rr: isize| -> Option<f32> { (!nodata(cc as usize, rr as usize)).then(|| at(cc as usize, rr as usize)) };
+    let interpol = |a: Option<f32>, b: Option<f32>| Some(2.0 * a? - b?);
+    let mut win = [0.0f32; 9];
+    for (k, slot) in win.iter_mut().enumerate() {
+        let (dc, dr) = ((k % 3) as isize - 1, (k / 3) as isize - 1);
+        let (mut cc, rr) = (c as isize + dc, r as isize + dr);
+        if !inside(cc, rr) && !compute_edges {
+            return None;
+        }
+        if edge_row {
+            cc = cc.clamp(0, w as isize - 1);
+        }
+        let v = if inside(cc, rr) {
+            value(cc, rr)
+        } else if inside(c as isize, rr) {
+            // A middle row: beyond the left or right edge.
+            interpol(value(c as isize, rr), value(c as isize - dc, rr))
+        } else {
+            // Beyond the first or last row.
+            interpol(value(cc, r as isize), value(cc, r as isize - dr))
+        };
+        *slot = match v {
+            Some(v) => v,
+            None if compute_edges => centre,
+            None => return None,
+        };
+    }
+    Some(win)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use volterra_formats::heightfield::Crs;
+
+    /// A plane z = a·x + b·y (x east, y north, metres) on 10 m cells.
+    fn plane(a: f64, b: f64) -> Heightfield {
+        let (w, h) = (6, 5);
+        let elevations = (0..w * h)
+            .map(|i| {
+                let (c, r) = ((i % w) as f64, (i / w) as f64);
+                (a * 10.0 * c + b * 10.0 * (h as f64 - 1.0 - r)) as f32
+            })
+            .collect();
+        Heightfield {
+            width: w,
+            height: h,
+            cell_size: [10.0, 10.0],
+            cell_size_native: [10.0, 10.0],
+            origin: [500_000.0, 4_000_000.0],
+            crs: Crs::local(),
+            elevations,
+            nodata: vec![],
+            nodata_value: None,
+            notes: vec![],
+            attributes: vec![],
+        }
+    }
+
+    fn f32s(r: Raster) -> Vec<f32> {
+        match r {
+            Raster::F32(v) => v,
+            Raster::U8(v) => v.into_iter().map(f32::from).collect(),
+        }
+    }
+
+    #[test]
+    fn a_plane_has_its_slope_and_aspect_and_edges_are_nodata() {
+        // Rising 1 m per 10 m eastwards: slope atan(0.1), facing (downhill) west: 270°.
+        let hf = plane(0.1, 0.0);
+        let slope = f32s(compute(&hf, Product::Slope, &Options::default()).unwrap());
+        let aspect = f32s(compute(&hf, Product::Aspect, &Options::default()).unwrap());
+        let inner = 6 + 2; // row 1, column 2
+        assert!((slope[inner] as f64 - 0.1f64.atan().to_degrees()).abs() < 1e-4, "{}", slope[inner]);
+        assert!((aspect[inner] - 270.0).abs() < 1e-4, "{}", aspect[inner]);
+        assert_eq!(slope[0], -9999.0, "edges are NoData without compute_edges");
+        // Rising northwards: facing south, 180°; percent slope 10.
+        let hf = plane(0.0, 0.1);
+        assert!((f32s(compute(&hf, Product::Aspect, &Options::default()).unwrap())[inner] - 180.0).abs() < 1e-4);
+        let pct = f32s(compute(&hf, Product::Slope, &Options { percent: true, ..Default::default() }).unwrap());
+        assert!((pct[inner] - 10.0).abs() < 1e-4);
+        // compute_edges: a plane extrapolates exactly, so the edges have its slope too —
+        // but for the corners, where GDAL repeats the edge column instead.
+        let edges = f32s(compute(&hf, Product::Slope, &Options { compute_edges: true, ..Default::default() }).unwrap());
+        let corners = [0, 5, 24, 29];
+        assert!(
+            edges.iter().enumerate().all(|(i, s)| corners.contains(&i) || (*s as f64 - 0.1f64.atan().to_degrees()).abs() < 1e-4),
+            "{edges:?}"
+        );
+        // Flat: aspect NoData (or 0), hillshade 1 + 254 sin(45°).
+        let flat = plane(0.0, 0.0);
+        assert_eq!(f32s(compute(&flat, Product::Aspect, &Options::default()).unwrap())[inner], -9999.0);
+        assert_eq!(f32s(compute(&flat, Product::Aspect, &Options { zero_for_flat: true, ..Default::default() }).unwrap())[inner], 0.0);
+        let hs = f32s(compute(&flat, Product::Hillshade, &Options::default()).unwrap());
+        assert_eq!(hs[inner], (1.0 + 254.0 * 45f64.to_radians().sin()).round() as f32);
+        assert_eq!(hs[0], 0.0);
+    }
+}

@@ -1,0 +1,158 @@
+//! `volterra dem hillshade|slope|aspect` against GDAL's `gdaldem` (Debian's gdal-bin, which
+//! tests/setup-system.sh installs): on the real geographic DEM in `../shared/data`
+//! (pysheds_dem.tif, with -s 111120) and on a projected DEM with NoData holes written
+//! here, with and without -compute_edges. The outputs must agree cell for cell (values,
+//! NoData) and in everything `gdalinfo -json` says of the grid: size, geotransform, CRS,
+//! band type and NoData value.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// gdaldem, or a skip (a failure under CI).
+fn gdaldem() -> Option<PathBuf> {
+    let p = PathBuf::from("/usr/bin/gdaldem");
+    if p.exists() {
+        return Some(p);
+    }
+    if common::under_ci() {
+        panic!("gdaldem missing under CI (tests/setup-system.sh installs gdal-bin)");
+    }
+    eprintln!("SKIPPED: gdaldem not installed (apt install gdal-bin)");
+    None
+}
+
+fn run(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    assert!(out.status.success(), "{cmd:?}: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// What gdalinfo says of a raster's grid and band.
+fn grid_of(path: &Path) -> serde_json::Value {
+    let info: serde_json::Value = serde_json::from_str(&run(Command::new("gdalinfo").arg("-json").arg(path))).unwrap();
+    let band = &info["bands"][0];
+    // The CRS by its EPSG code: GDAL spells the same code out in other words when it wrote
+    // the file (a datum ensemble or the datum it resolves to).
+    let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or_default();
+    let epsg = wkt.rfind("ID[\"EPSG\",").map(|at| wkt[at..].split(']').next().unwrap_or_default().to_string());
+    assert!(epsg.is_some(), "{}: no EPSG code in {wkt}", path.display());
+    serde_json::json!({
+        "size": info["size"],
+        "geoTransform": info["geoTransform"],
+        "crs": epsg,
+        "type": band["type"],
+        "noDataValue": band["noDataValue"],
+    })
+}
+
+/// The cells of a raster as f32 (through gdal_translate, so GDAL reads ours too) and
+/// which are NoData.
+fn cells(path: &Path, dir: &Path) -> (Vec<f32>, Vec<bool>) {
+    let f32_path = dir.join(format!("{}.f32.tif", path.file_stem().unwrap().to_string_lossy()));
+    run(Command::new("gdal_translate").args(["-q", "-ot", "Float32"]).arg(path).arg(&f32_path));
+    let hf = volterra_formats::geotiff::read_geotiff(&f32_path, &Default::default()).unwrap();
+    let n = hf.elevations.len();
+    let nodata = if hf.nodata.is_empty() { vec![false; n] } else { hf.nodata.clone() };
+    (hf.elevations, nodata)
+}
+
+/// Runs every product on `dem` both ways and compares; returns the cells compared.
+fn compare_products(dem: &Path, dir: &Path, gdal_args: &[&str], our_args: &[&str]) -> usize {
+    let gdaldem = gdaldem().unwrap();
+    let mut compared = 0;
+    for product in ["hillshade", "slope", "aspect"] {
+        for edges in [false, true] {
+            let tag = format!("{product}{}", if edges { "_edges" } else { "" });
+            let (reference, ours) = (dir.join(format!("gdal_{tag}.tif")), dir.join(format!("ours_{tag}.tif")));
+            let mut g = Command::new(&gdaldem);
+            g.arg(product).arg(dem).arg(&reference).arg("-q").args(gdal_args);
+            if edges {
+                g.arg("-compute_edges");
+            }
+            run(&mut g);
+            let mut v = Command::new(common::volterra_bin());
+            v.args(["dem", product]).arg(dem).arg(&ours).args(our_args);
+            if edges {
+                v.arg("--compute-edges");
+            }
+            run(&mut v);
+            assert_eq!(grid_of(&ours), grid_of(&reference), "{tag}: the grid as gdalinfo reads it");
+            let ((a, na), (b, nb)) = (cells(&ours, dir), cells(&reference, dir));
+            let nodata_mismatch = na.iter().zip(&nb).filter(|(x, y)| x != y).count();
+            let worst = a
+                .iter()
+                .zip(&b)
+                .zip(na.iter().zip(&nb))
+                .filter(|(_, (x, y))| !**x && !**y)
+                .map(|((p, q), _)| (p - q).abs())
+                .fold(0.0f32, f32::max);
+            let valid = na.iter().filter(|x| !**x).count();
+            let differing = a.iter().zip(&b).zip(na.iter().zip(&nb)).filter(|((p, q), (x, y))| !**x && !**y && p != q).count();
+            eprintln!(
+                "{} {tag}: {valid} cells, NoData mismatches {nodata_mismatch}, {differing} differ, largest difference {worst}",
+                dem.display()
+            );
+            assert_eq!(nodata_mismatch, 0, "{tag}: NoData where gdaldem has it");
+            if product == "hillshade" {
+                // GDAL divides by an approximate square root (SSE rsqrt and one Newton step)
+                // and sums a float window in its own order: a byte may round the other way.
+                assert!(worst <= 1.0 && differing * 1000 <= valid, "{tag}: {differing} bytes differ, by up to {worst}");
+            } else {
+                assert!(worst <= 1e-4, "{tag}: {worst} from gdaldem");
+            }
+            compared += valid;
+        }
+    }
+    compared
+}
+
+#[test]
+fn dem_products_equal_gdaldem_on_a_real_geographic_dem() {
+    let Some(shared) = common::shared_data() else { return };
+    if gdaldem().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let dem = shared.join("terrain/pysheds_dem.tif");
+    let n = compare_products(&dem, dir.path(), &["-s", "111120"], &["--scale", "111120"]);
+    assert!(n > 700_000, "{n} cells compared");
+}
+
+#[test]
+fn dem_products_equal_gdaldem_on_a_projected_dem_with_nodata() {
+    if gdaldem().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // 90 × 70 cells of 30 m in UTM 10N: smooth hills, two NoData holes and a NoData edge run.
+    let (w, h) = (90, 70);
+    let mut elevations = Vec::with_capacity(w * h);
+    let mut nodata = Vec::with_capacity(w * h);
+    for r in 0..h {
+        for c in 0..w {
+            let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
+            elevations.push((300.0 + 80.0 * (x / 400.0).sin() * (y / 300.0).cos() + 0.05 * x) as f32);
+            let hole = ((c as f64 - 30.0).powi(2) + (r as f64 - 20.0).powi(2)) < 25.0 || (c > 60 && c < 66 && r > 40 && r < 50);
+            nodata.push(hole || (r == 0 && c < 10));
+        }
+    }
+    let hf = volterra_formats::Heightfield {
+        width: w,
+        height: h,
+        cell_size: [30.0, 30.0],
+        cell_size_native: [30.0, 30.0],
+        origin: [500_015.0, 4_200_015.0],
+        crs: volterra_formats::Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
+        elevations,
+        nodata,
+        nodata_value: Some(-32768.0),
+        notes: vec![],
+        attributes: vec![],
+    };
+    let dem = dir.path().join("hills.tif");
+    volterra_formats::geotiff::write_geotiff(&dem, &hf).unwrap();
+    let n = compare_products(&dem, dir.path(), &[], &[]);
+    assert!(n > 30_000, "{n} cells compared");
+}
