@@ -13,7 +13,11 @@
 //! (as GDAL: it assumes square cells), NoData where flat (0 with `zero_for_flat`).
 //! Hillshade: (sin alt − (y cos az − x sin az) cos alt · z/8) / √(1 + (z/8)² (x² + y²)),
 //! as a byte 1 + 254 · that (1 where ≤ 0), 0 for NoData. A geographic DEM (degrees) needs
-//! `scale` = 111120 (metres per degree), as with gdaldem's -s.
+//! `scale` = 111120 (metres per degree), as with gdaldem's -s. Color-relief: a gdaldem
+//! colour file (`parse_palette`) looked up per cell (`color_relief`), interpolated as GDAL
+//! does (t between the neighbouring entries, each component truncated after adding 0.45),
+//! or the nearest entry, or exact entries only (as GDAL's current source: GDAL 3.6 gives
+//! the palette's own values transparent black in that mode, a bug fixed since).
 
 use anyhow::{bail, Result};
 use volterra_formats::heightfield::Heightfield;
@@ -195,6 +199,149 @@ fn window(
     Some(win)
 }
 
+/// How color-relief picks a cell's colour (gdaldem's default, -nearest_color_entry,
+/// -exact_color_entry).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ColorMode {
+    Interpolate,
+    Nearest,
+    Exact,
+}
+
+/// A palette entry: the value and its colour (RGBA, 0–255).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PaletteEntry {
+    pub value: f64,
+    pub rgba: [i32; 4],
+}
+
+/// gdaldem's colour names and their colours.
+const NAMED_COLOURS: [(&str, [f32; 3]); 16] = [
+    ("white", [1.0, 1.0, 1.0]),
+    ("black", [0.0, 0.0, 0.0]),
+    ("red", [1.0, 0.0, 0.0]),
+    ("green", [0.0, 1.0, 0.0]),
+    ("blue", [0.0, 0.0, 1.0]),
+    ("yellow", [1.0, 1.0, 0.0]),
+    ("magenta", [1.0, 0.0, 1.0]),
+    ("cyan", [0.0, 1.0, 1.0]),
+    ("aqua", [0.0, 0.75, 0.75]),
+    ("grey", [0.75, 0.75, 0.75]),
+    ("gray", [0.75, 0.75, 0.75]),
+    ("orange", [1.0, 0.5, 0.0]),
+    ("brown", [0.75, 0.5, 0.25]),
+    ("purple", [0.5, 0.0, 1.0]),
+    ("violet", [0.5, 0.0, 1.0]),
+    ("indigo", [0.0, 0.5, 1.0]),
+];
+
+/// A gdaldem colour file: lines "value R G B [A]" or "value name [A]" (tokens split by
+/// spaces, tabs, commas or colons; # and / start comments); the value may be "nv" (the
+/// DEM's NoData value; ignored where it has none) or a percentage of the DEM's range of
+/// valid elevations. Sorted by value (stably, as GDAL sorts). GMT .cpt palettes are not
+/// read.
+pub fn parse_palette(text: &str, hf: &Heightfield) -> Result<Vec<PaletteEntry>> {
+    if text.lines().any(|l| l.starts_with('#') && l.contains("COLOR_MODEL")) {
+        bail!("GMT .cpt palettes are not read (give 'value R G B' lines)");
+    }
+    let valid = || (0..hf.elevations.len()).filter(|&i| !hf.nodata.get(i).copied().unwrap_or(false)).map(|i| hf.elevations[i] as f64);
+    let (lo, hi) = valid().filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let mut entries = Vec::new();
+    for line in text.lines() {
+        let tokens: Vec<&str> = line.split([' ', '\t', ',', ':']).filter(|t| !t.is_empty()).collect();
+        if tokens.is_empty() || tokens[0].starts_with('#') || tokens[0].starts_with('/') || tokens.len() < 2 {
+            continue;
+        }
+        let value = if tokens[0].eq_ignore_ascii_case("nv") {
+            match hf.nodata_value {
+                Some(v) => v,
+                None => continue, // as gdaldem: a warning, the entry ignored
+            }
+        } else if let Some(pct) = tokens[0].strip_suffix('%').filter(|p| !p.is_empty()) {
+            let pct: f64 = pct.parse().map_err(|_| anyhow::anyhow!("'{}' is not a percentage", tokens[0]))?;
+            if !(0.0..=100.0).contains(&pct) {
+                bail!("wrong value for a percentage: {}", tokens[0]);
+            }
+            lo + pct / 100.0 * (hi - lo)
+        } else {
+            tokens[0].parse().map_err(|_| anyhow::anyhow!("'{}' is not a value", tokens[0]))?
+        };
+        let int = |t: &str| t.parse::<i32>().map_err(|_| anyhow::anyhow!("'{t}' is not a colour component"));
+        let rgba = if tokens.len() >= 4 {
+            [int(tokens[1])?, int(tokens[2])?, int(tokens[3])?, tokens.get(4).map_or(Ok(255), |t| int(t))?]
+        } else {
+            let (_, c) = NAMED_COLOURS
+                .iter()
+                .find(|(n, _)| n.eq_ignore_ascii_case(tokens[1]))
+                .ok_or_else(|| anyhow::anyhow!("unknown colour: {}", tokens[1]))?;
+            let byte = |f: f32| (255.0 * f) as i32;
+            [byte(c[0]), byte(c[1]), byte(c[2]), tokens.get(2).map_or(Ok(255), |t| int(t))?]
+        };
+        entries.push(PaletteEntry { value, rgba });
+    }
+    if entries.is_empty() {
+        bail!("no colour entries");
+    }
+    entries.sort_by(|a, b| match (a.value.is_nan(), b.value.is_nan()) {
+        (true, false) => std::cmp::Ordering::Less,
+        (false, true) => std::cmp::Ordering::Greater,
+        _ => a.value.partial_cmp(&b.value).unwrap_or(std::cmp::Ordering::Equal),
+    });
+    Ok(entries)
+}
+
+/// The colour of value `v` (None: transparent black, where exact matching finds none).
+fn palette_colour(p: &[PaletteEntry], v: f64, mode: ColorMode) -> Option<[i32; 4]> {
+    let mut lower = 0;
+    if p[0].value.is_nan() {
+        if v.is_nan() {
+            return Some(p[0].rgba);
+        }
+        lower = 1;
+    }
+    // The first entry not below v (p.len() where every one is).
+    let i = lower + p[lower..].partition_point(|e| e.value < v);
+    let exact_or = |e: &PaletteEntry| (mode != ColorMode::Exact || e.value == v).then_some(e.rgba);
+    if i == 0 || (i == lower && lower == 1) {
+        return exact_or(&p[i.min(p.len() - 1)]);
+    }
+    if i == p.len() {
+        return exact_or(&p[i - 1]);
+    }
+    let (a, b) = (&p[i - 1], &p[i]);
+    if a.value == v {
+        return Some(a.rgba);
+    }
+    if b.value == v {
+        return Some(b.rgba);
+    }
+    match mode {
+        ColorMode::Exact => None,
+        ColorMode::Nearest => Some(if v - a.value < b.value - v { a.rgba } else { b.rgba }),
+        ColorMode::Interpolate if a.value.is_nan() => Some(b.rgba),
+        ColorMode::Interpolate => {
+            let t = (v - a.value) / (b.value - a.value);
+            // As GDAL: truncated after adding 0.45.
+            Some(std::array::from_fn(|k| ((0.45 + a.rgba[k] as f64 + t * (b.rgba[k] - a.rgba[k]) as f64) as i32).clamp(0, 255)))
+        }
+    }
+}
+
+/// gdaldem color-relief: each cell's colour from `palette` (NoData cells looked up by the
+/// NoData value, so an "nv" entry colours them and otherwise they take the palette's
+/// lowest colour, as in GDAL), RGB or, with `alpha`, RGBA bytes, cell by cell.
+pub fn color_relief(hf: &Heightfield, palette: &[PaletteEntry], mode: ColorMode, alpha: bool) -> Vec<u8> {
+    let bands = if alpha { 4 } else { 3 };
+    let mut out = Vec::with_capacity(hf.elevations.len() * bands);
+    for (i, &z) in hf.elevations.iter().enumerate() {
+        let nodata = hf.nodata.get(i).copied().unwrap_or(false);
+        let v = if nodata { hf.nodata_value.unwrap_or(f64::NAN) } else { z as f64 };
+        let c = palette_colour(palette, v, mode).unwrap_or([0; 4]);
+        out.extend(c[..bands].iter().map(|&x| x.clamp(0, 255) as u8));
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -261,5 +408,27 @@ mod tests {
         let hs = f32s(compute(&flat, Product::Hillshade, &Options::default()).unwrap());
         assert_eq!(hs[inner], (1.0 + 254.0 * 45f64.to_radians().sin()).round() as f32);
         assert_eq!(hs[0], 0.0);
+    }
+
+    #[test]
+    fn palettes_parse_as_gdaldem_reads_them_and_exact_entries_match_only_themselves() {
+        let mut hf = plane(0.0, 0.0);
+        hf.elevations = (0..30).map(|i| i as f32 * 10.0).collect();
+        hf.nodata = (0..30).map(|i| i == 29).collect();
+        hf.nodata_value = Some(-1.0);
+        let p = parse_palette("# c\n/ also a comment\nnv 1 2 3 4\n50% red 128\n0:0,0,0\n100 white\n", &hf).unwrap();
+        // Sorted: nv (−1), 0, 100, the middle of the valid range (0 … 280: 140).
+        let values: Vec<f64> = p.iter().map(|e| e.value).collect();
+        assert_eq!(values, [-1.0, 0.0, 100.0, 140.0]);
+        assert_eq!(p[3].rgba, [255, 0, 0, 128]);
+        let c = color_relief(&hf, &p, ColorMode::Interpolate, true);
+        assert_eq!(&c[4 * 5..4 * 6], &[127, 127, 127, 255], "50 is halfway from black to white (truncated after + 0.45)");
+        assert_eq!(&c[4 * 29..], &[1, 2, 3, 4], "NoData takes the nv colour");
+        let exact = color_relief(&hf, &p, ColorMode::Exact, false);
+        assert_eq!(&exact[3 * 10..3 * 11], &[255, 255, 255], "100 is an entry");
+        assert_eq!(&exact[3 * 5..3 * 6], &[0, 0, 0], "50 is none");
+        assert!(parse_palette("10 mauve\n", &hf).unwrap_err().to_string().contains("unknown colour: mauve"));
+        assert!(parse_palette("120% red\n", &hf).unwrap_err().to_string().contains("percentage"));
+        assert!(parse_palette("# COLOR_MODEL = RGB\n", &hf).is_err());
     }
 }

@@ -1,4 +1,4 @@
-//! `volterra dem hillshade|slope|aspect` against GDAL's `gdaldem` (Debian's gdal-bin, which
+//! `volterra dem hillshade|slope|aspect|color-relief` against GDAL's `gdaldem` (Debian's gdal-bin, which
 //! tests/setup-system.sh installs): on the real geographic DEM in `../shared/data`
 //! (pysheds_dem.tif, with -s 111120) and on a projected DEM with NoData holes written
 //! here, with and without -compute_edges. The outputs must agree cell for cell (values,
@@ -50,17 +50,55 @@ fn grid_of(path: &Path) -> serde_json::Value {
 /// The cells of a raster as f32 (through gdal_translate, so GDAL reads ours too) and
 /// which are NoData.
 fn cells(path: &Path, dir: &Path) -> (Vec<f32>, Vec<bool>) {
-    let f32_path = dir.join(format!("{}.f32.tif", path.file_stem().unwrap().to_string_lossy()));
-    run(Command::new("gdal_translate").args(["-q", "-ot", "Float32"]).arg(path).arg(&f32_path));
+    band_cells(path, dir, 1)
+}
+
+/// As `cells`, of band `band` (1-based).
+fn band_cells(path: &Path, dir: &Path, band: usize) -> (Vec<f32>, Vec<bool>) {
+    let f32_path = dir.join(format!("{}.b{band}.f32.tif", path.file_stem().unwrap().to_string_lossy()));
+    run(Command::new("gdal_translate").args(["-q", "-ot", "Float32", "-b", &band.to_string()]).arg(path).arg(&f32_path));
     let hf = volterra_formats::geotiff::read_geotiff(&f32_path, &Default::default()).unwrap();
     let n = hf.elevations.len();
     let nodata = if hf.nodata.is_empty() { vec![false; n] } else { hf.nodata.clone() };
     (hf.elevations, nodata)
 }
 
+/// A palette with every kind of entry: NoData, absolute values (space- and comma-separated),
+/// percentages of the range, named colours, alpha.
+const PALETTE: &str = "# elevations\nnv 0 0 0 0\n150 0 90 30\n180,60,140,60\n0% blue\n40% 200 200 80 200\n250 brown\n100% white\n";
+
+/// color-relief both ways (interpolated and nearest, RGB and RGBA): every band equal.
+fn compare_color_relief(dem: &Path, dir: &Path) {
+    let gdaldem = gdaldem().unwrap();
+    let palette = dir.join("palette.txt");
+    std::fs::write(&palette, PALETTE).unwrap();
+    for (mode, our_mode) in [(None, None), (Some("-nearest_color_entry"), Some("--nearest-color-entry"))] {
+        for alpha in [false, true] {
+            let tag = format!("relief{}{}", if mode.is_some() { "_nearest" } else { "" }, if alpha { "_alpha" } else { "" });
+            let (reference, ours) = (dir.join(format!("gdal_{tag}.tif")), dir.join(format!("ours_{tag}.tif")));
+            let mut g = Command::new(&gdaldem);
+            g.arg("color-relief").arg(dem).arg(&palette).arg(&reference).arg("-q").args(mode).args(alpha.then_some("-alpha"));
+            run(&mut g);
+            let mut v = Command::new(common::volterra_bin());
+            v.args(["dem", "color-relief"]).arg(dem).arg(&ours).arg("--palette").arg(&palette).args(our_mode);
+            v.args(alpha.then_some("--alpha"));
+            run(&mut v);
+            assert_eq!(grid_of(&ours), grid_of(&reference), "{tag}: the grid as gdalinfo reads it");
+            let mut differing = 0;
+            for band in 1..=if alpha { 4 } else { 3 } {
+                let ((a, _), (b, _)) = (band_cells(&ours, dir, band), band_cells(&reference, dir, band));
+                differing += a.iter().zip(&b).filter(|(p, q)| p != q).count();
+            }
+            eprintln!("{} {tag}: {differing} band values differ", dem.display());
+            assert_eq!(differing, 0, "{tag}");
+        }
+    }
+}
+
 /// Runs every product on `dem` both ways and compares; returns the cells compared.
 fn compare_products(dem: &Path, dir: &Path, gdal_args: &[&str], our_args: &[&str]) -> usize {
     let gdaldem = gdaldem().unwrap();
+    compare_color_relief(dem, dir);
     let mut compared = 0;
     for product in ["hillshade", "slope", "aspect"] {
         for edges in [false, true] {

@@ -232,8 +232,9 @@ enum Command {
         json: bool,
     },
     /// DEM products as gdaldem makes them (Horn's gradient, its NoData and edge rules):
-    /// hillshade (byte, NoData 0), slope and aspect (float, NoData −9999), written as
-    /// GeoTIFF on the input's grid with its georeferencing.
+    /// hillshade (byte, NoData 0), slope and aspect (float, NoData −9999), color-relief
+    /// (RGB or RGBA bytes through a gdaldem colour file), written as GeoTIFF on the input's
+    /// grid with its georeferencing.
     Dem {
         #[arg(value_enum)]
         product: DemProduct,
@@ -264,6 +265,21 @@ enum Command {
         /// leaving those cells NoData.
         #[arg(long)]
         compute_edges: bool,
+        /// color-relief: the gdaldem colour file ("value R G B [A]" or "value name" lines;
+        /// "nv" for NoData, "x%" of the elevation range).
+        #[arg(long)]
+        palette: Option<PathBuf>,
+        /// color-relief: an alpha band too (gdaldem -alpha).
+        #[arg(long)]
+        alpha: bool,
+        /// color-relief: only the palette's exact values get colours, others transparent
+        /// black (gdaldem -exact_color_entry).
+        #[arg(long, conflicts_with = "nearest_color_entry")]
+        exact_color_entry: bool,
+        /// color-relief: the nearest entry's colour instead of interpolating
+        /// (gdaldem -nearest_color_entry).
+        #[arg(long)]
+        nearest_color_entry: bool,
         #[command(flatten)]
         read: ReadArgs,
     },
@@ -274,6 +290,14 @@ enum DemProduct {
     Hillshade,
     Slope,
     Aspect,
+    ColorRelief,
+}
+
+/// color-relief's palette and how it is looked up.
+struct ReliefArgs {
+    palette: Option<PathBuf>,
+    alpha: bool,
+    mode: volterra::dem::ColorMode,
 }
 
 /// On SIGINT or SIGTERM: remove the temporary files of outputs being written (outputs are
@@ -553,9 +577,30 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
         Command::Info { path, json, read } => cmd_info(&path, json, read.volume.is_none(), &read.options(limits)?),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read, &read.options(limits)?),
         Command::Compare { a, b, json } => cmd_compare(&a, &b, json, &limits),
-        Command::Dem { product, input, output, z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges, read } => {
+        Command::Dem {
+            product,
+            input,
+            output,
+            z,
+            scale,
+            azimuth,
+            altitude,
+            percent,
+            zero_for_flat,
+            compute_edges,
+            palette,
+            alpha,
+            exact_color_entry,
+            nearest_color_entry,
+            read,
+        } => {
             let options = volterra::dem::Options { z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges };
-            cmd_dem(product, &input, &output, &options, &read.options(limits)?)
+            let mode = match (exact_color_entry, nearest_color_entry) {
+                (true, _) => volterra::dem::ColorMode::Exact,
+                (_, true) => volterra::dem::ColorMode::Nearest,
+                _ => volterra::dem::ColorMode::Interpolate,
+            };
+            cmd_dem(product, &input, &output, &options, &ReliefArgs { palette, alpha, mode }, &read.options(limits)?)
         }
         Command::Renderers => {
             print!("{}", volterra::render::registry::markdown());
@@ -778,12 +823,31 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
     Ok(())
 }
 
-fn cmd_dem(product: DemProduct, input: &Path, output: &Path, options: &volterra::dem::Options, load: &LoadOptions) -> Result<()> {
+fn cmd_dem(
+    product: DemProduct,
+    input: &Path,
+    output: &Path,
+    options: &volterra::dem::Options,
+    relief: &ReliefArgs,
+    load: &LoadOptions,
+) -> Result<()> {
     use volterra::dem::{self, Product, Raster};
     let product = match product {
         DemProduct::Hillshade => Product::Hillshade,
         DemProduct::Slope => Product::Slope,
         DemProduct::Aspect => Product::Aspect,
+        DemProduct::ColorRelief => {
+            let path = relief.palette.as_deref().ok_or_else(|| anyhow::anyhow!("color-relief needs --palette FILE"))?;
+            let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read the palette", path.display()))?;
+            let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
+                anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
+            };
+            let palette = dem::parse_palette(&text, &hf).with_context(|| path.display().to_string())?;
+            let cells = dem::color_relief(&hf, &palette, relief.mode, relief.alpha);
+            let band = if relief.alpha { formats::geotiff::Band::Rgba8(&cells) } else { formats::geotiff::Band::Rgb8(&cells) };
+            formats::geotiff::write_band(output, &hf, band, None, false)?;
+            return Ok(());
+        }
     };
     let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
         anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());

@@ -347,10 +347,13 @@ pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
     write_band(path, hf, Band::F32(&data), declare.then_some(nodata), true)
 }
 
-/// One band of a GeoTIFF: 32-bit float or 8-bit unsigned cells, row by row from the north.
+/// The cells of a GeoTIFF, row by row from the north: one band of 32-bit floats or bytes,
+/// or RGB / RGBA bytes (interleaved).
 pub enum Band<'a> {
     F32(&'a [f32]),
     U8(&'a [u8]),
+    Rgb8(&'a [u8]),
+    Rgba8(&'a [u8]),
 }
 
 /// Writes `band` as a GeoTIFF on the grid and with the georeferencing of `grid` (size,
@@ -364,6 +367,8 @@ pub fn write_band(path: &Path, grid: &Heightfield, band: Band, nodata: Option<f6
     let len = match &band {
         Band::F32(d) => d.len(),
         Band::U8(d) => d.len(),
+        Band::Rgb8(d) => d.len() / 3,
+        Band::Rgba8(d) => d.len() / 4,
     };
     if len != n {
         return Err(FormatError::invalid(path, format!("{len} cells for a {}×{} grid", grid.width, grid.height)));
@@ -406,6 +411,18 @@ pub fn write_band(path: &Path, grid: &Heightfield, band: Band, nodata: Option<f6
             Band::U8(d) => {
                 let mut img = enc.new_image::<colortype::Gray8>(w, h).map_err(err)?;
                 georeference(img.encoder())?;
+                img.write_data(d).map_err(err)?;
+            }
+            Band::Rgb8(d) => {
+                let mut img = enc.new_image::<colortype::RGB8>(w, h).map_err(err)?;
+                georeference(img.encoder())?;
+                img.write_data(d).map_err(err)?;
+            }
+            Band::Rgba8(d) => {
+                let mut img = enc.new_image::<colortype::RGBA8>(w, h).map_err(err)?;
+                georeference(img.encoder())?;
+                // The fourth sample is unassociated alpha (GDAL reads it as the alpha band).
+                img.encoder().write_tag(Tag::ExtraSamples, 2u16).map_err(err)?;
                 img.write_data(d).map_err(err)?;
             }
         }
