@@ -483,17 +483,16 @@ fn xvfb_run() -> Option<&'static Path> {
 }
 
 /// A real window: `volterra view --screenshot` under Xvfb, on lavapipe.
-#[test]
-fn a_real_window_under_xvfb_shows_the_render() {
-    let Some(xvfb) = xvfb_run() else { return };
-    let dir = samples();
-    let shot: PathBuf = dir.path().join("window.png");
+/// `volterra view SCENE --screenshot` in a 1280 × 800 X server: the PNG written (beside
+/// the scene).
+fn screenshot_under_xvfb(xvfb: &Path, scene: &Path) -> PathBuf {
+    let shot = scene.with_extension("window.png");
     let runtime = tempfile::tempdir().unwrap();
     let out = Command::new(xvfb)
         .args(["-a", "-s", "-screen 0 1280x800x24"])
         .arg(common::volterra_bin())
         .arg("view")
-        .arg(dir.path().join("angio_shear_warp.toml"))
+        .arg(scene)
         .arg("--screenshot")
         .arg(&shot)
         // Mesa's window-system code wants a runtime directory; CI shells have none.
@@ -501,6 +500,14 @@ fn a_real_window_under_xvfb_shows_the_render() {
         .output()
         .unwrap();
     assert!(out.status.success(), "viewer failed: {}", String::from_utf8_lossy(&out.stderr));
+    shot
+}
+
+#[test]
+fn a_real_window_under_xvfb_shows_the_render() {
+    let Some(xvfb) = xvfb_run() else { return };
+    let dir = samples();
+    let shot = screenshot_under_xvfb(xvfb, &dir.path().join("angio_shear_warp.toml"));
     let img = volterra::formats::image::decode_png(&shot, &Default::default()).unwrap();
     assert!(img.width >= 1000 && img.height >= 600, "window size {}×{}", img.width, img.height);
     assert_eq!((img.channels, img.bit_depth), (4, 8));
@@ -886,19 +893,7 @@ fn a_fused_pet_ct_with_measurements_in_a_real_window() {
         .replace("position = [0.0, -300.0, 0.0]", "position = [260.0, 420.0, 200.0]")
         .replace("preset = \"CT-Bone\"\n", "preset = \"CT-Bone\"\nopacity_scale = 0.1\n");
     std::fs::write(dir.path().join("fused.toml"), text).unwrap();
-    let shot = dir.path().join("window.png");
-    let runtime = tempfile::tempdir().unwrap();
-    let out = Command::new(xvfb)
-        .args(["-a", "-s", "-screen 0 1280x800x24"])
-        .arg(common::volterra_bin())
-        .arg("view")
-        .arg(dir.path().join("fused.toml"))
-        .arg("--screenshot")
-        .arg(&shot)
-        .env("XDG_RUNTIME_DIR", runtime.path())
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "viewer failed: {}", String::from_utf8_lossy(&out.stderr));
+    let shot = screenshot_under_xvfb(xvfb, &dir.path().join("fused.toml"));
     let keep = common::repo_path("target/test-pictures");
     std::fs::create_dir_all(&keep).unwrap();
     std::fs::copy(&shot, keep.join("fused_pet_ct_window.png")).unwrap();
