@@ -832,25 +832,30 @@ fn cmd_dem(
     load: &LoadOptions,
 ) -> Result<()> {
     use volterra::dem::{self, Product, Raster};
+    // The palette first: a missing one is an error before the DEM is read.
+    let palette = match product {
+        DemProduct::ColorRelief => {
+            let path = relief.palette.as_deref().ok_or_else(|| anyhow::anyhow!("color-relief needs --palette FILE"))?;
+            let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read the palette", path.display()))?;
+            Some((path, text))
+        }
+        _ => None,
+    };
+    let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
+        anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
+    };
     let product = match product {
         DemProduct::Hillshade => Product::Hillshade,
         DemProduct::Slope => Product::Slope,
         DemProduct::Aspect => Product::Aspect,
         DemProduct::ColorRelief => {
-            let path = relief.palette.as_deref().ok_or_else(|| anyhow::anyhow!("color-relief needs --palette FILE"))?;
-            let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read the palette", path.display()))?;
-            let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
-                anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
-            };
+            let (path, text) = palette.expect("read above");
             let palette = dem::parse_palette(&text, &hf).with_context(|| path.display().to_string())?;
             let cells = dem::color_relief(&hf, &palette, relief.mode, relief.alpha);
             let band = if relief.alpha { formats::geotiff::Band::Rgba8(&cells) } else { formats::geotiff::Band::Rgb8(&cells) };
             formats::geotiff::write_band(output, &hf, band, None, false)?;
             return Ok(());
         }
-    };
-    let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
-        anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
     };
     let raster = dem::compute(&hf, product, options).with_context(|| input.display().to_string())?;
     let band = match &raster {

@@ -388,13 +388,14 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject, read_note: O
         frame_positions.push(p);
     }
 
+    let units = units_for(obj, &modality);
     Ok(ImageInfo {
         path: path.to_path_buf(),
         transfer_syntax: file.meta().transfer_syntax().trim_end_matches('\0').to_string(),
         series_uid: text(obj, tags::SERIES_INSTANCE_UID).unwrap_or_default(),
         series_description: text(obj, tags::SERIES_DESCRIPTION).unwrap_or_default(),
-        units: units_for(obj, &modality),
-        suv_bw: (units_for(obj, &modality).as_deref() == Some("Bq/ml")).then(|| suv_bw_factor(obj)).flatten(),
+        suv_bw: (units.as_deref() == Some("Bq/ml")).then(|| suv_bw_factor(obj)).flatten(),
+        units,
         modality,
         rows: rows as u32,
         columns: columns as u32,

@@ -40,6 +40,14 @@ pub fn trilinear(dims: [usize; 3], p: DVec3, at: impl Fn(usize) -> f64) -> f64 {
     c0 * (1.0 - tz) + c1 * tz
 }
 
+/// As [`trilinear`], but None outside the box of voxel centres (beyond 1e-9 voxel of
+/// rounding) instead of the clamped value.
+#[inline]
+pub fn trilinear_within(dims: [usize; 3], p: DVec3, at: impl Fn(usize) -> f64) -> Option<f64> {
+    let inside = (0..3).all(|a| p[a] >= -1e-9 && p[a] <= dims[a] as f64 - 1.0 + 1e-9);
+    inside.then(|| trilinear(dims, p, at))
+}
+
 /// The interval t ∈ [t0, t1], t0 ≥ 0, where the ray o + t·d is inside the box [lo, hi]
 /// (slab test). A zero-length interval (a ray touching an edge) counts as inside.
 pub fn clip_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {

@@ -393,8 +393,8 @@ pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size:
         frame.stats.notes.push(format!(
             "volumes {} overlap: fused along each ray by shear-warp, '{}' resampled onto the grid of '{}'",
             names.join(", "),
-            names[nodes.iter().position(|&i| i == second).unwrap()],
-            names[nodes.iter().position(|&i| i == first).unwrap()]
+            scene.nodes()[second].name,
+            scene.nodes()[first].name
         ));
         frame.stats.nodes.push(NodeTime {
             node: names.join("+"),

@@ -1388,13 +1388,7 @@ impl Viewer {
                     .on_disabled_hover_text("CT window presets need values in Hounsfield units (a CT, or set the node's modality to CT)");
             });
         });
-        ui.horizontal(|ui| {
-            let speed = s.window.abs() * 0.01 + 1e-6;
-            let lbl = ui.label("Window");
-            s.dirty |= ui.add(egui::DragValue::new(&mut s.window).speed(speed).range(1e-9..=f64::MAX)).labelled_by(lbl.id).changed();
-            let lbl = ui.label("Level");
-            s.dirty |= ui.add(egui::DragValue::new(&mut s.level).speed(speed)).labelled_by(lbl.id).changed();
-        });
+        s.dirty |= window_level_controls(ui, ("Window", "Level"), &mut s.window, &mut s.level);
         // Fusion: another volume node over these slices, through a colour map.
         let others: Vec<(usize, String)> = doc
             .scene
@@ -1457,13 +1451,7 @@ impl Viewer {
                 let lbl = ui.label("Overlay opacity");
                 s.dirty |= ui.add(egui::Slider::new(&mut o.opacity, 0.0..=1.0)).labelled_by(lbl.id).changed();
             });
-            ui.horizontal(|ui| {
-                let speed = o.window.abs() * 0.01 + 1e-6;
-                let lbl = ui.label("Overlay window");
-                s.dirty |= ui.add(egui::DragValue::new(&mut o.window).speed(speed).range(1e-9..=f64::MAX)).labelled_by(lbl.id).changed();
-                let lbl = ui.label("level");
-                s.dirty |= ui.add(egui::DragValue::new(&mut o.level).speed(speed)).labelled_by(lbl.id).changed();
-            });
+            s.dirty |= window_level_controls(ui, ("Overlay window", "level"), &mut o.window, &mut o.level);
             // The scalar bar: the map from the window's bottom to its top, with the values.
             let (rect, _) = ui.allocate_exact_size(Vec2::new(ui.available_width().min(240.0), 12.0), Sense::hover());
             let painter = ui.painter_at(rect);
@@ -1879,6 +1867,20 @@ impl eframe::App for Viewer {
 }
 
 /// `dir/name.view.toml` beside the opened file.
+/// A window and a level as drag values labelled `labels` (the window kept positive, both
+/// moving by a hundredth of the window); true when either changed.
+fn window_level_controls(ui: &mut egui::Ui, labels: (&str, &str), window: &mut f64, level: &mut f64) -> bool {
+    ui.horizontal(|ui| {
+        let speed = window.abs() * 0.01 + 1e-6;
+        let lbl = ui.label(labels.0);
+        let w = ui.add(egui::DragValue::new(window).speed(speed).range(1e-9..=f64::MAX)).labelled_by(lbl.id).changed();
+        let lbl = ui.label(labels.1);
+        let l = ui.add(egui::DragValue::new(level).speed(speed)).labelled_by(lbl.id).changed();
+        w | l
+    })
+    .inner
+}
+
 /// The world's axes and units as the scene's data sets them (docs/coordinates.md).
 fn view_world(scene: &Scene) -> super::view_marks::World {
     use super::view_marks::World;

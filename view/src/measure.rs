@@ -79,7 +79,6 @@ pub fn roi_stats(source: &SliceSource, plane: Plane, m: &Measurement) -> Option<
     let centre = 0.5 * (DVec3::from(m.points[0]) + DVec3::from(m.points[1]));
     let pitch = source.slice_pixel(plane);
     let (ni, nj) = ((ra / pitch).floor() as i64, (rb / pitch).floor() as i64);
-    let (mut count, mut sum, mut min, mut max) = (0usize, 0.0, f64::INFINITY, f64::NEG_INFINITY);
     let mut values = Vec::new();
     for j in -nj..=nj {
         for i in -ni..=ni {
@@ -92,18 +91,15 @@ pub fn roi_stats(source: &SliceSource, plane: Plane, m: &Measurement) -> Option<
             let mut p = centre;
             p[a0] += x;
             p[a1] += y;
-            let Some(v) = source.value_at(p) else { continue };
-            count += 1;
-            sum += v;
-            min = min.min(v);
-            max = max.max(v);
-            values.push(v);
+            values.extend(source.value_at(p));
         }
     }
+    let count = values.len();
     if count == 0 {
         return None;
     }
-    let mean = sum / count as f64;
+    let mean = values.iter().sum::<f64>() / count as f64;
+    let (min, max) = values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
     let sd = if count > 1 { (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (count - 1) as f64).sqrt() } else { 0.0 };
     Some(RoiStats { count, mean, sd, min, max, area_mm2: m.value() })
 }

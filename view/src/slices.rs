@@ -122,8 +122,7 @@ impl SliceSource {
         let q = self.world_to_index.transform_point3(p);
         let d = self.volume.dims;
         // Inside the box of voxel centres (within rounding), else nothing is drawn there.
-        let inside = (0..3).all(|a| q[a] >= -1e-9 && q[a] <= d[a] as f64 - 1.0 + 1e-9);
-        inside.then(|| volterra::render::geometry::trilinear(d, q, |i| self.volume.value(i)))
+        volterra::render::geometry::trilinear_within(d, q, |i| self.volume.value(i))
     }
 
     /// The slice through `cross` in `plane`, grey = (value − (level − window/2)) / window.

@@ -14,6 +14,7 @@
 //! transparent).
 
 use super::prepare::Prepared;
+use crate::render::geometry;
 use crate::scene::{TransferFunction, VolumeShading};
 use anyhow::Result;
 use glam::{DMat4, DVec3};
@@ -41,8 +42,8 @@ pub fn resample_onto(
     limits: &Limits,
 ) -> Result<Volume> {
     limits.check(Path::new("shear-warp"), "the second volume on the first's grid", &[primary.voxel_count() as u64, 4])?;
-    let p = super::super::geometry::index_to_world(primary_to_world, super::super::geometry::affine_matrix(&primary.affine))?;
-    let s = super::super::geometry::index_to_world(secondary_to_world, super::super::geometry::affine_matrix(&secondary.affine))?;
+    let p = geometry::index_to_world(primary_to_world, geometry::affine_matrix(&primary.affine))?;
+    let s = geometry::index_to_world(secondary_to_world, geometry::affine_matrix(&secondary.affine))?;
     let to_secondary = s.inverse() * p;
     let [nx, ny, nz] = primary.dims;
     let d = secondary.dims;
@@ -52,9 +53,7 @@ pub fn resample_onto(
         for j in 0..ny {
             for i in 0..nx {
                 let q = to_secondary.transform_point3(DVec3::new(i as f64, j as f64, k as f64));
-                let inside = (0..3).all(|a| q[a] >= -1e-9 && q[a] <= d[a] as f64 - 1.0 + 1e-9);
-                slice[j * nx + i] =
-                    if inside { super::super::geometry::trilinear(d, q, |idx| secondary.value(idx)) as f32 } else { lowest as f32 };
+                slice[j * nx + i] = geometry::trilinear_within(d, q, |idx| secondary.value(idx)).unwrap_or(lowest) as f32;
             }
         }
     });
