@@ -1,9 +1,11 @@
-//! `volterra dem hillshade|slope|aspect|color-relief` against GDAL's `gdaldem` (Debian's gdal-bin, which
+//! `volterra dem hillshade|slope|aspect|color-relief` against GDAL's `gdaldem`, and `volterra dem
+//! contours` against `gdal_contour` (Debian's gdal-bin, which
 //! tests/setup-system.sh installs): on the real geographic DEM in `../shared/data`
 //! (pysheds_dem.tif, with -s 111120) and on a projected DEM with NoData holes written
 //! here, with and without -compute_edges. The outputs must agree cell for cell (values,
 //! NoData) and in everything `gdalinfo -json` says of the grid: size, geotransform, CRS,
-//! band type and NoData value.
+//! band type and NoData value. Contours must give the same lines per level (count, closed
+//! or open, every vertex to 1e-12 of its magnitude) in the same CRS.
 
 mod common;
 
@@ -95,6 +97,61 @@ fn compare_color_relief(dem: &Path, dir: &Path) {
     }
 }
 
+/// A GeoJSON file's CRS name and its lines per level (elevation bits → lines).
+type LinesByLevel = std::collections::BTreeMap<u64, Vec<Vec<[f64; 2]>>>;
+
+fn contour_lines(path: &Path, attribute: &str) -> (String, LinesByLevel) {
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let crs = v["crs"]["properties"]["name"].as_str().unwrap_or_default().to_string();
+    let mut lines = LinesByLevel::new();
+    for f in v["features"].as_array().unwrap() {
+        let level = f["properties"][attribute].as_f64().unwrap();
+        let coords = f["geometry"]["coordinates"].as_array().unwrap();
+        let points = coords.iter().map(|c| [c[0].as_f64().unwrap(), c[1].as_f64().unwrap()]).collect();
+        lines.entry(level.to_bits()).or_default().push(points);
+    }
+    (crs, lines)
+}
+
+/// gdal_contour and ours at `levels` (gdal_contour's arguments, ours): the same lines.
+/// Returns the vertices compared.
+fn compare_contours(dem: &Path, dir: &Path, tag: &str, gdal_levels: &[&str], our_levels: &[&str]) -> usize {
+    let (reference, ours) = (dir.join(format!("gdal_{tag}.geojson")), dir.join(format!("ours_{tag}.geojson")));
+    run(Command::new("gdal_contour").args(["-q", "-a", "height", "-f", "GeoJSON"]).args(gdal_levels).arg(dem).arg(&reference));
+    let mut v = Command::new(common::volterra_bin());
+    v.args(["dem", "contours"]).arg(dem).arg(&ours).args(["--attribute", "height"]).args(our_levels);
+    run(&mut v);
+    let ((crs_a, a), (crs_b, b)) = (contour_lines(&ours, "height"), contour_lines(&reference, "height"));
+    assert_eq!(crs_a, crs_b, "{tag}: the CRS");
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>(), "{tag}: the levels drawn");
+    let (mut compared, mut worst) = (0, 0.0f64);
+    for (level, ours) in &a {
+        let theirs = &b[level];
+        let level = f64::from_bits(*level);
+        assert_eq!(ours.len(), theirs.len(), "{tag}: lines at level {level}");
+        let closed = |ls: &Vec<Vec<[f64; 2]>>| ls.iter().filter(|l| l.len() > 2 && l.first() == l.last()).count();
+        assert_eq!(closed(ours), closed(theirs), "{tag}: closed lines at level {level}");
+        // Every vertex, in a canonical order (the lines' directions and starts may differ).
+        let vertices = |ls: &Vec<Vec<[f64; 2]>>| {
+            let mut v: Vec<[f64; 2]> = ls.iter().flat_map(|l| l.iter().copied()).collect();
+            v.sort_by(|p, q| p[0].total_cmp(&q[0]).then(p[1].total_cmp(&q[1])));
+            v.dedup();
+            v
+        };
+        let (va, vb) = (vertices(ours), vertices(theirs));
+        assert_eq!(va.len(), vb.len(), "{tag}: vertices at level {level}");
+        for (p, q) in va.iter().zip(&vb) {
+            for k in 0..2 {
+                worst = worst.max((p[k] - q[k]).abs() / p[k].abs().max(1.0));
+            }
+        }
+        compared += va.len();
+    }
+    eprintln!("{} contours {tag}: {} levels, {compared} vertices, largest relative difference {worst:e}", dem.display(), a.len());
+    assert!(worst <= 1e-12, "{tag}: a vertex {worst:e} from gdal_contour's");
+    compared
+}
+
 /// Runs every product on `dem` both ways and compares; returns the cells compared.
 fn compare_products(dem: &Path, dir: &Path, gdal_args: &[&str], our_args: &[&str]) -> usize {
     let gdaldem = gdaldem().unwrap();
@@ -156,6 +213,22 @@ fn dem_products_equal_gdaldem_on_a_real_geographic_dem() {
     let dem = shared.join("terrain/pysheds_dem.tif");
     let n = compare_products(&dem, dir.path(), &["-s", "111120"], &["--scale", "111120"]);
     assert!(n > 700_000, "{n} cells compared");
+    let v = compare_contours(&dem, dir.path(), "i10", &["-i", "10"], &["--interval", "10"]);
+    let v = v + compare_contours(&dem, dir.path(), "i7o3", &["-i", "7", "-off", "3"], &["--interval", "7", "--offset", "3"]);
+    // Fixed levels, one of them an elevation the DEM holds exactly (nudged, as GDAL does).
+    let (lo, _) = volterra_formats::geotiff::read_geotiff(&dem, &Default::default())
+        .unwrap()
+        .elevations
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((f32::INFINITY, 0.0f32), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    let exact = format!("{}", lo + 20.0);
+    assert!(lo + 20.0 < 180.0);
+    // gdal_contour 3.6 silently drops fixed levels given out of order: ascending here. Ours
+    // sorts them, so our list is given shuffled.
+    let fl = ["-fl", &exact, "180", "200.5"];
+    let v = v + compare_contours(&dem, dir.path(), "fl", &fl, &["--levels", &format!("180,200.5,{exact}")]);
+    assert!(v > 20_000, "{v} vertices compared");
 }
 
 #[test]
@@ -193,4 +266,7 @@ fn dem_products_equal_gdaldem_on_a_projected_dem_with_nodata() {
     volterra_formats::geotiff::write_geotiff(&dem, &hf).unwrap();
     let n = compare_products(&dem, dir.path(), &[], &[]);
     assert!(n > 30_000, "{n} cells compared");
+    // Lines round the holes stop half-way to the NoData centres, as GDAL's do.
+    let v = compare_contours(&dem, dir.path(), "i5", &["-i", "5"], &["--interval", "5"]);
+    assert!(v > 5_000, "{v} vertices compared");
 }

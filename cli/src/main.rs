@@ -234,7 +234,8 @@ enum Command {
     /// DEM products as gdaldem makes them (Horn's gradient, its NoData and edge rules):
     /// hillshade (byte, NoData 0), slope and aspect (float, NoData −9999), color-relief
     /// (RGB or RGBA bytes through a gdaldem colour file), written as GeoTIFF on the input's
-    /// grid with its georeferencing.
+    /// grid with its georeferencing; contours as gdal_contour draws them, written as
+    /// GeoJSON line features in the DEM's CRS.
     Dem {
         #[arg(value_enum)]
         product: DemProduct,
@@ -280,6 +281,21 @@ enum Command {
         /// (gdaldem -nearest_color_entry).
         #[arg(long)]
         nearest_color_entry: bool,
+        /// contours: a line every INTERVAL elevation units (gdal_contour -i).
+        #[arg(long, conflicts_with = "levels")]
+        interval: Option<f64>,
+        /// contours: the levels are OFFSET + k · INTERVAL (gdal_contour -off).
+        #[arg(long, default_value_t = 0.0, requires = "interval")]
+        offset: f64,
+        /// contours: these levels only, comma-separated (gdal_contour -fl).
+        #[arg(long, value_delimiter = ',', num_args = 1..)]
+        levels: Option<Vec<f64>>,
+        /// contours: the name of each line's elevation attribute (gdal_contour -a).
+        #[arg(long, default_value = "elev")]
+        attribute: String,
+        /// contours: vertices with the elevation as z (gdal_contour -3d).
+        #[arg(long = "3d")]
+        three_d: bool,
         #[command(flatten)]
         read: ReadArgs,
     },
@@ -291,6 +307,7 @@ enum DemProduct {
     Slope,
     Aspect,
     ColorRelief,
+    Contours,
 }
 
 /// color-relief's palette and how it is looked up.
@@ -592,8 +609,24 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             alpha,
             exact_color_entry,
             nearest_color_entry,
+            interval,
+            offset,
+            levels,
+            attribute,
+            three_d,
             read,
         } => {
+            let contour_args = interval.is_some() || levels.is_some() || three_d || attribute != "elev";
+            let contours = match (product, interval, levels) {
+                (DemProduct::Contours, Some(interval), None) => Some(volterra::dem::contours::Levels::Interval { interval, offset }),
+                (DemProduct::Contours, None, Some(levels)) => Some(volterra::dem::contours::Levels::Fixed(levels)),
+                (DemProduct::Contours, ..) => anyhow::bail!("contours need --interval or --levels"),
+                _ if contour_args => anyhow::bail!("--interval, --levels, --attribute and --3d are for contours only"),
+                _ => None,
+            };
+            if let Some(levels) = contours {
+                return cmd_contours(&input, &output, &levels, &attribute, three_d, &read.options(limits)?);
+            }
             let options = volterra::dem::Options { z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges };
             let mode = match (exact_color_entry, nearest_color_entry) {
                 (true, _) => volterra::dem::ColorMode::Exact,
@@ -856,6 +889,7 @@ fn cmd_dem(
             formats::geotiff::write_band(output, &hf, band, None, false)?;
             return Ok(());
         }
+        DemProduct::Contours => unreachable!("contours are drawn by cmd_contours"),
     };
     let raster = dem::compute(&hf, product, options).with_context(|| input.display().to_string())?;
     let band = match &raster {
@@ -863,6 +897,29 @@ fn cmd_dem(
         Raster::U8(v) => formats::geotiff::Band::U8(v),
     };
     formats::geotiff::write_band(output, &hf, band, Some(dem::nodata_value(product)), false)?;
+    Ok(())
+}
+
+fn cmd_contours(
+    input: &Path,
+    output: &Path,
+    levels: &volterra::dem::contours::Levels,
+    attribute: &str,
+    three_d: bool,
+    load: &LoadOptions,
+) -> Result<()> {
+    let ext = output.extension().and_then(|e| e.to_str()).unwrap_or_default().to_ascii_lowercase();
+    if ext != "geojson" && ext != "json" {
+        anyhow::bail!("{}: contours are written as GeoJSON; name the output .geojson", output.display());
+    }
+    let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
+        anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
+    };
+    let lines = volterra::dem::contours::contours(&hf, levels).with_context(|| input.display().to_string())?;
+    let features = lines.iter().map(|l| formats::geojson::LineFeature { points: &l.points, value: l.level });
+    formats::geojson::write_lines(output, "contour", &hf.crs, attribute, three_d, features)?;
+    let vertices: usize = lines.iter().map(|l| l.points.len()).sum();
+    eprintln!("wrote {} ({} lines, {vertices} vertices)", output.display(), lines.len());
     Ok(())
 }
 

@@ -12,6 +12,7 @@ mod dicom_scan;
 pub mod dicom_write;
 pub mod error;
 pub mod exr_io;
+pub mod geojson;
 pub mod geotiff;
 pub mod guard;
 pub mod heightfield;

@@ -17,7 +17,10 @@
 //! colour file (`parse_palette`) looked up per cell (`color_relief`), interpolated as GDAL
 //! does (t between the neighbouring entries, each component truncated after adding 0.45),
 //! or the nearest entry, or exact entries only (as GDAL's current source: GDAL 3.6 gives
-//! the palette's own values transparent black in that mode, a bug fixed since).
+//! the palette's own values transparent black in that mode, a bug fixed since). Contour
+//! lines as `gdal_contour` draws them: `contours`.
+
+pub mod contours;
 
 use anyhow::{bail, Result};
 use volterra_formats::heightfield::Heightfield;

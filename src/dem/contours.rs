@@ -1,0 +1,431 @@
+//! Contour lines of a heightfield as `gdal_contour` draws them (GDAL's marching squares,
+//! `alg/marching_squares/`), so that the lines agree with GDAL's vertex for vertex:
+//!
+//! - Squares join four neighbouring cell centres; the raster is framed by a ring of
+//!   NoData, so the lines reach the raster's outer edge (half a cell beyond the outer
+//!   centres) instead of stopping at the outer centres.
+//! - A square with one to three NoData corners is cut into four quarter squares round its
+//!   centre, one per valid corner; a quarter's centre takes the mean of the valid corners,
+//!   each mid-edge point the mean of its edge's valid ends (or the one valid end). Lines
+//!   therefore stop half-way between a valid and a NoData cell.
+//! - A corner counts as above a level when its value is greater, after GDAL's nudge: a
+//!   value within 1e-6 of the level is raised by 1e-6 (so a value equal to a level is
+//!   above it, and a line never passes exactly through a cell centre).
+//! - The crossing on an edge is linear, worked out from the half of the edge that holds it
+//!   (as GDAL does, so that a full square and its quartered neighbour give the same point).
+//! - Saddles are always joined the same way (left with lower, right with upper), not by
+//!   the centre value: GDAL's choice, which keeps lines of different levels from crossing.
+//!
+//! Segments are then joined into maximal lines, open ones ending on the raster's edge or at
+//! NoData, closed ones repeating their first point last. Elevations are those the reader
+//! gives: metres (a DEM in feet is converted on reading, where GDAL would draw feet).
+
+use std::collections::HashMap;
+
+use anyhow::{bail, Result};
+use volterra_formats::heightfield::Heightfield;
+
+/// Which levels to draw.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Levels {
+    /// offset + k · interval for every integer k (gdal_contour -i, -off).
+    Interval { interval: f64, offset: f64 },
+    /// These levels only (gdal_contour -fl).
+    Fixed(Vec<f64>),
+}
+
+/// The most levels a raster may cross, as GDAL's limit: more is almost surely a wrong
+/// interval (centimetres on a mountain range) and would take hours.
+const MAX_LEVELS: i64 = 100_000;
+
+/// One contour line in the raster's map coordinates (CRS units).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContourLine {
+    pub level: f64,
+    /// The vertices; a closed line repeats its first vertex last.
+    pub points: Vec<[f64; 2]>,
+}
+
+impl ContourLine {
+    pub fn is_closed(&self) -> bool {
+        self.points.len() > 2 && self.points.first() == self.points.last()
+    }
+}
+
+/// GDAL's nudge: a value within 1e-6 of the level counts as 1e-6 higher.
+fn nudge(level: f64, value: f64) -> f64 {
+    const TOLERANCE: f64 = 1e-6;
+    if (level - value).abs() < TOLERANCE {
+        value + TOLERANCE
+    } else {
+        value
+    }
+}
+
+/// A corner of a square: pixel-space position (x east, y south; a cell's centre at
+/// (col + 0.5, row + 0.5)) and value, NaN for NoData or outside the raster.
+#[derive(Debug, Clone, Copy)]
+struct Corner {
+    x: f64,
+    y: f64,
+    v: f64,
+}
+
+/// The mean of the valid ones of two values (one valid: that one).
+fn mean2(a: f64, b: f64) -> f64 {
+    match (a.is_nan(), b.is_nan()) {
+        (true, _) => b,
+        (_, true) => a,
+        _ => 0.5 * (a + b),
+    }
+}
+
+/// A square between four corners; `quarter` when it is a quarter of a square cut at NoData.
+#[derive(Debug, Clone, Copy)]
+struct Square {
+    upper_left: Corner,
+    upper_right: Corner,
+    lower_left: Corner,
+    lower_right: Corner,
+    quarter: bool,
+}
+
+#[derive(Clone, Copy)]
+enum Side {
+    Left,
+    Lower,
+    Right,
+    Upper,
+}
+
+impl Square {
+    fn nan_count(&self) -> usize {
+        [self.upper_left, self.upper_right, self.lower_left, self.lower_right].iter().filter(|c| c.v.is_nan()).count()
+    }
+
+    fn centre(&self) -> Corner {
+        let corners = [self.lower_left, self.upper_left, self.lower_right, self.upper_right];
+        let sum: f64 = corners.iter().map(|c| if c.v.is_nan() { 0.0 } else { c.v }).sum();
+        Corner {
+            x: 0.5 * (self.upper_left.x + self.lower_right.x),
+            y: 0.5 * (self.upper_left.y + self.lower_right.y),
+            v: sum / (4 - self.nan_count()) as f64,
+        }
+    }
+
+    fn mid(a: Corner, b: Corner) -> Corner {
+        Corner { x: 0.5 * (a.x + b.x), y: 0.5 * (a.y + b.y), v: mean2(a.v, b.v) }
+    }
+
+    /// The quarters round the centre that hold a valid corner.
+    fn quarters(&self) -> impl Iterator<Item = Square> {
+        let (ul, ur, ll, lr) = (self.upper_left, self.upper_right, self.lower_left, self.lower_right);
+        let c = self.centre();
+        let (upper, lower) = (Self::mid(ul, ur), Self::mid(ll, lr));
+        let (left, right) = (Self::mid(ul, ll), Self::mid(ur, lr));
+        let q =
+            |upper_left, upper_right, lower_left, lower_right| Square { upper_left, upper_right, lower_left, lower_right, quarter: true };
+        [
+            (!ul.v.is_nan()).then(|| q(ul, upper, left, c)),
+            (!ur.v.is_nan()).then(|| q(upper, ur, c, right)),
+            (!ll.v.is_nan()).then(|| q(left, c, ll, lower)),
+            (!lr.v.is_nan()).then(|| q(c, right, lower, lr)),
+        ]
+        .into_iter()
+        .flatten()
+    }
+
+    /// Where `level` crosses between positions p1 and p2 holding v1 and v2 (p1 the lower
+    /// coordinate). A full square interpolates within the half of the edge that holds the
+    /// crossing, so its points equal those of a quartered neighbour sharing the edge.
+    fn crossing(level: f64, mut p1: f64, mut p2: f64, mut v1: f64, mut v2: f64, halve: bool) -> f64 {
+        if halve {
+            let (pm, vm) = (0.5 * (p1 + p2), 0.5 * (v1 + v2));
+            let (n1, nm) = (nudge(level, v1), nudge(level, vm));
+            if (n1 < level && level < nm) || (n1 > level && level > nm) {
+                (p2, v2) = (pm, vm);
+            } else {
+                (p1, v1) = (pm, vm);
+            }
+        }
+        let n1 = nudge(level, v1);
+        let t = (level - n1) / (nudge(level, v2) - n1);
+        p1 * (1.0 - t) + p2 * t
+    }
+
+    fn point_on(&self, side: Side, level: f64) -> [f64; 2] {
+        let (ul, ur, ll, lr) = (self.upper_left, self.upper_right, self.lower_left, self.lower_right);
+        let halve = !self.quarter;
+        match side {
+            Side::Left => [ul.x, Self::crossing(level, ll.y, ul.y, ll.v, ul.v, halve)],
+            Side::Lower => [Self::crossing(level, ll.x, lr.x, ll.v, lr.v, halve), ll.y],
+            Side::Right => [ur.x, Self::crossing(level, lr.y, ur.y, lr.v, ur.v, halve)],
+            Side::Upper => [Self::crossing(level, ul.x, ur.x, ul.v, ur.v, halve), ul.y],
+        }
+    }
+
+    /// The segments of `level` in this (NoData-free) square.
+    fn segments(&self, level: f64, out: &mut impl FnMut([f64; 2], [f64; 2])) {
+        let above = |c: Corner| level < nudge(level, c.v);
+        let case = (above(self.upper_left) as u8)
+            | (above(self.lower_left) as u8) << 1
+            | (above(self.lower_right) as u8) << 2
+            | (above(self.upper_right) as u8) << 3;
+        let mut seg = |a: Side, b: Side| out(self.point_on(a, level), self.point_on(b, level));
+        use Side::*;
+        match case {
+            0 | 15 => {}
+            1 | 14 => seg(Upper, Left),
+            2 | 13 => seg(Left, Lower),
+            4 | 11 => seg(Lower, Right),
+            8 | 7 => seg(Right, Upper),
+            3 | 12 => seg(Upper, Lower),
+            6 | 9 => seg(Left, Right),
+            // The two saddles, always joined the same way.
+            5 | 10 => {
+                seg(Left, Lower);
+                seg(Right, Upper);
+            }
+            _ => unreachable!("four corner bits"),
+        }
+    }
+}
+
+/// The level indices k whose level could lie in [min, max] (a margin for the nudge; the
+/// marching case decides).
+fn level_range(levels: &Levels, min: f64, max: f64) -> std::ops::Range<i64> {
+    match levels {
+        Levels::Interval { interval, offset } => {
+            let lo = ((min - 2e-6 - offset) / interval).ceil() as i64;
+            let hi = ((max + 2e-6 - offset) / interval).floor() as i64;
+            lo..hi.max(lo - 1) + 1
+        }
+        Levels::Fixed(l) => {
+            let lo = l.partition_point(|&v| v < min - 2e-6) as i64;
+            let hi = l.partition_point(|&v| v <= max + 2e-6) as i64;
+            lo..hi.max(lo)
+        }
+    }
+}
+
+fn level_value(levels: &Levels, k: i64) -> f64 {
+    match levels {
+        Levels::Interval { interval, offset } => k as f64 * interval + offset,
+        Levels::Fixed(l) => l[k as usize],
+    }
+}
+
+/// The contour lines of `hf` at `levels`, in map coordinates.
+pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
+    let levels = match levels {
+        Levels::Interval { interval, offset } => {
+            if !(interval.is_finite() && *interval > 0.0 && offset.is_finite()) {
+                bail!("the contour interval must be a positive number and the offset finite");
+            }
+            levels.clone()
+        }
+        Levels::Fixed(l) => {
+            if l.is_empty() || l.iter().any(|v| !v.is_finite()) {
+                bail!("fixed contour levels must be finite numbers, at least one");
+            }
+            let mut l = l.clone();
+            l.sort_by(f64::total_cmp);
+            l.dedup();
+            Levels::Fixed(l)
+        }
+    };
+    let (w, h) = (hf.width, hf.height);
+    let value = |col: i64, row: i64| -> f64 {
+        if col < 0 || row < 0 || col >= w as i64 || row >= h as i64 {
+            return f64::NAN;
+        }
+        let i = row as usize * w + col as usize;
+        if hf.is_nodata(col as usize, row as usize) {
+            f64::NAN
+        } else {
+            hf.elevations[i] as f64
+        }
+    };
+    if let Levels::Interval { interval, offset } = &levels {
+        let (lo, hi) = hf
+            .elevations
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v as f64), hi.max(v as f64)));
+        if lo <= hi && ((hi - offset) / interval).floor() - ((lo - offset) / interval).ceil() > MAX_LEVELS as f64 {
+            bail!("an interval of {interval} over elevations {lo}…{hi} gives more than {MAX_LEVELS} levels");
+        }
+    }
+
+    // Segments per level index, in pixel space.
+    let mut segments: HashMap<i64, Vec<[[f64; 2]; 2]>> = HashMap::new();
+    let mut process = |sq: &Square| {
+        let vs = [sq.upper_left.v, sq.upper_right.v, sq.lower_left.v, sq.lower_right.v];
+        let (min, max) = vs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        for k in level_range(&levels, min, max) {
+            let level = level_value(&levels, k);
+            sq.segments(level, &mut |a, b| {
+                if a != b {
+                    segments.entry(k).or_default().push([a, b]);
+                }
+            });
+        }
+    };
+    // Squares between rows row−1 and row, columns col and col+1, for the framed raster.
+    for row in 0..=h as i64 {
+        for col in -1..w as i64 {
+            let corner = |c: i64, r: i64| Corner { x: c as f64 + 0.5, y: r as f64 + 0.5, v: value(c, r) };
+            let sq = Square {
+                upper_left: corner(col, row - 1),
+                upper_right: corner(col + 1, row - 1),
+                lower_left: corner(col, row),
+                lower_right: corner(col + 1, row),
+                quarter: false,
+            };
+            match sq.nan_count() {
+                4 => {}
+                0 => process(&sq),
+                _ => sq.quarters().for_each(|q| process(&q)),
+            }
+        }
+    }
+
+    let [sx, sy] = hf.cell_size_native;
+    let corner = [hf.origin[0] - 0.5 * sx, hf.origin[1] + 0.5 * sy];
+    let to_map = |p: [f64; 2]| [corner[0] + p[0] * sx, corner[1] - p[1] * sy];
+    let mut keys: Vec<i64> = segments.keys().copied().collect();
+    keys.sort_unstable();
+    let mut lines = Vec::new();
+    for k in keys {
+        let level = level_value(&levels, k);
+        for chain in join_segments(&segments[&k]) {
+            lines.push(ContourLine { level, points: chain.into_iter().map(to_map).collect() });
+        }
+    }
+    Ok(lines)
+}
+
+/// Joins segments sharing end points (equal bit for bit: each crossing is worked out the
+/// same way from both squares that share its edge) into maximal lines: open lines from
+/// their ends first, then the closed loops left.
+fn join_segments(segs: &[[[f64; 2]; 2]]) -> Vec<Vec<[f64; 2]>> {
+    let key = |p: [f64; 2]| (p[0].to_bits(), p[1].to_bits());
+    // Each point meets at most two segment ends (marching squares' points have degree two).
+    let mut at: HashMap<(u64, u64), Vec<usize>> = HashMap::with_capacity(segs.len() * 2);
+    for (i, s) in segs.iter().enumerate() {
+        for p in s {
+            at.entry(key(*p)).or_default().push(i);
+        }
+    }
+    let mut used = vec![false; segs.len()];
+    let mut chains = Vec::new();
+    let walk = |start: usize, from: [f64; 2], used: &mut Vec<bool>| {
+        let mut chain = vec![from];
+        let (mut seg, mut here) = (start, from);
+        loop {
+            used[seg] = true;
+            let s = segs[seg];
+            let next = if key(s[0]) == key(here) { s[1] } else { s[0] };
+            chain.push(next);
+            here = next;
+            match at[&key(here)].iter().find(|&&j| !used[j]) {
+                Some(&j) => seg = j,
+                None => break,
+            }
+        }
+        chain
+    };
+    // Open lines start at points with one segment end.
+    for (i, s) in segs.iter().enumerate() {
+        for p in s {
+            if !used[i] && at[&key(*p)].len() == 1 {
+                chains.push(walk(i, *p, &mut used));
+            }
+        }
+    }
+    for i in 0..segs.len() {
+        if !used[i] {
+            chains.push(walk(i, segs[i][0], &mut used));
+        }
+    }
+    chains
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use volterra_formats::heightfield::Crs;
+
+    fn grid(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
+        Heightfield {
+            width: w,
+            height: h,
+            cell_size: [1.0, 1.0],
+            cell_size_native: [1.0, 1.0],
+            origin: [0.0, 0.0],
+            crs: Crs::local(),
+            elevations: (0..w * h).map(|i| f(i % w, i / w)).collect(),
+            nodata: vec![],
+            nodata_value: None,
+            notes: vec![],
+            attributes: vec![],
+        }
+    }
+
+    /// A cone: each level's line is one closed loop, every vertex at the level's radius
+    /// up to the linear interpolation's chord error.
+    #[test]
+    fn a_cone_gives_one_closed_ring_per_level() {
+        let (n, c) = (41, 20.0);
+        let hf = grid(n, n, |x, y| 100.0 - ((x as f32 - c).powi(2) + (y as f32 - c).powi(2)).sqrt());
+        let lines = contours(&hf, &Levels::Interval { interval: 5.0, offset: 0.0 }).unwrap();
+        // Levels 85…95 lie wholly inside the raster (radius 15…5 < 20).
+        for level in [85.0, 90.0, 95.0] {
+            let rings: Vec<_> = lines.iter().filter(|l| l.level == level).collect();
+            assert_eq!(rings.len(), 1, "level {level}");
+            assert!(rings[0].is_closed());
+            let r = 100.0 - level;
+            for p in &rings[0].points {
+                // Map coordinates: x = col, y = −row (origin at cell (0, 0)'s centre).
+                let d = ((p[0] - c as f64).powi(2) + (-p[1] - c as f64).powi(2)).sqrt();
+                assert!((d - r).abs() < 0.08 * r / 5.0 + 0.02, "level {level}: vertex at radius {d}");
+            }
+        }
+    }
+
+    /// A ramp crossing the whole raster: open lines from edge to edge, reaching half a cell
+    /// beyond the outer centres; a value equal to the level counts as above it.
+    #[test]
+    fn a_ramp_gives_straight_lines_to_the_raster_edge() {
+        let hf = grid(6, 4, |x, _| x as f32 * 10.0);
+        let lines = contours(&hf, &Levels::Fixed(vec![15.0, 20.0])).unwrap();
+        assert_eq!(lines.len(), 2);
+        let l15 = lines.iter().find(|l| l.level == 15.0).unwrap();
+        assert!(!l15.is_closed());
+        let ys: Vec<f64> = l15.points.iter().map(|p| p[1]).collect();
+        // 15 is the edge's mid value: nudged as GDAL does, the line sits 1e-7 of a cell off.
+        assert!(l15.points.iter().all(|p| (p[0] - 1.5).abs() < 1e-6), "{:?}", l15.points);
+        let (lo, hi) = ys.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &y| (a.min(y), b.max(y)));
+        assert_eq!((lo, hi), (-3.5, 0.5), "from the south edge to the north edge");
+        // 20 is column 2's value: nudged up, the line passes 1e-7 of a cell west of it.
+        let l20 = lines.iter().find(|l| l.level == 20.0).unwrap();
+        assert!(l20.points.iter().all(|p| (p[0] - 2.0).abs() < 1e-6 && p[0] < 2.0));
+    }
+
+    /// NoData: lines stop half-way between a valid and a NoData centre; a level outside
+    /// the data draws nothing; a wrong interval is refused.
+    #[test]
+    fn lines_stop_at_nodata_and_bad_levels_are_refused() {
+        let mut hf = grid(5, 5, |x, _| x as f32);
+        hf.nodata = (0..25).map(|i| i % 5 == 4 && i / 5 == 2).collect();
+        hf.elevations[14] = f32::NAN;
+        let lines = contours(&hf, &Levels::Fixed(vec![2.5])).unwrap();
+        assert_eq!(lines.len(), 1, "2.5 lies between columns 2 and 3, away from the hole");
+        let lines = contours(&hf, &Levels::Fixed(vec![3.5])).unwrap();
+        assert_eq!(lines.len(), 2, "3.5 is cut by the NoData cell at column 4: {lines:?}");
+        assert!(contours(&hf, &Levels::Fixed(vec![50.0])).unwrap().is_empty());
+        assert!(contours(&hf, &Levels::Interval { interval: 0.0, offset: 0.0 }).is_err());
+        assert!(contours(&hf, &Levels::Interval { interval: 1e-9, offset: 0.0 }).is_err());
+        assert!(contours(&hf, &Levels::Fixed(vec![f64::NAN])).is_err());
+    }
+}
