@@ -27,7 +27,7 @@ struct Params {
     // width, height (pixels), cells east, cells north.
     size: vec4<u32>,
     // top level, step cap, traversal (0 quadtree, 1 quadtree without the raise, 2 linear),
-    // flags (1 shadows, 2 texture).
+    // flags (1 shadows, 2 texture, 4 smooth normals).
     control: vec4<u32>,
     // number of lights; shadow lift (metres, as f32 bits); unused.
     misc: vec4<u32>,
@@ -110,6 +110,55 @@ fn patch_heights(c: vec2<i32>) -> vec4<f32> {
         from_eye(textureLoad(heights, c + vec2<i32>(0, 1), 0).r),
         from_eye(textureLoad(heights, c + vec2<i32>(1, 1), 0).r),
     );
+}
+
+// The height gradient (metres per metre, east and north) at sample c: central
+// differences, one-sided where a neighbour is NoData or beyond the edge, 0 where both are
+// (the rule of TerrainGrid::sample_gradient).
+fn sample_gradient(c: vec2<i32>) -> vec2<f32> {
+    let last = vec2<i32>(i32(P.size.z), i32(P.size.w));
+    let z = textureLoad(heights, c, 0).r;
+    var g = vec2<f32>(0.0);
+    for (var axis = 0; axis < 2; axis++) {
+        var step = vec2<i32>(1, 0);
+        if axis == 1 {
+            step = vec2<i32>(0, 1);
+        }
+        let up = c + step;
+        let down = c - step;
+        var z_up = HOLE;
+        var z_down = HOLE;
+        if up[axis] <= last[axis] {
+            z_up = textureLoad(heights, up, 0).r;
+        }
+        if down[axis] >= 0 {
+            z_down = textureLoad(heights, down, 0).r;
+        }
+        let has_up = z_up > -1.0e38;
+        let has_down = z_down > -1.0e38;
+        var diff = 0.0;
+        if has_up && has_down {
+            diff = 0.5 * (z_up - z_down);
+        } else if has_up {
+            diff = z_up - z;
+        } else if has_down {
+            diff = z - z_down;
+        }
+        g[axis] = diff / P.extent[2 + axis];
+    }
+    return g;
+}
+
+// The shading normal's local form (east, north, up; not unit) at (u, v) in patch c: the
+// corner samples' gradients interpolated bilinearly, so that normals are continuous across
+// patch borders (no facets) while the intersection stays the exact bilinear patch's.
+fn smooth_local_normal(c: vec2<i32>, u: f32, v: f32) -> vec3<f32> {
+    let g00 = sample_gradient(c);
+    let g10 = sample_gradient(c + vec2<i32>(1, 0));
+    let g01 = sample_gradient(c + vec2<i32>(0, 1));
+    let g11 = sample_gradient(c + vec2<i32>(1, 1));
+    let g = mix(mix(g00, g10, u), mix(g01, g11, u), v);
+    return vec3<f32>(-g.x, -g.y, 1.0);
 }
 
 // First s in [0, len] where (u0, v0, z0) + s·d meets the patch from above; −1 if none.
@@ -392,15 +441,32 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             } else {
                 base = elevation_colour((zh - P.extent.x) / max(P.extent.y - P.extent.x, 1e-9));
             }
-            let local_n = vec3<f32>(-(pb + pa * h.v) / P.extent.z, -(pc + pa * h.u) / P.extent.w, 1.0);
-            let n = normalize(vec3<f32>(dot(P.normal_x.xyz, local_n), dot(P.normal_y.xyz, local_n), dot(P.normal_z.xyz, local_n)));
+            // The patch's own (faceted) normal, and the shading normal (smooth, or the same).
+            let face_local = vec3<f32>(-(pb + pa * h.v) / P.extent.z, -(pc + pa * h.u) / P.extent.w, 1.0);
+            let face_n = normalize(vec3<f32>(dot(P.normal_x.xyz, face_local), dot(P.normal_y.xyz, face_local), dot(P.normal_z.xyz, face_local)));
+            var n = face_n;
+            if (P.control.w & 4u) != 0u {
+                let local_n = smooth_local_normal(h.cell, h.u, h.v);
+                n = normalize(vec3<f32>(dot(P.normal_x.xyz, local_n), dot(P.normal_y.xyz, local_n), dot(P.normal_z.xyz, local_n)));
+            }
             var e = vec3<f32>(P.up.w);
-            let lift = bitcast<f32>(P.misc.y);
+            // The shadow ray starts this far above the hit: the fixed lift (1e-3 of a cell),
+            // plus four times the f32 rounding of the surface's height at the hit — its
+            // height relative to the eye, and its position relative to the eye times the
+            // patch's slope (metres per cell). Without the second term, a steep patch far
+            // from the eye can start its shadow ray below itself and shadow itself (acne).
+            let rel = abs(from_eye_xy(vec2<f32>(h.cell)) + vec2<f32>(h.u, h.v));
+            let rounding = 5.96e-8 * (abs(zh) + abs(pb + pa * h.v) * rel.x + abs(pc + pa * h.u) * rel.y);
+            let lift = bitcast<f32>(P.misc.y) + 4.0 * rounding;
             for (var k = 0u; k < P.misc.x; k++) {
                 let cosine = dot(n, P.light_world[k].xyz);
                 if cosine > 0.0 {
                     var lit = true;
-                    if (P.control.w & 1u) != 0u {
+                    if (P.control.w & 1u) != 0u && dot(face_n, P.light_world[k].xyz) <= 0.0 {
+                        // The surface itself faces away from the light (where a smooth
+                        // normal still leans toward it): in its own shadow.
+                        lit = false;
+                    } else if (P.control.w & 1u) != 0u {
                         let so = vec3<f32>(from_eye_xy(vec2<f32>(h.cell)) + vec2<f32>(h.u, h.v), zh + lift);
                         let sd = P.light_grid[k].xyz;
                         let sr = clip(so, sd);

@@ -309,3 +309,184 @@ fn real_dems_fly_and_walk_agree_with_the_reference() {
         assert_agree(&format!("{name} walk"), &gpu, &reference);
     }
 }
+
+/// Seams in a terrain image: luminance steps between neighbouring pixels in two edge-
+/// adjacent patches that exceed 1.5 × (the largest step between neighbouring pixels inside
+/// either patch, in the same direction: across or down) + 1e-4. Only patches large enough
+/// on screen to hold 8 such inside steps count. Returns (seams, border steps compared). Patches are those the reference's rays hit.
+fn seams(frame: &Frame, grid: &TerrainGrid, rays: &volterra::scene::camera::RayGenerator) -> (usize, usize) {
+    use std::collections::HashMap;
+    let (w, h) = (frame.width, frame.height);
+    let cells: Vec<Option<[usize; 2]>> = (0..w * h)
+        .map(|p| {
+            let ray = rays.ray((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
+            terrain::reference::trace_world(grid, &ray, terrain::reference::Surface::Bilinear).0.map(|hit| hit.cell)
+        })
+        .collect();
+    let lum = |p: usize| (frame.rgba[p][0] + frame.rgba[p][1] + frame.rgba[p][2]) as f64 / 3.0;
+    // Per patch and pair direction (0 across, 1 down): the largest inside step, and how many.
+    let mut inside: HashMap<([usize; 2], usize), (f64, usize)> = HashMap::new();
+    let mut borders = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            for (dir, q) in [(x + 1 < w).then(|| (0, p + 1)), (y + 1 < h).then(|| (1, p + w))].into_iter().flatten() {
+                let (Some(a), Some(b)) = (cells[p], cells[q]) else { continue };
+                if !(frame.depth[p].is_finite() && frame.depth[q].is_finite()) {
+                    continue;
+                }
+                let jump = (lum(p) - lum(q)).abs();
+                if a == b {
+                    let e = inside.entry((a, dir)).or_default();
+                    *e = (e.0.max(jump), e.1 + 1);
+                } else if a[0].abs_diff(b[0]) + a[1].abs_diff(b[1]) == 1 {
+                    borders.push((a, b, dir, jump));
+                }
+            }
+        }
+    }
+    let (mut found, mut compared) = (0, 0);
+    for (a, b, dir, jump) in borders {
+        let (Some(&(ja, na)), Some(&(jb, nb))) = (inside.get(&(a, dir)), inside.get(&(b, dir))) else { continue };
+        if na < 8 || nb < 8 {
+            continue;
+        }
+        compared += 1;
+        if jump > 1.5 * ja.max(jb) + 1e-4 {
+            if found < 6 {
+                println!("  seam {a:?} {b:?} jump {jump:.6} inside {ja:.6} ({na}) {jb:.6} ({nb})");
+            }
+            found += 1;
+        }
+    }
+    (found, compared)
+}
+
+/// Walking in a smooth bowl (a sphere cap, 30 m cells, seen from 2 m above it): with
+/// smooth normals no patch border shows a seam (see `seams` for the bound), on the GPU and
+/// in the reference; with faceted normals more than a tenth of the borders do.
+#[test]
+fn a_walk_in_a_smooth_bowl_shows_no_seams_between_patches() {
+    let (n, cell, radius) = (129usize, 30.0, 4000.0);
+    let c = (n - 1) as f64 / 2.0;
+    let hf = field(n, n, cell, |col, row| {
+        let (dx, dy) = ((col as f64 - c) * cell, (row as f64 - c) * cell);
+        (radius - (radius * radius - dx * dx - dy * dy).sqrt()) as f32
+    });
+    let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
+    // Near the bowl's bottom, looking across at its far side.
+    let (x, y) = (0.4 * (n - 1) as f64 * cell, 0.35 * (n - 1) as f64 * cell);
+    let ground = hf.surface_height(x, y).unwrap();
+    let walk = perspective(
+        [x, y, ground + 2.0],
+        [0.8 * (n - 1) as f64 * cell, 0.9 * (n - 1) as f64 * cell, ground + 150.0],
+        [0.0, 0.0, 1.0],
+        60.0,
+    );
+    let rays = walk.rays(240, 160);
+    let input = TerrainInput { heightfield: &hf, texture: None, node_to_world: DMat4::IDENTITY, lights: &[] };
+    for normals in [terrain::Normals::Smooth, terrain::Normals::Faceted] {
+        let s = Settings { normals, ..Default::default() };
+        let mut frames = vec![("reference", terrain::render_reference(&input, &rays, &s).unwrap())];
+        if common::gpu().is_some() {
+            frames.push(("gpu", terrain::render(&input, &rays, &s).unwrap()));
+        }
+        for (name, frame) in &frames {
+            let (found, compared) = seams(frame, &grid, &rays);
+            println!("{normals:?} {name}: {found} seams in {compared} border steps compared");
+            assert!(compared > 500, "{name}: only {compared} border steps compared");
+            if normals == terrain::Normals::Smooth {
+                assert_eq!(found, 0, "{name}: seams with smooth normals");
+            } else {
+                assert!(found * 10 > compared, "{name}: faceted normals should show seams ({found} of {compared})");
+            }
+        }
+    }
+}
+
+/// Pixels darker than 0.7 × the darkest of their 8 neighbours, all of which hit: the
+/// isolated black dots shadow acne leaves (and a pit or a lone steep cell facing away from
+/// the sun, which the reference shows too).
+fn isolated_dark_pixels(frame: &Frame) -> Vec<usize> {
+    let (w, h) = (frame.width, frame.height);
+    let lum = |p: usize| (frame.rgba[p][0] + frame.rgba[p][1] + frame.rgba[p][2]) / 3.0;
+    let mut found = Vec::new();
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let p = y * w + x;
+            if !frame.depth[p].is_finite() {
+                continue;
+            }
+            let mut darkest = f32::INFINITY;
+            for (dx, dy) in [(-1i64, -1i64), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+                let q = (y as i64 + dy) as usize * w + (x as i64 + dx) as usize;
+                darkest = if frame.depth[q].is_finite() { darkest.min(lum(q)) } else { -1.0 };
+            }
+            if lum(p) < 0.7 * darkest {
+                found.push(p);
+            }
+        }
+    }
+    found
+}
+
+/// Shadow acne: a 15361 × 1025 fractal DEM (30 m cells, 4000 m of relief; positions up to
+/// 15360 cells from the eye, where f32 loses most) lit by a low sun with shadows, seen from
+/// far above its western end and from 2 m above the ground near its eastern end. Acne is
+/// an isolated dark pixel of the GPU's image that the f64 reference does not darken: none.
+#[test]
+fn shadows_leave_no_acne_on_a_large_dem() {
+    if common::gpu().is_none() {
+        return;
+    }
+    // The fractal tile mirrored eastward.
+    let base = volterra::samples::fractal_dem(10, 30.0, 11);
+    let period = 2 * (base.width - 1);
+    let hf = field(15 * (base.width - 1) + 1, base.height, 30.0, |c, r| {
+        let m = c % period;
+        let c = if m < base.width { m } else { period - m };
+        base.elevations[r * base.width + c] * 1.6
+    });
+    let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
+    let (ex, ey) = (grid.cell[0] * grid.cells()[0] as f64, grid.cell[1] * grid.cells()[1] as f64);
+    let top = grid.z_ref + grid.z_hi;
+    let lights = [volterra::scene::Light {
+        kind: volterra::scene::LightKind::Directional,
+        direction: Some([-0.8, -0.5, -0.35]),
+        position: None,
+        color: [1.0; 3],
+        intensity: 1.0,
+        cone_angle: None,
+    }];
+    let fly = perspective([-0.02 * ex, 0.5 * ey, top + 2000.0], [0.9 * ex, 0.5 * ey, grid.z_ref], [0.0, 0.0, 1.0], 30.0);
+    let (x, y) = (0.93 * ex, 0.45 * ey);
+    let ground = hf.surface_height(x, y).unwrap();
+    let walk = perspective([x, y, ground + 2.0], [x + 3000.0, y + 500.0, ground + 100.0], [0.0, 0.0, 1.0], 60.0);
+    let input = TerrainInput { heightfield: &hf, texture: None, node_to_world: DMat4::IDENTITY, lights: &lights };
+    let lum = |c: &[f32; 4]| c[0] + c[1] + c[2];
+    for (name, cam) in [("fly", fly), ("walk", walk)] {
+        let rays = cam.rays(320, 200);
+        for shadows in [false, true] {
+            let s = Settings { shadows, ..Default::default() };
+            let gpu = terrain::render(&input, &rays, &s).unwrap();
+            let reference = terrain::render_reference(&input, &rays, &s).unwrap();
+            let (dots, truth) = (isolated_dark_pixels(&gpu), isolated_dark_pixels(&reference));
+            let acne = dots.iter().filter(|&&p| lum(&gpu.rgba[p]) < 0.7 * lum(&reference.rgba[p])).count();
+            let flipped = gpu
+                .rgba
+                .iter()
+                .zip(&reference.rgba)
+                .filter(|(g, r)| g[3] > 0.0 && r[3] > 0.0 && (lum(g) < 0.7 * lum(r) || lum(r) < 0.7 * lum(g)))
+                .count();
+            println!(
+                "{name}, shadows {shadows}: isolated dark pixels: GPU {}, reference {}; acne {acne}; pixels lit on one side only {flipped}",
+                dots.len(),
+                truth.len(),
+            );
+            assert_eq!(acne, 0, "{name}, shadows {shadows}: shadow acne");
+            // A shadow edge may fall either side of a pixel; wholesale self-shadowing (a
+            // shadow ray starting under its own surface everywhere) may not.
+            assert!(flipped <= 64, "{name}, shadows {shadows}: {flipped} pixels lit in one image and shadowed in the other");
+        }
+    }
+}

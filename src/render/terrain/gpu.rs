@@ -357,7 +357,7 @@ impl GpuTerrain {
         p.normal_z = v4(n.row(2), 0.0);
         p.extent = [(grid.z_lo - eye_grid.z) as f32, (grid.z_hi - eye_grid.z) as f32, grid.cell[0] as f32, grid.cell[1] as f32];
         p.size = [w as u32, h as u32, self.cells[0], self.cells[1]];
-        let flags = shading.shadows as u32 | (self.has_texture as u32) << 1;
+        let flags = shading.shadows as u32 | (self.has_texture as u32) << 1 | (shading.smooth as u32) << 2;
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];
         p.misc = [shading.lights.len() as u32, (super::reference::shadow_lift(grid) as f32).to_bits(), 0, 0];
         for (k, l) in shading.lights.iter().enumerate() {

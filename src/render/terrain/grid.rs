@@ -134,6 +134,41 @@ impl TerrainGrid {
     }
 
     /// The unit world-space normal of the patch at (u, v).
+    /// The height gradient at sample (i, j) in metres per metre (east, north): central
+    /// differences, one-sided where a neighbour is NoData or beyond the edge, 0 along an
+    /// axis where both are. The same rule as the shader's `sample_gradient`.
+    pub fn sample_gradient(&self, i: usize, j: usize) -> [f64; 2] {
+        let z = self.height(i, j) as f64;
+        let at = |i: Option<usize>, j: Option<usize>| -> Option<f64> {
+            let (i, j) = (i?, j?);
+            (i < self.nx && j < self.ny).then(|| self.height(i, j) as f64).filter(|z| z.is_finite())
+        };
+        let diff = |up: Option<f64>, down: Option<f64>| match (up, down) {
+            (Some(a), Some(b)) => 0.5 * (a - b),
+            (Some(a), None) => a - z,
+            (None, Some(b)) => z - b,
+            (None, None) => 0.0,
+        };
+        let gx = diff(at(Some(i + 1), Some(j)), at(i.checked_sub(1), Some(j))) / self.cell[0];
+        let gy = diff(at(Some(i), Some(j + 1)), at(Some(i), j.checked_sub(1))) / self.cell[1];
+        [gx, gy]
+    }
+
+    /// The smooth shading normal (world space, unit) at (u, v) in patch (i, j): the corner
+    /// samples' gradients interpolated bilinearly, continuous across patch borders.
+    pub fn smooth_world_normal(&self, i: usize, j: usize, u: f64, v: f64) -> DVec3 {
+        let g = [
+            self.sample_gradient(i, j),
+            self.sample_gradient(i + 1, j),
+            self.sample_gradient(i, j + 1),
+            self.sample_gradient(i + 1, j + 1),
+        ];
+        let lerp = |k: usize| (1.0 - v) * ((1.0 - u) * g[0][k] + u * g[1][k]) + v * ((1.0 - u) * g[2][k] + u * g[3][k]);
+        (self.normal_to_world * DVec3::new(-lerp(0), -lerp(1), 1.0)).normalize()
+    }
+
+    /// The exact normal of the bilinear patch with corner heights `z` at (u, v): faceted,
+    /// discontinuous across patch borders.
     pub fn world_normal(&self, z: [f64; 4], u: f64, v: f64) -> DVec3 {
         let (a, b, c) = patch_coefficients(z);
         let local = DVec3::new(-(b + a * v) / self.cell[0], -(c + a * u) / self.cell[1], 1.0);

@@ -36,6 +36,17 @@ crate::setting_choice! {
     }
 }
 
+crate::setting_choice! {
+    /// The normals terrain is shaded with; either way rays meet the exact bilinear patches.
+    pub enum Normals {
+        /// Per-sample gradients (central differences) interpolated bilinearly across each
+        /// patch: continuous across patch borders, no facets.
+        Smooth = "smooth",
+        /// Each bilinear patch's own normal: exact, but it jumps at patch borders.
+        Faceted = "faceted",
+    }
+}
+
 crate::declare_settings! {
     pub struct Settings {
         /// How the GPU walks the max-quadtree.
@@ -44,6 +55,8 @@ crate::declare_settings! {
         pub shadows: bool = false, viewer = Control { label: "Shadows", widget: Widget::ByType };
         /// Light reaching every point regardless of orientation, as a fraction of the base colour.
         pub ambient: f64 = 0.25, range = Bounds::at_least(0.0);
+        /// The shading normals.
+        pub normals: Normals = Normals::Smooth, viewer = Control { label: "Normals", widget: Widget::ByType };
         /// Per-ray cap on traversal steps. Rays stopped by the cap are counted in the
         /// frame's statistics.
         pub max_steps: u32 = 0, zero = "auto: 4 × (cells east + cells north) + 64, more than any ray needs", quality = true;
@@ -58,12 +71,14 @@ crate::declare_settings! {
         pub shadows: bool = false;
         /// Light reaching every point regardless of orientation, as a fraction of the base colour.
         pub ambient: f64 = 0.25, range = Bounds::at_least(0.0);
+        /// The shading normals.
+        pub normals: Normals = Normals::Smooth;
     }
 }
 
 impl From<&ReferenceSettings> for Settings {
     fn from(r: &ReferenceSettings) -> Settings {
-        Settings { shadows: r.shadows, ambient: r.ambient, ..Default::default() }
+        Settings { shadows: r.shadows, ambient: r.ambient, normals: r.normals, ..Default::default() }
     }
 }
 
@@ -147,7 +162,12 @@ impl Prepared {
 
     fn shading(&self, lights: &[Light], settings: &Settings) -> Result<shading::Shading> {
         settings.check()?;
-        Ok(shading::Shading { lights: shading::sun_lights(lights)?, ambient: settings.ambient, shadows: settings.shadows })
+        Ok(shading::Shading {
+            lights: shading::sun_lights(lights)?,
+            ambient: settings.ambient,
+            shadows: settings.shadows,
+            smooth: settings.normals == Normals::Smooth,
+        })
     }
 
     /// Renders with the GPU ray-caster (the pyramid is built on first use).

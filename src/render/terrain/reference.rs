@@ -121,10 +121,15 @@ pub fn hit_colour(grid: &TerrainGrid, texture: Option<&LinearTexture>, shading: 
             elevation_colour((surface - grid.z_lo) / span)
         }
     };
-    let normal = grid.world_normal(z, hit.u, hit.v);
+    let normal = if shading.smooth { grid.smooth_world_normal(i, j, hit.u, hit.v) } else { grid.world_normal(z, hit.u, hit.v) };
     let lit = |k: usize| {
         if !shading.shadows {
             return true;
+        }
+        // The surface itself facing away from the light (where a smooth normal still leans
+        // toward it) is in its own shadow.
+        if grid.world_normal(z, hit.u, hit.v).dot(shading.lights[k].to_light) <= 0.0 {
+            return false;
         }
         let o = DVec3::new(gx, gy, surface + shadow_lift(grid));
         let d = grid.world_to_grid.transform_vector3(shading.lights[k].to_light);

@@ -109,6 +109,8 @@ pub struct Shading {
     pub lights: Vec<SunLight>,
     pub ambient: f64,
     pub shadows: bool,
+    /// Normals interpolated across patches (else each patch's own, faceted).
+    pub smooth: bool,
 }
 
 /// Lambert shading: base · (ambient + Σ radiance · max(0, n·l) · lit).
