@@ -29,7 +29,7 @@ struct Params {
     // top level, step cap, traversal (0 quadtree, 1 quadtree without the raise, 2 linear),
     // flags (1 shadows, 2 texture, 4 smooth normals).
     control: vec4<u32>,
-    // number of lights; shadow lift (metres, as f32 bits); unused.
+    // number of lights; shadow lift (metres, as f32 bits); rays per pixel side; unused.
     misc: vec4<u32>,
     // The eye (perspective) or the view plane's centre (parallel) in grid space, as a
     // two-float sum hi + lo per axis. The shader works relative to it: near the eye —
@@ -371,16 +371,17 @@ fn elevation_colour(f_in: f32) -> vec3<f32> {
     return cols[4];
 }
 
-@compute @workgroup_size(8, 8)
-fn main(@builtin(global_invocation_id) id: vec3<u32>) {
-    let width = P.size.x;
-    let height = P.size.y;
-    if id.x >= width || id.y >= height {
-        return;
-    }
-    let pixel = id.y * width + id.x;
-    let sx = (2.0 * (f32(id.x) + 0.5) / f32(width) - 1.0) * P.fwd.w;
-    let sy = (1.0 - 2.0 * (f32(id.y) + 0.5) / f32(height)) * P.right.w;
+struct Sample {
+    colour: vec4<f32>,
+    depth: f32,
+    steps: u32,
+}
+
+// The ray through image point (px, py) (pixels from the top-left corner): its colour
+// (alpha 1 on a hit, all 0 on a miss), depth (−1 on a miss) and traversal steps.
+fn cast_ray(px: f32, py: f32) -> Sample {
+    let sx = (2.0 * px / f32(P.size.x) - 1.0) * P.fwd.w;
+    let sy = (1.0 - 2.0 * py / f32(P.size.y)) * P.right.w;
     var o = P.eye.xyz;
     var d = P.fwd.xyz;
     if P.eye.w > 0.5 {
@@ -430,10 +431,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
                 for (var k = 0u; k < P.misc.x; k++) {
                     we += P.light_color[k].rgb * max(dot(wn, P.light_world[k].xyz), 0.0);
                 }
-                out_colour[pixel] = vec4<f32>(vec3<f32>(0.20, 0.14, 0.09) * we, 1.0);
-                out_depth[pixel] = depth;
-                out_steps[pixel] = steps;
-                return;
+                return Sample(vec4<f32>(vec3<f32>(0.20, 0.14, 0.09) * we, 1.0), depth, steps);
             }
             if (P.control.w & 2u) != 0u {
                 let st = vec2<f32>(gx / f32(P.size.z), 1.0 - gy / f32(P.size.w));
@@ -482,7 +480,37 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             colour = vec4<f32>(base * e, 1.0);
         }
     }
-    out_colour[pixel] = colour;
-    out_depth[pixel] = depth;
-    out_steps[pixel] = steps;
+    return Sample(colour, depth, steps);
+}
+
+// k × k rays per pixel (k = misc.z) on a stratified grid, their colours averaged (misses
+// count as transparent black, so alpha is the coverage); depth and steps are those of the
+// ray through the pixel's centre (one of the k² when k is odd, an extra ray when even).
+@compute @workgroup_size(8, 8)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let width = P.size.x;
+    let height = P.size.y;
+    if id.x >= width || id.y >= height {
+        return;
+    }
+    let pixel = id.y * width + id.x;
+    let k = max(P.misc.z, 1u);
+    let mid = k / 2u;
+    var sum = vec4<f32>(0.0);
+    var centre = Sample(vec4<f32>(0.0), -1.0, 0u);
+    for (var b = 0u; b < k; b++) {
+        for (var a = 0u; a < k; a++) {
+            let s = cast_ray(f32(id.x) + (f32(a) + 0.5) / f32(k), f32(id.y) + (f32(b) + 0.5) / f32(k));
+            sum += s.colour;
+            if (k & 1u) == 1u && a == mid && b == mid {
+                centre = s;
+            }
+        }
+    }
+    if (k & 1u) == 0u {
+        centre = cast_ray(f32(id.x) + 0.5, f32(id.y) + 0.5);
+    }
+    out_colour[pixel] = sum / f32(k * k);
+    out_depth[pixel] = centre.depth;
+    out_steps[pixel] = centre.steps;
 }

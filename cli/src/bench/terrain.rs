@@ -2,7 +2,8 @@
 //! (30 m cells, 4000 m of relief), for a fly-through camera (above the highest peak) and a
 //! walk-through camera (2 m above the ground): pyramid build time, median ms per frame,
 //! steps per ray, for the paper's traversal and the two baselines (no raise, linear
-//! march), and the depth error against the f64 reference.
+//! march), and the depth error against the f64 reference; on the largest DEM, the cost and
+//! colour error of 1, 4, 9 and 16 rays per pixel (anti-aliasing).
 
 use super::median;
 use anyhow::{bail, Result};
@@ -43,6 +44,8 @@ pub struct Row {
     pub median_rel_depth_error: Option<f64>,
     pub p999_rel_depth_error: Option<f64>,
     pub hit_mismatches_off_silhouette: Option<usize>,
+    /// Anti-aliasing rows: colour relative RMSE from 256 rays per pixel (small image).
+    pub colour_rel_rmse_vs_256: Option<f64>,
     /// Ours: GPU memory held (heights, pyramid). VTK: resident memory its mesh and
     /// rendering added to the process (software OpenGL keeps GPU buffers there too).
     pub memory_mib: f64,
@@ -109,7 +112,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
     let gpu = gpu::gpu()?;
     eprintln!("GPU: {} ({:?}, {:?})", gpu.info.name, gpu.info.backend, gpu.info.device_type);
     std::fs::create_dir_all(&b.env.work_dir)?;
-    let shading = Shading { lights: sun_lights(&[])?, ambient: 0.25, shadows: false, smooth: true };
+    let shading = Shading { lights: sun_lights(&[])?, ambient: 0.25, shadows: false, smooth: true, rays_per_side: 1 };
     // The reference is f64 and cell by cell: its image is kept small.
     let (rw, rh) = (192usize, (192 * b.height / b.width).max(1));
     let mut rows = Vec::new();
@@ -163,8 +166,43 @@ pub fn run(b: &TerrainBench) -> Result<()> {
                     median_rel_depth_error: Some(agree.median_rel),
                     p999_rel_depth_error: Some(agree.p999_rel),
                     hit_mismatches_off_silhouette: Some(agree.mismatched_off_silhouette),
+                    colour_rel_rmse_vs_256: None,
                     memory_mib: terrain.gpu_bytes as f64 / (1 << 20) as f64,
                 });
+            }
+            // Anti-aliasing on the largest DEM: time per frame and colour error against 256
+            // rays per pixel, for k × k rays per pixel.
+            if size == *b.sizes.iter().max().unwrap() {
+                let cap = Settings::default().step_cap(&grid);
+                let rays = cam.rays(b.width, b.height);
+                let aa = |k: u32| Shading { rays_per_side: k, ..shading.clone() };
+                let truth_shading = aa(16);
+                let truth = terrain.render(
+                    gpu,
+                    &View { grid: &grid, rays: &small, shading: &truth_shading, traversal: Traversal::Quadtree, max_steps: cap },
+                )?;
+                for k in [1u32, 2, 3, 4] {
+                    let sh = aa(k);
+                    let view = View { grid: &grid, rays: &rays, shading: &sh, traversal: Traversal::Quadtree, max_steps: cap };
+                    let mut times = terrain.time_frames(gpu, &view, b.runs)?;
+                    let check = terrain.render(gpu, &View { rays: &small, ..view })?;
+                    rows.push(Row {
+                        config: format!("quadtree, {} rays/px", k * k),
+                        camera: camera_name.into(),
+                        size,
+                        build_ms,
+                        median_ms: 1e3 * median(&mut times),
+                        mean_steps: None,
+                        p95_steps: None,
+                        max_steps: None,
+                        capped_rays: None,
+                        median_rel_depth_error: None,
+                        p999_rel_depth_error: None,
+                        hit_mismatches_off_silhouette: None,
+                        colour_rel_rmse_vs_256: Some(volterra::compare::rgba_rel_rmse(&check.rgba, &truth.rgba)),
+                        memory_mib: terrain.gpu_bytes as f64 / (1 << 20) as f64,
+                    });
+                }
             }
             bar.inc(1);
         }
@@ -183,17 +221,18 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         return Ok(());
     }
     println!(
-        "{}×{} image, median of {} frames; depth error on a {rw}×{rh} image against the f64 reference; GPU: {}",
+        "{}×{} image, median of {} frames; depth error on a {rw}×{rh} image against the f64 reference, colour error \
+         (anti-aliasing rows) against 256 rays per pixel; GPU: {}",
         b.width, b.height, b.runs, gpu.info.name
     );
     println!(
-        "{:>5} {:<5} {:<19} {:>9} {:>10} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>8}",
-        "size", "cam", "config", "build ms", "ms/frame", "mean", "p95", "max", "capped", "med. err", "p99.9 err", "miss", "MiB"
+        "{:>5} {:<5} {:<22} {:>9} {:>10} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>9} {:>8}",
+        "size", "cam", "config", "build ms", "ms/frame", "mean", "p95", "max", "capped", "med. err", "p99.9 err", "miss", "col. err", "MiB"
     );
     let opt = |v: Option<String>| v.unwrap_or_else(|| "-".into());
     for r in &rows {
         println!(
-            "{:>5} {:<5} {:<19} {:>9.2} {:>10.2} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>8.0}",
+            "{:>5} {:<5} {:<22} {:>9.2} {:>10.2} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>9} {:>8.0}",
             r.size,
             r.camera,
             r.config,
@@ -206,6 +245,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
             opt(r.median_rel_depth_error.map(|v| format!("{v:.1e}"))),
             opt(r.p999_rel_depth_error.map(|v| format!("{v:.1e}"))),
             opt(r.hit_mismatches_off_silhouette.map(|v| v.to_string())),
+            opt(r.colour_rel_rmse_vs_256.map(|v| format!("{:.2} %", 100.0 * v))),
             r.memory_mib
         );
     }
@@ -243,6 +283,7 @@ fn vtk_rows(b: &TerrainBench) -> Result<Vec<Row>> {
             median_rel_depth_error: None,
             p999_rel_depth_error: None,
             hit_mismatches_off_silhouette: None,
+            colour_rel_rmse_vs_256: None,
             memory_mib: r["added_rss_mib"].as_f64().unwrap_or(f64::NAN),
         })
         .collect())

@@ -359,7 +359,7 @@ impl GpuTerrain {
         p.size = [w as u32, h as u32, self.cells[0], self.cells[1]];
         let flags = shading.shadows as u32 | (self.has_texture as u32) << 1 | (shading.smooth as u32) << 2;
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];
-        p.misc = [shading.lights.len() as u32, (super::reference::shadow_lift(grid) as f32).to_bits(), 0, 0];
+        p.misc = [shading.lights.len() as u32, (super::reference::shadow_lift(grid) as f32).to_bits(), shading.rays_per_side.max(1), 0];
         for (k, l) in shading.lights.iter().enumerate() {
             p.light_world[k] = v4(l.to_light, 0.0);
             p.light_grid[k] = v4(m.transform_vector3(l.to_light), 0.0);

@@ -13,12 +13,12 @@ pub mod reference;
 pub mod shading;
 
 use super::registry::{NodeSettings, RendererDecl};
-use super::settings::{Bounds, Control, Widget};
+use super::settings::{Bounds, Control, Preview, Widget};
 use crate::render::Frame;
 use crate::scene::camera::RayGenerator;
 use crate::scene::Light;
 use crate::scene::NodeKind;
-use anyhow::Result;
+use anyhow::{bail, Result};
 use glam::DMat4;
 use volterra_formats::{Heightfield, Limits, RgbImage};
 
@@ -57,6 +57,13 @@ crate::declare_settings! {
         pub ambient: f64 = 0.25, range = Bounds::at_least(0.0);
         /// The shading normals.
         pub normals: Normals = Normals::Smooth, viewer = Control { label: "Normals", widget: Widget::ByType };
+        /// Rays per pixel, on a stratified k × k grid (1, 4, 9, 16, …): their colours are
+        /// averaged (anti-aliasing); depth and steps stay those of the pixel's centre ray.
+        /// 4 by measurement (`volterra bench terrain`, 1920 × 1080, lavapipe on 2 cores): the
+        /// colour error from 256 rays falls 7.5 → 2.6 % (fly) and 3.4 → 1.4 % (walk) for
+        /// 3.3 × the time; 9 and 16 rays halve it again for 1.8 × and 3 × more. Previews
+        /// while the camera moves use 1.
+        pub rays_per_pixel: u32 = 4, range = Bounds::closed(1.0, 256.0), quality = true, preview = Preview::AtMost(1.0);
         /// Per-ray cap on traversal steps. Rays stopped by the cap are counted in the
         /// frame's statistics.
         pub max_steps: u32 = 0, zero = "auto: 4 × (cells east + cells north) + 64, more than any ray needs", quality = true;
@@ -73,12 +80,15 @@ crate::declare_settings! {
         pub ambient: f64 = 0.25, range = Bounds::at_least(0.0);
         /// The shading normals.
         pub normals: Normals = Normals::Smooth;
+        /// Rays per pixel, on a stratified k × k grid (1, 4, 9, 16, …): their colours are
+        /// averaged (anti-aliasing); depth stays that of the pixel's centre ray.
+        pub rays_per_pixel: u32 = 4, range = Bounds::closed(1.0, 256.0);
     }
 }
 
 impl From<&ReferenceSettings> for Settings {
     fn from(r: &ReferenceSettings) -> Settings {
-        Settings { shadows: r.shadows, ambient: r.ambient, normals: r.normals, ..Default::default() }
+        Settings { shadows: r.shadows, ambient: r.ambient, normals: r.normals, rays_per_pixel: r.rays_per_pixel, ..Default::default() }
     }
 }
 
@@ -111,7 +121,18 @@ impl Settings {
         (4 * (cx + cy) + 64).min(u32::MAX as usize) as u32
     }
     fn check(&self) -> Result<()> {
-        self.validate().map_err(|e| anyhow::anyhow!("terrain: {e}"))
+        self.validate().map_err(|e| anyhow::anyhow!("terrain: {e}"))?;
+        self.rays_per_side()?;
+        Ok(())
+    }
+
+    /// k, where rays_per_pixel = k²; an error for a number that is not a square.
+    pub fn rays_per_side(&self) -> Result<u32> {
+        let k = (self.rays_per_pixel as f64).sqrt().round() as u32;
+        if k * k != self.rays_per_pixel {
+            bail!("terrain: rays_per_pixel {} is not a square (1, 4, 9, 16, …): rays lie on a k × k grid", self.rays_per_pixel);
+        }
+        Ok(k)
     }
 }
 
@@ -167,6 +188,7 @@ impl Prepared {
             ambient: settings.ambient,
             shadows: settings.shadows,
             smooth: settings.normals == Normals::Smooth,
+            rays_per_side: settings.rays_per_side()?,
         })
     }
 

@@ -172,19 +172,36 @@ pub fn render_surface(
     render_bands("terrain reference", w, 1, &mut frame.rgba, &mut frame.depth, &mut [&mut steps, &mut walls], |band| {
         let (y, rgba, depth) = (band.y0, band.rgba, band.depth);
         let [steps, walls] = <[&mut [f32]; 2]>::try_from(band.extra).expect("two extra planes");
-        for x in 0..w {
-            let ray = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
+        // The ray through image point (px, py): its colour (transparent black on a miss),
+        // and its hit with the ray's height there.
+        let cast = |px: f64, py: f64| {
+            let ray = rays.ray(px, py);
             let (hit, n) = trace_world(grid, &ray, surface);
+            let Some(hit) = hit else { return ([0.0; 4], None, n) };
+            let (o, d) = grid.ray_to_grid(&ray);
+            let ray_z = o.z + hit.t * d.z;
+            let c = hit_colour(grid, texture, shading, &hit, ray_z);
+            ([c[0], c[1], c[2], 1.0], Some((hit, ray_z)), n)
+        };
+        // k × k rays on a stratified grid, as the GPU: colours averaged; depth, steps and
+        // the wall flag from the ray through the centre.
+        let k = shading.rays_per_side.max(1) as usize;
+        for x in 0..w {
+            let mut sum = [0.0f64; 4];
+            for b in 0..k {
+                for a in 0..k {
+                    let (c, ..) = cast(x as f64 + (a as f64 + 0.5) / k as f64, y as f64 + (b as f64 + 0.5) / k as f64);
+                    (0..4).for_each(|i| sum[i] += c[i]);
+                }
+            }
+            rgba[x] = sum.map(|v| (v / (k * k) as f64) as f32);
+            let (_, hit, n) = cast(x as f64 + 0.5, y as f64 + 0.5);
             steps[x] = n as f32;
-            if let Some(hit) = hit {
-                let (o, d) = grid.ray_to_grid(&ray);
-                let ray_z = o.z + hit.t * d.z;
+            if let Some((hit, ray_z)) = hit {
                 let z = grid.patch(hit.cell[0], hit.cell[1]).expect("a hit lies on a valid patch");
                 if super::grid::bilinear(z, hit.u, hit.v) - ray_z > wall_tolerance(grid) {
                     walls[x] = 1.0;
                 }
-                let c = hit_colour(grid, texture, shading, &hit, ray_z);
-                rgba[x] = [c[0] as f32, c[1] as f32, c[2] as f32, 1.0];
                 depth[x] = hit.t as f32;
             }
         }

@@ -111,6 +111,9 @@ pub struct Shading {
     pub shadows: bool,
     /// Normals interpolated across patches (else each patch's own, faceted).
     pub smooth: bool,
+    /// k: k × k rays per pixel on a stratified grid, colours averaged (1: one ray through
+    /// the pixel's centre). Depth stays the centre ray's.
+    pub rays_per_side: u32,
 }
 
 /// Lambert shading: base · (ambient + Σ radiance · max(0, n·l) · lit).
