@@ -39,6 +39,9 @@ struct Params {
     // ground by 2e-4 of its height.)
     eye_hi: vec4<f32>,
     eye_lo: vec4<f32>,
+    // Where the drape lies: texture coordinates s = x + y·gx, t = z + w·gy of grid point
+    // (gx, gy) (LinearTexture::placement in shading.rs).
+    drape: vec4<f32>,
     // Per light: unit direction toward it (world), the same in grid space, colour × intensity.
     light_world: array<vec4<f32>, 4>,
     light_grid: array<vec4<f32>, 4>,
@@ -433,11 +436,14 @@ fn cast_ray(px: f32, py: f32) -> Sample {
                 }
                 return Sample(vec4<f32>(vec3<f32>(0.20, 0.14, 0.09) * we, 1.0), depth, steps);
             }
+            base = elevation_colour((zh - P.extent.x) / max(P.extent.y - P.extent.x, 1e-9));
             if (P.control.w & 2u) != 0u {
-                let st = vec2<f32>(gx / f32(P.size.z), 1.0 - gy / f32(P.size.w));
-                base = textureSampleLevel(colour_map, colour_sampler, st, 0.0).rgb;
-            } else {
-                base = elevation_colour((zh - P.extent.x) / max(P.extent.y - P.extent.x, 1e-9));
+                // The drape, premultiplied over the elevation colour, where it covers the hit.
+                let st = vec2<f32>(P.drape.x + P.drape.y * gx, P.drape.z + P.drape.w * gy);
+                if all(st >= vec2<f32>(0.0)) && all(st <= vec2<f32>(1.0)) {
+                    let texel = textureSampleLevel(colour_map, colour_sampler, st, 0.0);
+                    base = texel.rgb + (1.0 - texel.a) * base;
+                }
             }
             // The patch's own (faceted) normal, and the shading normal (smooth, or the same).
             let face_local = vec3<f32>(-(pb + pa * h.v) / P.extent.z, -(pc + pa * h.u) / P.extent.w, 1.0);

@@ -255,7 +255,7 @@ fn shading_matches_the_reference_with_shadows_and_a_texture() {
         return;
     }
     let dem = volterra::samples::fractal_dem(7, 30.0, 5);
-    let tex = volterra::samples::dem_texture(&dem);
+    let tex = volterra::scene::drape::Drape::stretched(&volterra::samples::dem_texture(&dem));
     let lights = [volterra::scene::Light {
         kind: volterra::scene::LightKind::Directional,
         direction: Some([1.0, 0.5, -0.4]),

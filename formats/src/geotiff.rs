@@ -95,46 +95,20 @@ fn check_data_offsets<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Dec
     Ok(())
 }
 
-pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
-    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
-    let mut d = Decoder::new(BufReader::new(file)).map_err(|e| tiff_err(path, e))?;
-    // A GeoTIFF may carry overviews: use the first directory that is not a reduced image.
-    let mut index = 0;
-    loop {
-        let subfile = d.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(|e| tiff_err(path, e))?.unwrap_or(0);
-        if subfile & 1 == 0 {
-            break;
-        }
-        if !d.more_images() {
-            return Err(FormatError::invalid(path, "TIFF holds only reduced-resolution images"));
-        }
-        index += 1;
-        d.seek_to_image(index).map_err(|e| tiff_err(path, e))?;
-    }
-    let (w, h) = d.dimensions().map_err(|e| tiff_err(path, e))?;
-    let spp = d.find_tag_unsigned::<u16>(Tag::SamplesPerPixel).map_err(|e| tiff_err(path, e))?.unwrap_or(1);
-    if spp != 1 {
-        return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: an elevation raster has one band")));
-    }
-    let bps = d.find_tag_unsigned::<u16>(Tag::BitsPerSample).map_err(|e| tiff_err(path, e))?.unwrap_or(1) as u64;
-    let bytes = limits.check(path, "elevation raster", &[w as u64, h as u64, bps.div_ceil(8).max(1)])?;
-    // The tiff crate's own limits, sized by ours: it decodes no more than the raster needs.
-    let mut tiff_limits = tiff::decoder::Limits::default();
-    tiff_limits.decoding_buffer_size = bytes.max(1 << 20);
-    tiff_limits.intermediate_buffer_size = bytes.max(1 << 20);
-    tiff_limits.ifd_value_size = 64 << 20;
-    d = d.with_limits(tiff_limits);
-    check_data_offsets(path, &mut d)?;
+/// Where a GeoTIFF's raster lies: its CRS, the map coordinates of the centre of its first
+/// (north-west) pixel, the pixel size in CRS units (both positive: north-up only), whether
+/// it is PixelIsPoint, its GeoKeys and notes on what was assumed.
+struct Georeferencing {
+    keys: Vec<(u16, GeoKey)>,
+    crs: Crs,
+    origin: [f64; 2],
+    scale: [f64; 2],
+    point: bool,
+    notes: Vec<String>,
+}
 
-    let keys = geo_keys(path, &mut d)?;
-    let nodata_value: Option<f64> = match d.find_tag(Tag::GdalNodata).map_err(|e| tiff_err(path, e))? {
-        Some(v) => {
-            let s = v.into_string().map_err(|e| tiff_err(path, e))?;
-            let t = s.trim_matches(|c: char| c == '\0' || c.is_whitespace());
-            Some(t.parse::<f64>().map_err(|_| FormatError::invalid(path, format!("GDAL_NODATA '{t}' is not a number")))?)
-        }
-        None => None,
-    };
+fn georeferencing<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -> Result<Georeferencing> {
+    let keys = geo_keys(path, d)?;
     let scale = match d.find_tag(Tag::ModelPixelScaleTag).map_err(|e| tiff_err(path, e))? {
         Some(v) => Some(v.into_f64_vec().map_err(|e| tiff_err(path, e))?),
         None => None,
@@ -204,6 +178,137 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
         Crs { epsg, geographic, description: desc }
     };
 
+    Ok(Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, notes })
+}
+
+/// The decoder at the file's full-resolution image (a GeoTIFF may carry overviews: the
+/// first directory that is not a reduced image), its size and samples per pixel, with the
+/// decoder's limits sized by ours for `what` so that it decodes no more than the raster.
+fn open_full_resolution(path: &Path, limits: &Limits, what: &str) -> Result<(Decoder<BufReader<std::fs::File>>, u32, u32, u16)> {
+    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
+    let mut d = Decoder::new(BufReader::new(file)).map_err(|e| tiff_err(path, e))?;
+    let mut index = 0;
+    loop {
+        let subfile = d.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(|e| tiff_err(path, e))?.unwrap_or(0);
+        if subfile & 1 == 0 {
+            break;
+        }
+        if !d.more_images() {
+            return Err(FormatError::invalid(path, "TIFF holds only reduced-resolution images"));
+        }
+        index += 1;
+        d.seek_to_image(index).map_err(|e| tiff_err(path, e))?;
+    }
+    let (w, h) = d.dimensions().map_err(|e| tiff_err(path, e))?;
+    let spp = d.find_tag_unsigned::<u16>(Tag::SamplesPerPixel).map_err(|e| tiff_err(path, e))?.unwrap_or(1);
+    // One value per sample (RGB files list three).
+    let bps = match d.find_tag(Tag::BitsPerSample).map_err(|e| tiff_err(path, e))? {
+        Some(v) => v.into_u16_vec().map_err(|e| tiff_err(path, e))?.into_iter().max().unwrap_or(1) as u64,
+        None => 1,
+    };
+    let bytes = limits.check(path, what, &[w as u64, h as u64, spp.max(1) as u64, bps.div_ceil(8).max(1)])?;
+    let mut tiff_limits = tiff::decoder::Limits::default();
+    tiff_limits.decoding_buffer_size = bytes.max(1 << 20);
+    tiff_limits.intermediate_buffer_size = bytes.max(1 << 20);
+    tiff_limits.ifd_value_size = 64 << 20;
+    d = d.with_limits(tiff_limits);
+    check_data_offsets(path, &mut d)?;
+    Ok((d, w, h, spp))
+}
+
+/// The GDAL_NODATA value, where the file declares one.
+fn gdal_nodata<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -> Result<Option<f64>> {
+    match d.find_tag(Tag::GdalNodata).map_err(|e| tiff_err(path, e))? {
+        Some(v) => {
+            let s = v.into_string().map_err(|e| tiff_err(path, e))?;
+            let t = s.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+            Ok(Some(t.parse::<f64>().map_err(|_| FormatError::invalid(path, format!("GDAL_NODATA '{t}' is not a number")))?))
+        }
+        None => Ok(None),
+    }
+}
+
+/// A georeferenced image to drape over a terrain: one band of values (NoData as NaN), or
+/// RGB / RGBA bytes, interleaved, row by row from the north.
+pub enum GeoPixels {
+    Values(Vec<f64>),
+    Rgb8(Vec<u8>),
+    Rgba8(Vec<u8>),
+}
+
+pub struct GeoImage {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: GeoPixels,
+    pub crs: Crs,
+    /// Map coordinates (CRS units) of the centre of pixel (0, 0), the north-west one.
+    pub origin: [f64; 2],
+    /// Pixel size in CRS units (east, north), both positive.
+    pub cell_size_native: [f64; 2],
+    pub notes: Vec<String>,
+}
+
+/// Reads a GeoTIFF image to drape: one band of any sample type, or 3 or 4 bands of bytes,
+/// with its georeferencing (north-up only, as elevation rasters).
+pub fn read_geotiff_image(path: &Path, limits: &Limits) -> Result<GeoImage> {
+    let (mut d, w, h, spp) = open_full_resolution(path, limits, "draped image")?;
+    if !matches!(spp, 1 | 3 | 4) {
+        return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: a drape has 1 band, or 3 or 4 (RGB, RGBA)")));
+    }
+    let geo = georeferencing(path, &mut d)?;
+    let nodata = gdal_nodata(path, &mut d)?;
+    let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
+    let n = w as usize * h as usize;
+    let pixels = match (spp, raw) {
+        (3 | 4, DecodingResult::U8(v)) => {
+            if v.len() < n * spp as usize {
+                return Err(FormatError::invalid(path, format!("image data holds {} of {} bytes", v.len(), n * spp as usize)));
+            }
+            if spp == 3 {
+                GeoPixels::Rgb8(v[..3 * n].to_vec())
+            } else {
+                GeoPixels::Rgba8(v[..4 * n].to_vec())
+            }
+        }
+        (3 | 4, _) => return Err(FormatError::unsupported(path, "an RGB(A) drape must have 8-bit samples")),
+        (_, raw) => {
+            let values: Vec<f64> = match raw {
+                DecodingResult::U8(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::I8(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::U16(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::I16(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::U32(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::I32(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::F64(v) => v,
+                _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
+            };
+            if values.len() < n {
+                return Err(FormatError::invalid(path, format!("image data holds {} of {n} samples", values.len())));
+            }
+            let is_nodata = |v: f64| !v.is_finite() || nodata.is_some_and(|nd| v == nd);
+            GeoPixels::Values(values[..n].iter().map(|&v| if is_nodata(v) { f64::NAN } else { v }).collect())
+        }
+    };
+    Ok(GeoImage {
+        width: w as usize,
+        height: h as usize,
+        pixels,
+        crs: geo.crs,
+        origin: geo.origin,
+        cell_size_native: geo.scale,
+        notes: geo.notes,
+    })
+}
+
+pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
+    let (mut d, w, h, spp) = open_full_resolution(path, limits, "elevation raster")?;
+    if spp != 1 {
+        return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: an elevation raster has one band")));
+    }
+
+    let Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, mut notes } = georeferencing(path, &mut d)?;
+    let nodata_value = gdal_nodata(path, &mut d)?;
     // What gdalinfo users look for: the storage, before the image is read.
     let compression = match d.get_tag_u32(tiff::tags::Tag::Compression).unwrap_or(1) {
         1 => "none".to_string(),
@@ -299,7 +404,7 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
         notes.push(format!("{not_finite} infinite or out-of-range sample(s) treated as NoData"));
     }
 
-    let cell_size = if geographic {
+    let cell_size = if crs.geographic {
         let centre_lat = oy - 0.5 * (h as f64 - 1.0) * sy;
         if !(-90.0..=90.0).contains(&centre_lat) {
             return Err(FormatError::invalid(path, format!("geographic raster centred at latitude {centre_lat}°, outside ±90°")));

@@ -26,7 +26,7 @@ use registry::NodeSettings;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
-use volterra_formats::{Heightfield, Limits, RgbImage, Volume};
+use volterra_formats::{Heightfield, Limits, Volume};
 
 /// What renderers may keep between frames of one scene: the shear-warp preparation of each
 /// volume (quantised copy, permuted axes, min-max maps), which depends only on the volume,
@@ -110,7 +110,7 @@ impl RenderCache {
     fn terrain(
         &self,
         hf: &Arc<Heightfield>,
-        texture: Option<Arc<RgbImage>>,
+        texture: Option<Arc<crate::scene::drape::Drape>>,
         node_to_world: glam::DMat4,
         limits: &Limits,
     ) -> Result<Arc<terrain::Prepared>> {
@@ -201,11 +201,17 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 }
                 Ok(p)
             })?;
-            match settings {
+            let mut frame = match settings {
                 NodeSettings::Terrain(s) => prepared.render(&scene.file.lights, &rays, s)?,
                 NodeSettings::TerrainReference(s) => prepared.render_reference(&scene.file.lights, &rays, &s.into())?,
                 _ => unreachable!(),
+            };
+            // A colour-mapped drape gets its scalar bar in the PNG preview.
+            if let (Some((colormap, range)), Some(path)) = (texture.as_ref().and_then(|t| t.scale), &desc.texture) {
+                let title = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+                frame.scales.push(colormap::ColourScale { title, colormap, range });
             }
+            frame
         }
         (NodeSettings::Smoke(s), NodeData::Particles(particles)) => {
             let input = smoke::SmokeInput {

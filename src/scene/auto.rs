@@ -45,6 +45,8 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         opacity_scale: 1.0,
         png: None,
         texture: None,
+        texture_colormap: None,
+        texture_range: None,
         arrays: None,
         medium: None,
         color_by: None,

@@ -8,6 +8,7 @@ pub mod animation;
 pub mod auto;
 pub mod camera;
 pub mod crop;
+pub mod drape;
 pub mod measurement;
 pub mod presets;
 pub mod transfer;
@@ -27,7 +28,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 use volterra_formats::png_height::PngHeightOptions;
 use volterra_formats::series::{self, TimeSeries};
-use volterra_formats::{Dataset, Heightfield, Limits, LoadOptions, ParticleArrayNames, ParticleSet, RgbImage, Volume};
+use volterra_formats::{Dataset, Heightfield, Limits, LoadOptions, ParticleArrayNames, ParticleSet, Volume};
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -170,8 +171,14 @@ pub struct NodeDesc {
     pub opacity_scale: f64,
     // --- heightfields
     pub png: Option<PngHeightOptions>,
-    /// Colour texture draped over the terrain, relative to the scene file.
+    /// Colour image draped over the terrain, relative to the scene file: a PNG (stretched
+    /// over the heightfield's extent) or a GeoTIFF (placed by its georeferencing, in the
+    /// heightfield's CRS).
     pub texture: Option<PathBuf>,
+    /// A single-band GeoTIFF texture's colour map (default grey).
+    pub texture_colormap: Option<String>,
+    /// A single-band GeoTIFF texture's values at the colour map's ends (default: its range).
+    pub texture_range: Option<[f64; 2]>,
     // --- particles
     pub arrays: Option<ParticleArrayNames>,
     pub medium: Option<Medium>,
@@ -344,7 +351,7 @@ pub struct Scene {
     /// Each node's renderer and its checked settings (None for groups).
     renderers: Vec<Option<(&'static RendererDecl, NodeSettings)>>,
     data: Vec<OnceLock<Result<NodeData, SharedError>>>,
-    textures: Vec<OnceLock<Result<Arc<RgbImage>, SharedError>>>,
+    textures: Vec<OnceLock<Result<Arc<drape::Drape>, SharedError>>>,
     /// A volume node's value statistics, for its preset (computed on first use).
     stats: Vec<OnceLock<Arc<presets::ValueStats>>>,
     /// Each node's time series, where its `file` names one (found at load, no data read).
@@ -538,6 +545,23 @@ impl Scene {
                     bail!("{src}: node '{}': shading applies to volume nodes only", n.name);
                 }
                 s.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
+            }
+            if n.kind != NodeKind::Heightfield && (n.texture.is_some() || n.texture_colormap.is_some() || n.texture_range.is_some()) {
+                bail!("{src}: node '{}': texture, texture_colormap and texture_range apply to heightfield nodes only", n.name);
+            }
+            if n.texture.is_none() && (n.texture_colormap.is_some() || n.texture_range.is_some()) {
+                bail!("{src}: node '{}': texture_colormap and texture_range colour a texture, and the node has none", n.name);
+            }
+            if let Some(c) = &n.texture_colormap {
+                if crate::render::colormap::Colormap::from_name(c).is_none() {
+                    let names: Vec<&str> = crate::render::colormap::Colormap::ALL.iter().map(|c| c.name()).collect();
+                    bail!("{src}: node '{}': unknown texture_colormap '{c}' (known: {})", n.name, names.join(", "));
+                }
+            }
+            if let Some([lo, hi]) = n.texture_range {
+                if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                    bail!("{src}: node '{}': texture_range [{lo}, {hi}] must be two finite values, low < high", n.name);
+                }
             }
             if n.kind != NodeKind::Particles && (n.color_by.is_some() || n.color_range.is_some()) {
                 bail!("{src}: node '{}': color_by and color_range apply to particle nodes only", n.name);
@@ -863,14 +887,21 @@ impl Scene {
             _ => bail!("node '{}' is not a particle set", self.file.nodes[node].name),
         }
     }
-    /// The node's colour texture, if it names one.
-    pub fn texture(&self, node: usize) -> Result<Option<Arc<RgbImage>>> {
-        let Some(t) = &self.file.nodes[node].texture else { return Ok(None) };
+    /// The node's draped image, if it names one.
+    pub fn texture(&self, node: usize) -> Result<Option<Arc<drape::Drape>>> {
+        let desc = &self.file.nodes[node];
+        let Some(t) = &desc.texture else { return Ok(None) };
         let path = self.base_dir.join(t);
+        let band = (desc.texture_colormap.is_some() || desc.texture_range.is_some()).then(|| drape::BandColours {
+            colormap: desc
+                .texture_colormap
+                .as_deref()
+                .and_then(crate::render::colormap::Colormap::from_name)
+                .unwrap_or(crate::render::colormap::Colormap::Grey),
+            range: desc.texture_range,
+        });
         let r = self.textures[node]
-            .get_or_init(|| {
-                volterra_formats::image::read_rgb_png(&path, &self.limits).map(Arc::new).map_err(|e| SharedError::new(e.into()))
-            })
+            .get_or_init(|| drape::Drape::load(&path, band, &self.limits).map(Arc::new).map_err(SharedError::new))
             .clone();
         r.map(Some).map_err(anyhow::Error::new)
     }
@@ -891,7 +922,13 @@ impl Scene {
             let o = &self.file.nodes[j];
             let same_data = (&o.kind, &o.file, &o.series, o.volume_index, o.resample, &o.png, &o.arrays)
                 == (&n.kind, &n.file, &n.series, n.volume_index, n.resample, &n.png, &n.arrays);
-            self.carry_over(j, &next, i, same_data, same_data && o.texture == n.texture);
+            self.carry_over(
+                j,
+                &next,
+                i,
+                same_data,
+                same_data && o.texture == n.texture && o.texture_colormap == n.texture_colormap && o.texture_range == n.texture_range,
+            );
         }
         Ok(next)
     }

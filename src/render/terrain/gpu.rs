@@ -7,11 +7,11 @@ use super::shading::{Shading, MAX_LIGHTS};
 use super::Traversal;
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
+use crate::scene::drape::Drape;
 use crate::shared_error::SharedError;
 use anyhow::{anyhow, bail, Result};
 use std::sync::OnceLock;
 use std::time::Instant;
-use volterra_formats::RgbImage;
 
 /// The shared device (`render::gpu`; its fields and methods through `Deref`) with the
 /// terrain's pipelines.
@@ -162,6 +162,7 @@ struct Params {
     misc: [u32; 4],
     eye_hi: [f32; 4],
     eye_lo: [f32; 4],
+    drape: [f32; 4],
     light_world: [[f32; 4]; MAX_LIGHTS],
     light_grid: [[f32; 4]; MAX_LIGHTS],
     light_color: [[f32; 4]; MAX_LIGHTS],
@@ -188,6 +189,8 @@ pub struct GpuTerrain {
     colour_view: wgpu::TextureView,
     sampler: wgpu::Sampler,
     has_texture: bool,
+    /// [s0, s1, t0, t1]: where the drape lies over the grid.
+    placement: [f32; 4],
     levels: u32,
     cells: [u32; 2],
     /// Seconds to build the lid map and the quadtree on the GPU (upload excluded).
@@ -210,11 +213,12 @@ struct Target {
 impl GpuTerrain {
     /// Uploads the heightfield (and texture) and builds the pyramid. GPU errors — out of
     /// memory above all — come back as errors, not the panic wgpu's default handler gives.
-    pub fn new(gpu: &Gpu, grid: &TerrainGrid, texture: Option<&RgbImage>) -> Result<GpuTerrain> {
+    /// `texture`: the drape and its placement (see `shading::LinearTexture::placement`).
+    pub fn new(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>) -> Result<GpuTerrain> {
         gpu.guarded("uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture))
     }
 
-    fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<&RgbImage>) -> Result<GpuTerrain> {
+    fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>) -> Result<GpuTerrain> {
         let device = &gpu.device;
         let max_dim = device.limits().max_texture_dimension_2d as usize;
         if grid.nx > max_dim || grid.ny > max_dim {
@@ -255,9 +259,12 @@ impl GpuTerrain {
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING,
             view_formats: &[],
         });
-        let (colour, has_texture) = match texture {
-            Some(img) => (colour_texture(gpu, img, max_dim)?, true),
-            None => (colour_texture(gpu, &RgbImage { width: 1, height: 1, data: vec![255; 3] }, max_dim)?, false),
+        let (colour, has_texture, placement) = match texture {
+            Some((drape, placement)) => (colour_texture(gpu, drape, max_dim)?, true, placement),
+            None => {
+                let blank = Drape { width: 1, height: 1, rgba: vec![0; 4], georef: None, scale: None };
+                (colour_texture(gpu, &blank, max_dim)?, false, [0.0; 4])
+            }
         };
         // Uploads first, so that the build time below is the compute passes alone.
         gpu.queue.submit([]);
@@ -322,6 +329,7 @@ impl GpuTerrain {
             colour_view: colour.create_view(&Default::default()),
             sampler,
             has_texture,
+            placement: placement.map(|v| v as f32),
             levels,
             cells: [cx as u32, cy as u32],
             build_seconds,
@@ -359,6 +367,7 @@ impl GpuTerrain {
         p.size = [w as u32, h as u32, self.cells[0], self.cells[1]];
         let flags = shading.shadows as u32 | (self.has_texture as u32) << 1 | (shading.smooth as u32) << 2;
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];
+        p.drape = self.placement;
         p.misc = [shading.lights.len() as u32, (super::reference::shadow_lift(grid) as f32).to_bits(), shading.rays_per_side.max(1), 0];
         for (k, l) in shading.lights.iter().enumerate() {
             p.light_world[k] = v4(l.to_light, 0.0);
@@ -504,11 +513,11 @@ fn uniform_buffer(gpu: &Gpu, bytes: &[u8]) -> wgpu::Buffer {
     buf
 }
 
-fn colour_texture(gpu: &Gpu, img: &RgbImage, max_dim: usize) -> Result<wgpu::Texture> {
+fn colour_texture(gpu: &Gpu, img: &Drape, max_dim: usize) -> Result<wgpu::Texture> {
     if img.width > max_dim || img.height > max_dim || img.width == 0 || img.height == 0 {
         bail!("colour texture {}×{} does not fit the GPU's textures ({max_dim}²)", img.width, img.height);
     }
-    let rgba: Vec<u8> = img.data.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+    let rgba = &img.rgba;
     let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some("colour"),
         size: wgpu::Extent3d { width: img.width as u32, height: img.height as u32, depth_or_array_layers: 1 },
@@ -521,7 +530,7 @@ fn colour_texture(gpu: &Gpu, img: &RgbImage, max_dim: usize) -> Result<wgpu::Tex
     });
     gpu.queue.write_texture(
         tex.as_image_copy(),
-        &rgba,
+        rgba,
         wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * img.width as u32), rows_per_image: None },
         tex.size(),
     );

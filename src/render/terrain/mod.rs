@@ -16,11 +16,12 @@ use super::registry::{NodeSettings, RendererDecl};
 use super::settings::{Bounds, Control, Preview, Widget};
 use crate::render::Frame;
 use crate::scene::camera::RayGenerator;
+use crate::scene::drape::Drape;
 use crate::scene::Light;
 use crate::scene::NodeKind;
 use anyhow::{bail, Result};
 use glam::DMat4;
-use volterra_formats::{Heightfield, Limits, RgbImage};
+use volterra_formats::{Heightfield, Limits};
 
 crate::setting_choice! {
     /// How the GPU walks the pyramid. The last two are the baselines the benchmark
@@ -139,7 +140,7 @@ impl Settings {
 /// What the terrain renderers draw: one heightfield node.
 pub struct TerrainInput<'a> {
     pub heightfield: &'a Heightfield,
-    pub texture: Option<&'a RgbImage>,
+    pub texture: Option<&'a Drape>,
     pub node_to_world: DMat4,
     pub lights: &'a [Light],
 }
@@ -149,14 +150,49 @@ pub struct TerrainInput<'a> {
 /// textures.
 pub struct Prepared {
     pub grid: grid::TerrainGrid,
-    texture: Option<std::sync::Arc<RgbImage>>,
+    texture: Option<std::sync::Arc<Drape>>,
+    /// Where the drape lies over the grid (see `shading::LinearTexture::placement`).
+    placement: [f64; 4],
     gpu: std::sync::OnceLock<gpu::GpuTerrain>,
+}
+
+/// Where a drape lies over the grid of `hf`: [s0, s1, t0, t1] with texture coordinates
+/// s = s0 + s1·gx, t = t0 + t1·gy of grid point (gx, gy) (sample column gx, gy rows north
+/// of the southern row). A stretched drape spans the samples' extent; a georeferenced one
+/// lies where its georeferencing says, and must be in the heightfield's CRS and overlap it.
+pub fn drape_placement(hf: &Heightfield, drape: &Drape) -> Result<[f64; 4]> {
+    let (cx, cy) = ((hf.width - 1) as f64, (hf.height - 1) as f64);
+    let Some(g) = &drape.georef else { return Ok([0.0, 1.0 / cx, 1.0, -1.0 / cy]) };
+    if g.crs.epsg.is_none() || g.crs.epsg != hf.crs.epsg || g.crs.geographic != hf.crs.geographic {
+        bail!(
+            "the texture is in {}, the heightfield in {}: a drape must be in the heightfield's CRS (gdalwarp -t_srs …)",
+            g.crs.description,
+            hf.crs.description
+        );
+    }
+    let ([hx, hy], [hsx, hsy]) = (hf.origin, hf.cell_size_native);
+    let ([ox, oy], [sx, sy]) = (g.origin, g.cell_size_native);
+    let (w, h) = (drape.width as f64 * sx, drape.height as f64 * sy);
+    let (left, top) = (ox - 0.5 * sx, oy + 0.5 * sy);
+    let placement = [(hx - left) / w, hsx / w, (top - hy + cy * hsy) / h, -hsy / h];
+    // The drape's extent against the samples' extent (map units).
+    let overlaps = left < hx + cx * hsx && left + w > hx && top > hy - cy * hsy && top - h < hy;
+    if !overlaps {
+        bail!(
+            "the texture covers x {left}…{}, y {}…{top}, outside the heightfield (x {hx}…{}, y {}…{hy})",
+            left + w,
+            top - h,
+            hx + cx * hsx,
+            hy - cy * hsy
+        );
+    }
+    Ok(placement)
 }
 
 impl Prepared {
     pub fn new(
         heightfield: &Heightfield,
-        texture: Option<std::sync::Arc<RgbImage>>,
+        texture: Option<std::sync::Arc<Drape>>,
         node_to_world: DMat4,
         limits: &Limits,
     ) -> Result<Prepared> {
@@ -165,7 +201,11 @@ impl Prepared {
         let samples = (heightfield.width * heightfield.height) as u64;
         limits.check(std::path::Path::new("terrain"), "the height grid and its upload", &[samples, 8])?;
         let grid = grid::TerrainGrid::new(heightfield, node_to_world)?;
-        Ok(Prepared { grid, texture, gpu: std::sync::OnceLock::new() })
+        let placement = match &texture {
+            Some(t) => drape_placement(heightfield, t)?,
+            None => [0.0; 4],
+        };
+        Ok(Prepared { grid, texture, placement, gpu: std::sync::OnceLock::new() })
     }
 
     /// Builds the GPU's pyramid and textures now (else on the first GPU render).
@@ -177,7 +217,7 @@ impl Prepared {
         if let Some(t) = self.gpu.get() {
             return Ok(t);
         }
-        let t = gpu::GpuTerrain::new(gpu, &self.grid, self.texture.as_deref())?;
+        let t = gpu::GpuTerrain::new(gpu, &self.grid, self.texture.as_deref().map(|d| (d, self.placement)))?;
         Ok(self.gpu.get_or_init(|| t))
     }
 
@@ -210,7 +250,7 @@ impl Prepared {
     /// Renders with the f64 CPU reference (`traversal` and `max_steps` do not apply).
     pub fn render_reference(&self, lights: &[Light], rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
         let shading = self.shading(lights, settings)?;
-        let texture = self.texture.as_deref().map(shading::LinearTexture::new);
+        let texture = self.texture.as_deref().map(|d| shading::LinearTexture::new(d, self.placement));
         Ok(reference::render(&self.grid, texture.as_ref(), rays, &shading)?)
     }
 }

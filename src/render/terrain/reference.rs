@@ -114,12 +114,11 @@ pub fn hit_colour(grid: &TerrainGrid, texture: Option<&LinearTexture>, shading: 
         let normal = (grid.normal_to_world * face).normalize();
         return shade(WALL_COLOUR, normal, shading, &|_| true);
     }
+    let span = (grid.z_hi - grid.z_lo).max(1e-9);
+    let elevation = elevation_colour((surface - grid.z_lo) / span);
     let base = match texture {
-        Some(tex) => tex.sample(gx / cx as f64, 1.0 - gy / cy as f64),
-        None => {
-            let span = (grid.z_hi - grid.z_lo).max(1e-9);
-            elevation_colour((surface - grid.z_lo) / span)
-        }
+        Some(tex) => tex.base(gx, gy, elevation),
+        None => elevation,
     };
     let normal = if shading.smooth { grid.smooth_world_normal(i, j, hit.u, hit.v) } else { grid.world_normal(z, hit.u, hit.v) };
     let lit = |k: usize| {

@@ -1,12 +1,13 @@
 //! How a terrain hit is coloured — the same rules in f64 here (for the CPU reference) and
-//! in `shaders/terrain_raycast.wgsl`: base colour from the draped texture (sRGB decoded,
-//! bilinear, UV = position / extent, v = 0 at the northern edge) or an elevation ramp;
+//! in `shaders/terrain_raycast.wgsl`: base colour from the drape (sRGB decoded, bilinear,
+//! premultiplied alpha over the elevation ramp, placed by `LinearTexture::placement`) or
+//! the elevation ramp alone beyond the drape;
 //! Lambert lighting from directional lights, an ambient term, optional hard shadows.
 
+use crate::scene::drape::Drape;
 use crate::scene::{Light, LightKind};
 use anyhow::{bail, Result};
 use glam::DVec3;
-use volterra_formats::RgbImage;
 
 /// The GPU shader has room for this many lights.
 pub const MAX_LIGHTS: usize = 4;
@@ -72,23 +73,26 @@ pub fn srgb_to_linear(v: u8) -> f64 {
     }
 }
 
-/// A colour texture decoded to linear RGB, sampled bilinearly with clamp-to-edge as a
-/// GPU's linear sampler does.
+/// A drape decoded to linear RGBA (premultiplied), sampled bilinearly with clamp-to-edge
+/// as a GPU's linear sampler does, and placed over the grid: texture coordinates
+/// s = s0 + s1·gx, t = t0 + t1·gy of grid point (gx, gy) (`placement` = [s0, s1, t0, t1]).
 pub struct LinearTexture {
     width: usize,
     height: usize,
-    texels: Vec<[f64; 3]>,
+    texels: Vec<[f64; 4]>,
+    pub placement: [f64; 4],
 }
 
 impl LinearTexture {
-    pub fn new(img: &RgbImage) -> LinearTexture {
+    pub fn new(drape: &Drape, placement: [f64; 4]) -> LinearTexture {
         let lut: Vec<f64> = (0..=255u8).map(srgb_to_linear).collect();
-        let texels = img.data.chunks_exact(3).map(|p| [lut[p[0] as usize], lut[p[1] as usize], lut[p[2] as usize]]).collect();
-        LinearTexture { width: img.width, height: img.height, texels }
+        let texels =
+            drape.rgba.chunks_exact(4).map(|p| [lut[p[0] as usize], lut[p[1] as usize], lut[p[2] as usize], p[3] as f64 / 255.0]).collect();
+        LinearTexture { width: drape.width, height: drape.height, texels, placement }
     }
 
     /// (s, t) ∈ [0, 1]²: s east, t south (t = 0 the top row).
-    pub fn sample(&self, s: f64, t: f64) -> [f64; 3] {
+    pub fn sample(&self, s: f64, t: f64) -> [f64; 4] {
         let x = s * self.width as f64 - 0.5;
         let y = t * self.height as f64 - 0.5;
         let (x0, y0) = (x.floor(), y.floor());
@@ -99,7 +103,19 @@ impl LinearTexture {
             self.texels[yi * self.width + xi]
         };
         let (a, b, c, d) = (texel(x0, y0), texel(x0 + 1.0, y0), texel(x0, y0 + 1.0), texel(x0 + 1.0, y0 + 1.0));
-        [0, 1, 2].map(|k| (1.0 - fy) * ((1.0 - fx) * a[k] + fx * b[k]) + fy * ((1.0 - fx) * c[k] + fx * d[k]))
+        [0, 1, 2, 3].map(|k| (1.0 - fy) * ((1.0 - fx) * a[k] + fx * b[k]) + fy * ((1.0 - fx) * c[k] + fx * d[k]))
+    }
+
+    /// The base colour at grid point (gx, gy) over `under` (the elevation colour): the drape
+    /// where it covers the point, premultiplied over `under`; `under` beyond its edges.
+    pub fn base(&self, gx: f64, gy: f64, under: [f64; 3]) -> [f64; 3] {
+        let [s0, s1, t0, t1] = self.placement;
+        let (s, t) = (s0 + s1 * gx, t0 + t1 * gy);
+        if !((0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&t)) {
+            return under;
+        }
+        let c = self.sample(s, t);
+        [0, 1, 2].map(|k| c[k] + (1.0 - c[3]) * under[k])
     }
 }
 
