@@ -46,6 +46,8 @@ struct Params {
     light_world: array<vec4<f32>, 4>,
     light_grid: array<vec4<f32>, 4>,
     light_color: array<vec4<f32>, 4>,
+    // The elevation colour table (linear RGB), low to high.
+    ramp: array<vec4<f32>, 256>,
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -354,24 +356,13 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
     return h;
 }
 
-// Hypsometric tints (keep in step with ELEVATION_RAMP in shading.rs).
+// The elevation colour at normalised elevation f: linear between the 256 entries of the
+// colour table (shading::elevation_colour).
 fn elevation_colour(f_in: f32) -> vec3<f32> {
-    let f = clamp(f_in, 0.0, 1.0);
-    let stops = array<f32, 5>(0.0, 0.30, 0.60, 0.85, 1.0);
-    let cols = array<vec3<f32>, 5>(
-        vec3<f32>(0.10, 0.28, 0.09),
-        vec3<f32>(0.36, 0.45, 0.16),
-        vec3<f32>(0.40, 0.27, 0.14),
-        vec3<f32>(0.45, 0.43, 0.40),
-        vec3<f32>(0.90, 0.90, 0.92),
-    );
-    for (var k = 0; k < 4; k++) {
-        if f <= stops[k + 1] {
-            let s = (f - stops[k]) / (stops[k + 1] - stops[k]);
-            return mix(cols[k], cols[k + 1], s);
-        }
-    }
-    return cols[4];
+    let x = clamp(f_in, 0.0, 1.0) * 255.0;
+    let i = min(u32(floor(x)), 254u);
+    let s = x - f32(i);
+    return mix(P.ramp[i].rgb, P.ramp[i + 1u].rgb, s);
 }
 
 struct Sample {

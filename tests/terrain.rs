@@ -533,3 +533,49 @@ fn more_rays_per_pixel_converge_to_the_supersampled_image() {
     assert!(err < 0.01, "4 rays per pixel: GPU {err} from the reference");
     assert!(terrain::render(&input, &rays, &with(3)).is_err(), "3 is not a square");
 }
+
+/// Elevation colour maps: seen straight down under an overhead sun with no ambient light,
+/// a gentle ramp's every pixel is the colour map at its elevation's place in the range
+/// (the elevation from the pixel's depth) times the slope's cosine, on the GPU and in the
+/// reference; the frame carries the map's scalar bar with the elevation range in metres.
+#[test]
+fn elevation_colour_maps_colour_by_elevation_with_a_legend() {
+    let (n, cell) = (33usize, 30.0);
+    // 200 m at the western edge, rising 0.1 m per metre eastward.
+    let hf = field(n, n, cell, |col, _| (200.0 + 0.1 * cell * col as f64) as f32);
+    let ext = (n - 1) as f64 * cell;
+    let cam = parallel([0.5 * ext, 0.5 * ext, 1000.0], [0.5 * ext, 0.5 * ext, 0.0], [0.0, 1.0, 0.0], 0.5 * ext);
+    let lights = [volterra::scene::Light {
+        kind: volterra::scene::LightKind::Directional,
+        direction: Some([0.0, 0.0, -1.0]),
+        position: None,
+        color: [1.0; 3],
+        intensity: 1.0,
+        cone_angle: None,
+    }];
+    let input = TerrainInput { heightfield: &hf, texture: None, node_to_world: DMat4::IDENTITY, lights: &lights };
+    let rays = cam.rays(64, 64);
+    let cosine = 1.0 / (1.0f64 + 0.1 * 0.1).sqrt();
+    let (lo, hi) = (200.0, 200.0 + 0.1 * ext);
+    for colormap in [volterra::render::colormap::Colormap::Viridis, volterra::render::colormap::Colormap::Hypsometric] {
+        let s = Settings { colormap, ambient: 0.0, rays_per_pixel: 1, ..Default::default() };
+        let mut frames = vec![("reference", terrain::render_reference(&input, &rays, &s).unwrap())];
+        if common::gpu().is_some() {
+            frames.push(("gpu", terrain::render(&input, &rays, &s).unwrap()));
+        }
+        for (name, f) in &frames {
+            assert_eq!(f.scales.len(), 1, "{name}: one scalar bar");
+            assert_eq!((f.scales[0].colormap, f.scales[0].title.as_str()), (colormap, "elevation (m)"));
+            assert!((f.scales[0].range[0] - lo).abs() < 1e-3 && (f.scales[0].range[1] - hi).abs() < 1e-3, "{:?}", f.scales[0].range);
+            let mut worst = 0.0f64;
+            for (p, c) in f.rgba.iter().enumerate() {
+                let elevation = 1000.0 - f.depth[p] as f64;
+                let want = colormap.at((elevation - lo) / (hi - lo)).map(|v| v as f64 * cosine);
+                worst = worst.max((0..3).map(|k| (c[k] as f64 - want[k]).abs()).fold(0.0, f64::max));
+            }
+            println!("{colormap:?} {name}: largest difference from the map at the pixel's elevation {worst:.2e}");
+            // The 256-entry table's linear steps against the map itself: well under a byte.
+            assert!(worst < 2e-3, "{name}: {worst}");
+        }
+    }
+}

@@ -39,7 +39,14 @@ fn puget_sound_depth_matches_vtk_triangle_mesh() {
         let mut vtk = depth_frame(vtk.channel("Z").unwrap().to_vec(), w, h);
 
         let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
-        let shading = Shading { lights: sun_lights(&[]).unwrap(), ambient: 0.25, shadows: false, smooth: true, rays_per_side: 1 };
+        let shading = Shading {
+            lights: sun_lights(&[]).unwrap(),
+            ambient: 0.25,
+            shadows: false,
+            smooth: true,
+            rays_per_side: 1,
+            colormap: volterra::render::colormap::Colormap::Hypsometric,
+        };
         let triangles = render_surface(&grid, None, &rays, &shading, Surface::Triangles).unwrap();
         let mut bilinear = render_surface(&grid, None, &rays, &shading, Surface::Bilinear).unwrap();
         // Our terrain is a solid with walls at its edges; VTK's mesh is a sheet. Pixels

@@ -112,7 +112,14 @@ pub fn run(b: &TerrainBench) -> Result<()> {
     let gpu = gpu::gpu()?;
     eprintln!("GPU: {} ({:?}, {:?})", gpu.info.name, gpu.info.backend, gpu.info.device_type);
     std::fs::create_dir_all(&b.env.work_dir)?;
-    let shading = Shading { lights: sun_lights(&[])?, ambient: 0.25, shadows: false, smooth: true, rays_per_side: 1 };
+    let shading = Shading {
+        lights: sun_lights(&[])?,
+        ambient: 0.25,
+        shadows: false,
+        smooth: true,
+        rays_per_side: 1,
+        colormap: volterra::render::colormap::Colormap::Hypsometric,
+    };
     // The reference is f64 and cell by cell: its image is kept small.
     let (rw, rh) = (192usize, (192 * b.height / b.width).max(1));
     let mut rows = Vec::new();

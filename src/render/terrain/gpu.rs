@@ -3,7 +3,7 @@
 //! one compute invocation per pixel for the rays (`shaders/terrain_raycast.wgsl`).
 
 use super::grid::{TerrainGrid, HOLE};
-use super::shading::{Shading, MAX_LIGHTS};
+use super::shading::{Shading, MAX_LIGHTS, RAMP_ENTRIES};
 use super::Traversal;
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
@@ -166,6 +166,7 @@ struct Params {
     light_world: [[f32; 4]; MAX_LIGHTS],
     light_grid: [[f32; 4]; MAX_LIGHTS],
     light_color: [[f32; 4]; MAX_LIGHTS],
+    ramp: [[f32; 4]; RAMP_ENTRIES],
 }
 
 fn v4(v: glam::DVec3, w: f64) -> [f32; 4] {
@@ -368,6 +369,9 @@ impl GpuTerrain {
         let flags = shading.shadows as u32 | (self.has_texture as u32) << 1 | (shading.smooth as u32) << 2;
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];
         p.drape = self.placement;
+        for (entry, c) in p.ramp.iter_mut().zip(super::shading::elevation_ramp(shading.colormap)) {
+            *entry = [c[0], c[1], c[2], 0.0];
+        }
         p.misc = [shading.lights.len() as u32, (super::reference::shadow_lift(grid) as f32).to_bits(), shading.rays_per_side.max(1), 0];
         for (k, l) in shading.lights.iter().enumerate() {
             p.light_world[k] = v4(l.to_light, 0.0);

@@ -101,7 +101,15 @@ pub fn shadow_lift(grid: &TerrainGrid) -> f64 {
 /// The shaded colour of a hit (linear RGB), with shadow rays where asked for. `ray_z` is
 /// the ray's grid-space height at the hit: a ray that meets the terrain below its surface
 /// came in through a side of the box — the terrain's edge is drawn as a wall of soil.
-pub fn hit_colour(grid: &TerrainGrid, texture: Option<&LinearTexture>, shading: &Shading, hit: &Hit, ray_z: f64) -> [f64; 3] {
+/// `ramp`: the elevation colour table (`shading::elevation_ramp`).
+pub fn hit_colour(
+    grid: &TerrainGrid,
+    texture: Option<&LinearTexture>,
+    ramp: &[[f32; 3]],
+    shading: &Shading,
+    hit: &Hit,
+    ray_z: f64,
+) -> [f64; 3] {
     let [i, j] = hit.cell;
     let z = grid.patch(i, j).expect("a hit lies on a valid patch");
     let gx = i as f64 + hit.u;
@@ -115,7 +123,7 @@ pub fn hit_colour(grid: &TerrainGrid, texture: Option<&LinearTexture>, shading: 
         return shade(WALL_COLOUR, normal, shading, &|_| true);
     }
     let span = (grid.z_hi - grid.z_lo).max(1e-9);
-    let elevation = elevation_colour((surface - grid.z_lo) / span);
+    let elevation = elevation_colour(ramp, (surface - grid.z_lo) / span);
     let base = match texture {
         Some(tex) => tex.base(gx, gy, elevation),
         None => elevation,
@@ -165,6 +173,7 @@ pub fn render_surface(
 ) -> Result<Frame, Cancelled> {
     let start = Instant::now();
     let (w, h) = rays.size();
+    let ramp = super::shading::elevation_ramp(shading.colormap);
     let mut frame = Frame::empty(w, h);
     let mut steps = vec![0f32; w * h];
     let mut walls = vec![0f32; w * h];
@@ -179,7 +188,7 @@ pub fn render_surface(
             let Some(hit) = hit else { return ([0.0; 4], None, n) };
             let (o, d) = grid.ray_to_grid(&ray);
             let ray_z = o.z + hit.t * d.z;
-            let c = hit_colour(grid, texture, shading, &hit, ray_z);
+            let c = hit_colour(grid, texture, &ramp, shading, &hit, ray_z);
             ([c[0], c[1], c[2], 1.0], Some((hit, ray_z)), n)
         };
         // k × k rays on a stratified grid, as the GPU: colours averaged; depth, steps and

@@ -1,9 +1,11 @@
 //! How a terrain hit is coloured — the same rules in f64 here (for the CPU reference) and
 //! in `shaders/terrain_raycast.wgsl`: base colour from the drape (sRGB decoded, bilinear,
-//! premultiplied alpha over the elevation ramp, placed by `LinearTexture::placement`) or
-//! the elevation ramp alone beyond the drape;
+//! premultiplied alpha over the elevation colours, placed by `LinearTexture::placement`)
+//! or the elevation colours alone (a colour map, hypsometric tints by default, looked up
+//! in a 256-entry table on both paths);
 //! Lambert lighting from directional lights, an ambient term, optional hard shadows.
 
+use crate::render::colormap::Colormap;
 use crate::scene::drape::Drape;
 use crate::scene::{Light, LightKind};
 use anyhow::{bail, Result};
@@ -41,26 +43,21 @@ pub fn sun_lights(lights: &[Light]) -> Result<Vec<SunLight>> {
         .collect()
 }
 
-/// Hypsometric tints over the normalised elevation f ∈ [0, 1]: lowland green, upland
-/// ochre, rock brown-grey, snow. Linear RGB.
-pub const ELEVATION_RAMP: [(f64, [f64; 3]); 5] = [
-    (0.0, [0.10, 0.28, 0.09]),
-    (0.30, [0.36, 0.45, 0.16]),
-    (0.60, [0.40, 0.27, 0.14]),
-    (0.85, [0.45, 0.43, 0.40]),
-    (1.0, [0.90, 0.90, 0.92]),
-];
+/// Entries of the elevation colour table both paths look colours up in.
+pub const RAMP_ENTRIES: usize = 256;
 
-pub fn elevation_colour(f: f64) -> [f64; 3] {
-    let f = f.clamp(0.0, 1.0);
-    for w in ELEVATION_RAMP.windows(2) {
-        let ((f0, c0), (f1, c1)) = (w[0], w[1]);
-        if f <= f1 {
-            let s = (f - f0) / (f1 - f0);
-            return [0, 1, 2].map(|k| c0[k] + s * (c1[k] - c0[k]));
-        }
-    }
-    ELEVATION_RAMP[ELEVATION_RAMP.len() - 1].1
+/// `colormap` at 256 evenly spaced values: the table the GPU gets, and the reference uses.
+pub fn elevation_ramp(colormap: Colormap) -> Vec<[f32; 3]> {
+    (0..RAMP_ENTRIES).map(|i| colormap.at(i as f64 / (RAMP_ENTRIES - 1) as f64)).collect()
+}
+
+/// The elevation colour at normalised elevation f ∈ [0, 1] (clamped): linear between the
+/// table's entries, as the shader's `elevation_colour`.
+pub fn elevation_colour(ramp: &[[f32; 3]], f: f64) -> [f64; 3] {
+    let x = f.clamp(0.0, 1.0) * (ramp.len() - 1) as f64;
+    let i = (x.floor() as usize).min(ramp.len() - 2);
+    let s = x - i as f64;
+    [0, 1, 2].map(|k| ramp[i][k] as f64 + s * (ramp[i + 1][k] as f64 - ramp[i][k] as f64))
 }
 
 /// The sRGB transfer function inverted (IEC 61966-2-1), as a GPU's `*Srgb` formats decode.
@@ -130,6 +127,9 @@ pub struct Shading {
     /// k: k × k rays per pixel on a stratified grid, colours averaged (1: one ray through
     /// the pixel's centre). Depth stays the centre ray's.
     pub rays_per_side: u32,
+    /// The colour map elevations are shown through (low at the lowest valid sample, high at
+    /// the highest).
+    pub colormap: Colormap,
 }
 
 /// Lambert shading: base · (ambient + Σ radiance · max(0, n·l) · lit).
