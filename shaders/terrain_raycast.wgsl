@@ -169,11 +169,10 @@ fn smooth_local_normal(c: vec2<i32>, u: f32, v: f32) -> vec3<f32> {
 // First s in [0, len] where (u0, v0, z0) + s·d meets the patch from above; −1 if none.
 // f(s) = a s² + b s + c is the ray's height above the patch; stable roots q/a and c/q
 // (see intersect_patch in grid.rs for the derivation and the edge rules).
-// `first`: the ray's first cell, where starting below the surface is a hit (an eye under
-// the ground, or a ray entering through a side of the box); elsewhere only within the
-// rounding of c (the crossing was at the shared edge), deeper means the ray came through
-// a hole. `reach` = |p| + |o| per axis: the magnitudes whose f32 rounding enters c.
-fn intersect_patch(z: vec4<f32>, u0: f32, v0: f32, z0: f32, d: vec3<f32>, len: f32, first: bool, reach: vec3<f32>) -> f32 {
+// Starting below the surface is a hit at 0: the terrain is a solid (an eye under the
+// ground, a ray entering through a side of the box, rounding at a shared edge, or a ray
+// that went under the surface through a NoData void and meets the void's wall here).
+fn intersect_patch(z: vec4<f32>, u0: f32, v0: f32, z0: f32, d: vec3<f32>, len: f32) -> f32 {
     let pa = z.w - z.y - z.z + z.x;
     let pb = z.y - z.x;
     let pc = z.z - z.x;
@@ -181,13 +180,7 @@ fn intersect_patch(z: vec4<f32>, u0: f32, v0: f32, z0: f32, d: vec3<f32>, len: f
     let b = d.z - pb * d.x - pc * d.y - pa * (u0 * d.y + v0 * d.x);
     let a = -pa * d.x * d.y;
     if c < 0.0 {
-        // Eight f32 ulps of everything c is made of: the ray's height, the corner height,
-        // and the slopes times the rounding of the position inside the cell.
-        let tolerance = 1e-6 * (reach.z + abs(z.x) + (abs(pb) + abs(pa)) * reach.x + (abs(pc) + abs(pa)) * reach.y);
-        if first || c >= -tolerance {
-            return 0.0;
-        }
-        return -1.0;
+        return 0.0;
     }
     if c == 0.0 && (b < 0.0 || (b == 0.0 && a <= 0.0)) {
         return 0.0;
@@ -312,7 +305,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
                 let pa = o + t * d;
                 let u0 = pa.x - lo.x;
                 let v0 = pa.y - lo.y;
-                let s = intersect_patch(patch_heights(node), u0, v0, pa.z, d, t_exit - t, t == t_start, abs(pa) + abs(o));
+                let s = intersect_patch(patch_heights(node), u0, v0, pa.z, d, t_exit - t);
                 if s >= 0.0 {
                     h.found = true;
                     h.t = t + s;
@@ -405,19 +398,21 @@ fn cast_ray(px: f32, py: f32) -> Sample {
             var base: vec3<f32>;
             let ray_z = o.z + h.t * d.z;
             if zh - ray_z > 1e-3 * max(P.extent.y - P.extent.x, 1.0) {
-                // The ray came in through a side of the box below the surface: the
-                // terrain's edge, drawn as a wall of soil (WALL_COLOUR in reference.rs).
+                // The ray came in below the surface — through a side of the box, or under
+                // the ground through a NoData void — and meets the solid's side where it
+                // enters this cell: a wall of soil (WALL_COLOUR in reference.rs) facing
+                // out of the cell edge nearest the hit.
                 var face = vec3<f32>(-1.0, 0.0, 0.0);
-                var dist = gx;
-                if f32(P.size.z) - gx < dist {
-                    dist = f32(P.size.z) - gx;
+                var dist = h.u;
+                if 1.0 - h.u < dist {
+                    dist = 1.0 - h.u;
                     face = vec3<f32>(1.0, 0.0, 0.0);
                 }
-                if gy < dist {
-                    dist = gy;
+                if h.v < dist {
+                    dist = h.v;
                     face = vec3<f32>(0.0, -1.0, 0.0);
                 }
-                if f32(P.size.w) - gy < dist {
+                if 1.0 - h.v < dist {
                     face = vec3<f32>(0.0, 1.0, 0.0);
                 }
                 let wn = normalize(vec3<f32>(dot(P.normal_x.xyz, face), dot(P.normal_y.xyz, face), dot(P.normal_z.xyz, face)));

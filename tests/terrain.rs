@@ -579,3 +579,42 @@ fn elevation_colour_maps_colour_by_elevation_with_a_legend() {
         }
     }
 }
+
+/// NoData voids are holes through the solid terrain: a ray that goes under the surface in a
+/// void meets the void's wall where it reaches valid ground (before, it carried on under the
+/// ground and missed). A terrain at 100 m (one corner sample at 0 m: the solid reaches down
+/// to 0) with a square void (cells 11–20 each way); a ray going down eastward (slope 0.3)
+/// passes 100 m inside the void and meets its eastern wall (x = 21 cells, 630 m) 51 m up,
+/// at 344.5 m: a wall of soil facing west, on the GPU and in the reference.
+#[test]
+fn a_ray_through_a_nodata_void_meets_the_void_s_wall() {
+    let hf = field(33, 33, 30.0, |c, r| {
+        if (12..=20).contains(&c) && (12..=20).contains(&r) {
+            f32::NAN
+        } else if (c, r) == (0, 0) {
+            0.0
+        } else {
+            100.0
+        }
+    });
+    let cam = perspective([300.0, 480.0, 150.0], [400.0, 480.0, 120.0], [0.0, 0.0, 1.0], 30.0);
+    let rays = cam.rays(33, 33);
+    let input = TerrainInput { heightfield: &hf, texture: None, node_to_world: DMat4::IDENTITY, lights: &[] };
+    let s = Settings { rays_per_pixel: 1, ..Default::default() };
+    let mut frames = vec![("reference", terrain::render_reference(&input, &rays, &s).unwrap())];
+    if common::gpu().is_some() {
+        frames.push(("gpu", terrain::render(&input, &rays, &s).unwrap()));
+    }
+    let centre = 16 * 33 + 16;
+    let want = 330.0 * 1.09f64.sqrt();
+    // The default sun (north-west, 45° up) on a west-facing wall: ambient 0.25 + 0.5.
+    let colour = terrain::reference::WALL_COLOUR.map(|c| c * 0.75);
+    for (name, f) in &frames {
+        let depth = f.depth[centre] as f64;
+        println!("{name}: depth {depth}, colour {:?}", f.rgba[centre]);
+        assert!((depth - want).abs() < 1e-4 * want, "{name}: depth {depth}, the wall is at {want}");
+        assert!((0..3).all(|k| (f.rgba[centre][k] as f64 - colour[k]).abs() < 1e-4), "{name}: {:?} vs {colour:?}", f.rgba[centre]);
+    }
+    let walls = frames[0].1.extra.iter().find(|e| e.0 == "wall").unwrap();
+    assert_eq!(walls.1[centre], 1.0, "the reference flags the hit as a wall");
+}

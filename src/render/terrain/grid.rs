@@ -127,12 +127,6 @@ impl TerrainGrid {
         clip_box(o, d, lo, hi)
     }
 
-    /// How far below the surface a ray may be at a cell's entry and still count as having
-    /// crossed at the edge (metres): far above f64 rounding, far below anything visible.
-    pub fn edge_tolerance(&self) -> f64 {
-        1e-9 * (self.z_hi - self.z_lo).max(1.0)
-    }
-
     /// The unit world-space normal of the patch at (u, v).
     /// The height gradient at sample (i, j) in metres per metre (east, north): central
     /// differences, one-sided where a neighbour is NoData or beyond the edge, 0 along an
@@ -196,19 +190,19 @@ pub fn bilinear(z: [f64; 4], u: f64, v: f64) -> f64 {
 /// stable form q = −(b + sign(b)·√(b² − 4ac))/2, s ∈ {q/a, c/q}: c/q stays accurate as
 /// a → 0 (every planar cell, rays along an axis) and no root loses digits to cancellation.
 ///
-/// Below the surface at the cell's entry (c < 0): at the ray's first cell (`first`: an eye
-/// under the ground, or a ray entering the terrain's box through a side) that is a hit at
-/// s = 0; elsewhere it is a hit at s = 0 only within `tolerance` — the crossing was at the
-/// shared edge and rounding put it here, so no crack opens between cells — and otherwise
-/// the ray has gone under the surface through a NoData hole and meets nothing here.
-pub fn intersect_patch(z: [f64; 4], start: DVec3, d: DVec3, len: f64, first: bool, tolerance: f64) -> Option<f64> {
+/// Below the surface at the cell's entry (c < 0) is a hit at s = 0: the terrain is a solid.
+/// At the ray's first cell that is an eye under the ground, or a ray entering the terrain's
+/// box through a side (a wall of the box); elsewhere either rounding put the crossing of a
+/// shared edge here (a hit at the edge, so no crack opens between cells), or the ray went
+/// under the surface through a NoData void and meets the void's wall here.
+pub fn intersect_patch(z: [f64; 4], start: DVec3, d: DVec3, len: f64) -> Option<f64> {
     let (u0, v0, z0) = (start.x, start.y, start.z);
     let (pa, pb, pc) = patch_coefficients(z);
     let c = z0 - (z[0] + pb * u0 + pc * v0 + pa * u0 * v0);
     let b = d.z - pb * d.x - pc * d.y - pa * (u0 * d.y + v0 * d.x);
     let a = -pa * d.x * d.y;
     if c < 0.0 {
-        return (first || c >= -tolerance).then_some(0.0);
+        return Some(0.0);
     }
     if c == 0.0 && (b < 0.0 || (b == 0.0 && a <= 0.0)) {
         return Some(0.0);
@@ -241,7 +235,7 @@ pub fn intersect_patch(z: [f64; 4], start: DVec3, d: DVec3, len: f64, first: boo
 /// As [`intersect_patch`], for the cell split into the two triangles (00, 10, 11) and
 /// (00, 11, 01) — the diagonal from the south-west to the north-east corner — the surface
 /// a triangle mesh of the heightfield has. For comparing with mesh renderers (VTK).
-pub fn intersect_triangles(z: [f64; 4], start: DVec3, d: DVec3, len: f64, first: bool, tolerance: f64) -> Option<f64> {
+pub fn intersect_triangles(z: [f64; 4], start: DVec3, d: DVec3, len: f64) -> Option<f64> {
     let [z00, z10, z01, z11] = z;
     // Height above the triangle's plane along the ray: linear in s.
     let above = |s: f64| {
@@ -256,7 +250,7 @@ pub fn intersect_triangles(z: [f64; 4], start: DVec3, d: DVec3, len: f64, first:
     };
     let c = above(0.0);
     if c < 0.0 {
-        return (first || c >= -tolerance).then_some(0.0);
+        return Some(0.0);
     }
     if c == 0.0 && slope(0.0) <= 0.0 {
         return Some(0.0);

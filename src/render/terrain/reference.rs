@@ -59,8 +59,8 @@ pub fn trace_surface(grid: &TerrainGrid, o: DVec3, d: DVec3, t0: f64, t1: f64, s
             let (u0, v0) = (pa.x - i as f64, pa.y - j as f64);
             let start = DVec3::new(u0, v0, pa.z);
             let found = match surface {
-                Surface::Bilinear => intersect_patch(z, start, d, t_next - t, t == t0, grid.edge_tolerance()),
-                Surface::Triangles => intersect_triangles(z, start, d, t_next - t, t == t0, grid.edge_tolerance()),
+                Surface::Bilinear => intersect_patch(z, start, d, t_next - t),
+                Surface::Triangles => intersect_triangles(z, start, d, t_next - t),
             };
             if let Some(s) = found {
                 let hit =
@@ -100,7 +100,8 @@ pub fn shadow_lift(grid: &TerrainGrid) -> f64 {
 
 /// The shaded colour of a hit (linear RGB), with shadow rays where asked for. `ray_z` is
 /// the ray's grid-space height at the hit: a ray that meets the terrain below its surface
-/// came in through a side of the box — the terrain's edge is drawn as a wall of soil.
+/// came in through a side of the box or under the ground through a NoData void — the
+/// solid's side is drawn as a wall of soil.
 /// `ramp`: the elevation colour table (`shading::elevation_ramp`).
 pub fn hit_colour(
     grid: &TerrainGrid,
@@ -114,10 +115,11 @@ pub fn hit_colour(
     let z = grid.patch(i, j).expect("a hit lies on a valid patch");
     let gx = i as f64 + hit.u;
     let gy = j as f64 + hit.v;
-    let [cx, cy] = grid.cells();
     let surface = super::grid::bilinear(z, hit.u, hit.v);
     if surface - ray_z > wall_tolerance(grid) {
-        let faces = [(gx, DVec3::NEG_X), (cx as f64 - gx, DVec3::X), (gy, DVec3::NEG_Y), (cy as f64 - gy, DVec3::Y)];
+        // The solid's side where the ray enters this cell (through a side of the box, or
+        // under the ground through a NoData void), facing out of the cell edge nearest the hit.
+        let faces = [(hit.u, DVec3::NEG_X), (1.0 - hit.u, DVec3::X), (hit.v, DVec3::NEG_Y), (1.0 - hit.v, DVec3::Y)];
         let face = faces.iter().min_by(|a, b| a.0.total_cmp(&b.0)).unwrap().1;
         let normal = (grid.normal_to_world * face).normalize();
         return shade(WALL_COLOUR, normal, shading, &|_| true);
