@@ -301,6 +301,38 @@ pub fn read_geotiff_image(path: &Path, limits: &Limits) -> Result<GeoImage> {
     })
 }
 
+/// Samples to elevations in metres (f32), NoData (declared, NaN, or out of f32's range) as
+/// NaN and flagged; the flags are allocated at the first NoData sample.
+struct Metres {
+    nodata_value: Option<f64>,
+    vertical: f64,
+    n: usize,
+    nodata: Vec<bool>,
+    not_finite: usize,
+}
+
+impl Metres {
+    fn metres(&mut self, i: usize, v: f64) -> f32 {
+        let declared = v.is_nan() || self.nodata_value.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
+        let metres = (v * self.vertical) as f32;
+        if declared || !metres.is_finite() {
+            self.not_finite += usize::from(!declared);
+            if self.nodata.is_empty() {
+                self.nodata = vec![false; self.n];
+            }
+            self.nodata[i] = true;
+            f32::NAN
+        } else {
+            metres
+        }
+    }
+
+    /// The first n samples converted (fewer when the image holds fewer: the caller refuses).
+    fn convert<T: Copy>(&mut self, v: &[T], to_f64: impl Fn(T) -> f64) -> Vec<f32> {
+        v.iter().take(self.n).enumerate().map(|(i, &x)| self.metres(i, to_f64(x))).collect()
+    }
+}
+
 pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
     let (mut d, w, h, spp) = open_full_resolution(path, limits, "elevation raster")?;
     if spp != 1 {
@@ -362,44 +394,32 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
         }
         _ => 1.0,
     };
-    let values: Vec<f64> = match raw {
-        DecodingResult::U8(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::I8(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::U16(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::I16(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::U32(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::I32(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::F64(v) => v,
+    // Each sample to metres as f32 straight from the decoded type: no f64 copy of the raster
+    // (at the peak that copy alone was twice the f32 elevations), and float32 samples are
+    // converted in place.
+    let mut conversion = Metres { nodata_value, vertical, n, nodata: Vec::new(), not_finite: 0 };
+    let elevations: Vec<f32> = match raw {
+        DecodingResult::U8(v) => conversion.convert(&v, f64::from),
+        DecodingResult::I8(v) => conversion.convert(&v, f64::from),
+        DecodingResult::U16(v) => conversion.convert(&v, f64::from),
+        DecodingResult::I16(v) => conversion.convert(&v, f64::from),
+        DecodingResult::U32(v) => conversion.convert(&v, f64::from),
+        DecodingResult::I32(v) => conversion.convert(&v, f64::from),
+        DecodingResult::F32(mut v) if v.len() >= n => {
+            v.truncate(n);
+            for (i, x) in v.iter_mut().enumerate() {
+                *x = conversion.metres(i, *x as f64);
+            }
+            v
+        }
+        DecodingResult::F32(v) => conversion.convert(&v, f64::from),
+        DecodingResult::F64(v) => conversion.convert(&v, |x| x),
         _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
     };
-    if values.len() < n {
-        return Err(FormatError::invalid(path, format!("image data holds {} of {n} samples", values.len())));
+    if elevations.len() < n {
+        return Err(FormatError::invalid(path, format!("image data holds {} of {n} samples", elevations.len())));
     }
-    let mut nodata = vec![false; n];
-    let mut any = false;
-    // Infinite samples (or values beyond f32's range) are no elevation anyone measured:
-    // they become NoData like NaN, and a note says how many there were.
-    let mut not_finite = 0usize;
-    let elevations: Vec<f32> = values[..n]
-        .iter()
-        .zip(nodata.iter_mut())
-        .map(|(&v, flag)| {
-            let declared = v.is_nan() || nodata_value.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
-            let metres = (v * vertical) as f32;
-            if declared || !metres.is_finite() {
-                not_finite += usize::from(!declared);
-                *flag = true;
-                any = true;
-                f32::NAN
-            } else {
-                metres
-            }
-        })
-        .collect();
-    if !any {
-        nodata.clear();
-    }
+    let Metres { nodata, not_finite, .. } = conversion;
     if not_finite > 0 {
         notes.push(format!("{not_finite} infinite or out-of-range sample(s) treated as NoData"));
     }

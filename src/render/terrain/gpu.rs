@@ -243,13 +243,28 @@ impl GpuTerrain {
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
-        let uploaded: Vec<f32> = grid.heights.iter().map(|&z| if z.is_finite() { z } else { HOLE }).collect();
-        gpu.queue.write_texture(
-            heights.as_image_copy(),
-            bytemuck::cast_slice(&uploaded),
-            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * grid.nx as u32), rows_per_image: None },
-            heights.size(),
-        );
+        // Uploaded in bands of rows of about 16 MiB, each submitted and finished before the
+        // next: a copy of the whole grid (and wgpu's staging of it) would add twice the
+        // heights to the peak memory.
+        let band_rows = ((16usize << 20) / (4 * grid.nx)).clamp(1, grid.ny);
+        for row0 in (0..grid.ny).step_by(band_rows) {
+            let rows = band_rows.min(grid.ny - row0);
+            let band: Vec<f32> =
+                grid.heights[row0 * grid.nx..(row0 + rows) * grid.nx].iter().map(|&z| if z.is_finite() { z } else { HOLE }).collect();
+            gpu.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &heights,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d { x: 0, y: row0 as u32, z: 0 },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                bytemuck::cast_slice(&band),
+                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * grid.nx as u32), rows_per_image: None },
+                wgpu::Extent3d { width: grid.nx as u32, height: rows as u32, depth_or_array_layers: 1 },
+            );
+            gpu.queue.submit(std::iter::empty());
+            device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("uploading the heights: {e}"))?;
+        }
         let pyramid = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("lid pyramid"),
             size: wgpu::Extent3d { width: pw, height: ph, depth_or_array_layers: 1 },
