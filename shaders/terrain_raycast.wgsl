@@ -42,6 +42,9 @@ struct Params {
     // Where the drape lies: texture coordinates s = x + y·gx, t = z + w·gy of grid point
     // (gx, gy) (LinearTexture::placement in shading.rs).
     drape: vec4<f32>,
+    // Tiling (gpu.rs, Tiling::params): patches per tile (0: one texture, not tiled), tiles
+    // east, log2 of the patches per tile, tiles north.
+    tiles: vec4<u32>,
     // Per light: unit direction toward it (world), the same in grid space, colour × intensity.
     light_world: array<vec4<f32>, 4>,
     light_grid: array<vec4<f32>, 4>,
@@ -51,8 +54,10 @@ struct Params {
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
-@group(0) @binding(1) var heights: texture_2d<f32>;
-@group(0) @binding(2) var pyramid: texture_2d<f32>;
+// The samples and each tile's pyramid, one tile per layer (one layer when not tiled), and
+// the pyramid's levels above the tiles (gpu.rs, Tiling).
+@group(0) @binding(1) var heights: texture_2d_array<f32>;
+@group(0) @binding(2) var pyramid: texture_2d_array<f32>;
 @group(0) @binding(3) var colour_map: texture_2d<f32>;
 @group(0) @binding(4) var colour_sampler: sampler;
 @group(0) @binding(5) var<storage, read_write> out_colour: array<vec4<f32>>;
@@ -60,6 +65,34 @@ struct Params {
 @group(0) @binding(7) var<storage, read_write> out_steps: array<u32>;
 // [0]: rays that hit the step cap.
 @group(0) @binding(8) var<storage, read_write> counters: array<atomic<u32>, 4>;
+@group(0) @binding(9) var pyramid_top: texture_2d<f32>;
+
+// The stored height of sample c (grid space).
+fn height_at(c: vec2<i32>) -> f32 {
+    if P.tiles.x == 0u {
+        return textureLoad(heights, c, 0, 0).r;
+    }
+    // Tiles of S patches share their border samples: the sample at a border is read from
+    // the tile east (north) of it, except past the last tile.
+    let s = i32(P.tiles.x);
+    let tile = min(c / s, vec2<i32>(i32(P.tiles.y), i32(P.tiles.w)) - 1);
+    return textureLoad(heights, c - tile * s, tile.y * i32(P.tiles.y) + tile.x, 0).r;
+}
+
+// The lid of quadtree node `node` at `level`: in its tile's pyramid below level k (tiles of
+// 2^k patches), in the texture over the tiles from level k up.
+fn lid(node: vec2<i32>, level: u32) -> f32 {
+    if P.tiles.x == 0u {
+        return textureLoad(pyramid, node, 0, i32(level)).r;
+    }
+    let k = P.tiles.z;
+    if level >= k {
+        return textureLoad(pyramid_top, node, i32(level - k)).r;
+    }
+    let shift = vec2<u32>(k - level);
+    let tile = node >> shift;
+    return textureLoad(pyramid, node - (tile << shift), tile.y * i32(P.tiles.y) + tile.x, i32(level)).r;
+}
 
 struct Hit {
     t: f32,
@@ -110,10 +143,10 @@ fn from_eye_xy(g: vec2<f32>) -> vec2<f32> {
 // z00, z10, z01, z11 of patch c, relative to the eye.
 fn patch_heights(c: vec2<i32>) -> vec4<f32> {
     return vec4<f32>(
-        from_eye(textureLoad(heights, c, 0).r),
-        from_eye(textureLoad(heights, c + vec2<i32>(1, 0), 0).r),
-        from_eye(textureLoad(heights, c + vec2<i32>(0, 1), 0).r),
-        from_eye(textureLoad(heights, c + vec2<i32>(1, 1), 0).r),
+        from_eye(height_at(c)),
+        from_eye(height_at(c + vec2<i32>(1, 0))),
+        from_eye(height_at(c + vec2<i32>(0, 1))),
+        from_eye(height_at(c + vec2<i32>(1, 1))),
     );
 }
 
@@ -122,7 +155,7 @@ fn patch_heights(c: vec2<i32>) -> vec4<f32> {
 // (the rule of TerrainGrid::sample_gradient).
 fn sample_gradient(c: vec2<i32>) -> vec2<f32> {
     let last = vec2<i32>(i32(P.size.z), i32(P.size.w));
-    let z = textureLoad(heights, c, 0).r;
+    let z = height_at(c);
     var g = vec2<f32>(0.0);
     for (var axis = 0; axis < 2; axis++) {
         var step = vec2<i32>(1, 0);
@@ -134,10 +167,10 @@ fn sample_gradient(c: vec2<i32>) -> vec2<f32> {
         var z_up = HOLE;
         var z_down = HOLE;
         if up[axis] <= last[axis] {
-            z_up = textureLoad(heights, up, 0).r;
+            z_up = height_at(up);
         }
         if down[axis] >= 0 {
-            z_down = textureLoad(heights, down, 0).r;
+            z_down = height_at(down);
         }
         let has_up = z_up > -1.0e38;
         let has_down = z_down > -1.0e38;
@@ -297,7 +330,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
             ty = (lo.y - o.y) / d.y;
         }
         let t_exit = max(min(min(tx, ty), t_end), t);
-        let zmax = from_eye(textureLoad(pyramid, node, i32(level)).r);
+        let zmax = from_eye(lid(node, level));
         let z_in = o.z + t * d.z;
         let z_out = o.z + t_exit * d.z;
         if min(z_in, z_out) <= zmax {

@@ -618,3 +618,70 @@ fn a_ray_through_a_nodata_void_meets_the_void_s_wall() {
     let walls = frames[0].1.extra.iter().find(|e| e.0 == "wall").unwrap();
     assert_eq!(walls.1[centre], 1.0, "the reference flags the hit as a wall");
 }
+
+/// Large DEMs are tiled into GPU textures when a side exceeds what one texture holds. With
+/// the texture size lowered so that small grids are tiled (129 texels: tiles of 128 patches;
+/// 40: tiles of 32), every view — fly and walk, shadows and smooth normals reading across
+/// tile borders, NoData voids, a grid whose sides are not multiples of the tile — renders
+/// exactly as from one texture (depth and colour bit for bit), and agrees with the f64
+/// reference as the untiled ray-caster does.
+#[test]
+fn tiled_terrains_render_exactly_as_one_texture() {
+    use volterra::render::terrain::gpu::{self, GpuTerrain, View};
+    use volterra::render::terrain::shading::{sun_lights, Shading};
+    if common::gpu().is_none() {
+        return;
+    }
+    let gpu = gpu::gpu().unwrap();
+    let base = volterra::samples::fractal_dem(9, 30.0, 7);
+    // 450 × 301 samples with a NoData void: sides not multiples of any tile.
+    let hf = field(450, 301, 30.0, |c, r| {
+        if (200..230).contains(&c) && (100..120).contains(&r) {
+            f32::NAN
+        } else {
+            base.elevations[r * base.width + c] * 1.6
+        }
+    });
+    let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
+    let (ex, ey) = (grid.cell[0] * grid.cells()[0] as f64, grid.cell[1] * grid.cells()[1] as f64);
+    let top = grid.z_ref + grid.z_hi;
+    let fly = perspective([-0.1 * ex, -0.2 * ey, top + 0.4 * ex], [0.55 * ex, 0.5 * ey, grid.z_ref], [0.0, 0.0, 1.0], 45.0);
+    let (x, y) = (0.3 * ex, 0.3 * ey);
+    let ground = hf.surface_height(x, y).unwrap();
+    let walk = perspective([x, y, ground + 2.0], [x + 0.5 * ex, y + 0.4 * ey, ground + 40.0], [0.0, 0.0, 1.0], 60.0);
+    let lights = [volterra::scene::Light {
+        kind: volterra::scene::LightKind::Directional,
+        direction: Some([-0.8, -0.5, -0.45]),
+        position: None,
+        color: [1.0; 3],
+        intensity: 1.0,
+        cone_angle: None,
+    }];
+    let shading = Shading {
+        lights: sun_lights(&lights).unwrap(),
+        ambient: 0.25,
+        shadows: true,
+        smooth: true,
+        rays_per_side: 1,
+        colormap: volterra::render::colormap::Colormap::Hypsometric,
+    };
+    let whole = GpuTerrain::new(gpu, &grid, None).unwrap();
+    let cap = Settings::default().step_cap(&grid);
+    for limit in [129, 40] {
+        let tiled = GpuTerrain::with_texture_limit(gpu, &grid, None, limit).unwrap();
+        for (name, cam) in [("fly", &fly), ("walk", &walk)] {
+            let rays = cam.rays(160, 100);
+            let view = View { grid: &grid, rays: &rays, shading: &shading, traversal: Traversal::Quadtree, max_steps: cap };
+            let (a, b) = (whole.render(gpu, &view).unwrap(), tiled.render(gpu, &view).unwrap());
+            let same_depth = a.depth.iter().zip(&b.depth).filter(|(p, q)| p.to_bits() == q.to_bits()).count();
+            let same_colour = a.rgba.iter().zip(&b.rgba).filter(|(p, q)| p == q).count();
+            println!("textures ≤ {limit} texels, {name}: {same_depth} depths and {same_colour} colours of {} equal", a.depth.len());
+            assert_eq!(same_depth, a.depth.len(), "tiles ≤ {limit} texels, {name}: depth");
+            assert_eq!(same_colour, a.rgba.len(), "tiles ≤ {limit} texels, {name}: colour");
+            let input = TerrainInput { heightfield: &hf, texture: None, node_to_world: DMat4::IDENTITY, lights: &lights };
+            let s = Settings { shadows: true, rays_per_pixel: 1, ..Default::default() };
+            let reference = terrain::render_reference(&input, &rays, &s).unwrap();
+            assert_agree(&format!("tiles ≤ {limit} texels, {name}"), &b, &reference);
+        }
+    }
+}

@@ -61,6 +61,19 @@ fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
+fn texture_array_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
 fn storage_texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -96,8 +109,8 @@ impl Pipelines {
             "raycast",
             &[
                 buffer_entry(0, wgpu::BufferBindingType::Uniform),
-                texture_entry(1, false),
-                texture_entry(2, false),
+                texture_array_entry(1),
+                texture_array_entry(2),
                 texture_entry(3, true),
                 wgpu::BindGroupLayoutEntry {
                     binding: 4,
@@ -109,6 +122,7 @@ impl Pipelines {
                 buffer_entry(6, storage),
                 buffer_entry(7, storage),
                 buffer_entry(8, storage),
+                texture_entry(9, false),
             ],
         );
         let pyramid = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -163,6 +177,7 @@ struct Params {
     eye_hi: [f32; 4],
     eye_lo: [f32; 4],
     drape: [f32; 4],
+    tiles: [u32; 4],
     light_world: [[f32; 4]; MAX_LIGHTS],
     light_grid: [[f32; 4]; MAX_LIGHTS],
     light_color: [[f32; 4]; MAX_LIGHTS],
@@ -183,10 +198,123 @@ pub struct View<'a> {
     pub max_steps: u32,
 }
 
+/// How the grid is cut into GPU textures (layers of 2-D array textures). One tile when the
+/// grid fits: its samples, and a pyramid of pw × ph (the patches rounded up to powers of
+/// two). Otherwise square tiles of S = 2^k patches (S + 1 samples a side: neighbours share
+/// their border row and column, so every patch lies in one tile), each with its own
+/// pyramid of k + 1 levels, and above them a max-quadtree over the tiles (Dick, Krüger and
+/// Westermann's arrangement for very large terrains): quadtree level k + m is level m of a
+/// texture holding one texel per tile.
+#[derive(Debug, Clone, Copy)]
+pub struct Tiling {
+    /// Patches per tile (east, north); 0 when not tiled.
+    pub tile_patches: usize,
+    /// Tiles east and north.
+    pub tiles: [usize; 2],
+    /// Samples per tile texture layer, and its pyramid's level-0 size.
+    pub heights_size: [u32; 2],
+    pub pyramid_size: [u32; 2],
+    /// Levels of each tile's pyramid, and of the texture over the tiles (0 when not tiled).
+    pub tile_levels: u32,
+    pub top_levels: u32,
+}
+
+impl Tiling {
+    fn new(grid: &TerrainGrid, limit: usize, max_layers: usize) -> Result<Tiling> {
+        let [cx, cy] = grid.cells();
+        let (pw, ph) = (cx.next_power_of_two(), cy.next_power_of_two());
+        let log2 = |n: usize| n.trailing_zeros();
+        if grid.nx <= limit && grid.ny <= limit && pw <= limit && ph <= limit {
+            return Ok(Tiling {
+                tile_patches: 0,
+                tiles: [1, 1],
+                heights_size: [grid.nx as u32, grid.ny as u32],
+                pyramid_size: [pw as u32, ph as u32],
+                tile_levels: log2(pw.max(ph)) + 1,
+                top_levels: 0,
+            });
+        }
+        if limit < 3 {
+            bail!("textures of {limit} texels a side cannot hold a tile");
+        }
+        // The tile size: the largest power of two that fits, unless smaller tiles waste
+        // much less on the partly filled last row and column of tiles (a 20000 × 3000 DEM
+        // in tiles of 8192² would hold 2.7 times its samples): the largest size within 10 %
+        // of the fewest texels, and no more tiles than the GPU has layers.
+        let largest = 1usize << (usize::BITS - 1 - (limit - 1).leading_zeros());
+        let texels = |s: usize| cx.div_ceil(s) * cy.div_ceil(s) * s * s;
+        let sizes: Vec<usize> = (0..).map(|k| largest >> k).take_while(|&s| s >= 2 && s >= largest.min(256)).collect();
+        let fewest = sizes.iter().filter(|&&s| cx.div_ceil(s) * cy.div_ceil(s) <= max_layers).map(|&s| texels(s)).min();
+        let s = match fewest {
+            Some(fewest) => *sizes
+                .iter()
+                .find(|&&s| cx.div_ceil(s) * cy.div_ceil(s) <= max_layers && texels(s) * 10 <= fewest * 11)
+                .expect("one is the fewest"),
+            None => largest,
+        };
+        let tiles = [cx.div_ceil(s), cy.div_ceil(s)];
+        if tiles[0] * tiles[1] > max_layers {
+            bail!(
+                "the heightfield's {}×{} samples need {} tiles of {s}² patches, more than the GPU's {max_layers} texture layers",
+                grid.nx,
+                grid.ny,
+                tiles[0] * tiles[1]
+            );
+        }
+        let top = tiles[0].max(tiles[1]).next_power_of_two();
+        Ok(Tiling {
+            tile_patches: s,
+            tiles,
+            heights_size: [s as u32 + 1; 2],
+            pyramid_size: [s as u32; 2],
+            tile_levels: log2(s) + 1,
+            top_levels: log2(top) + 1,
+        })
+    }
+
+    pub fn tiled(&self) -> bool {
+        self.tile_patches > 0
+    }
+
+    fn layers(&self) -> usize {
+        self.tiles[0] * self.tiles[1]
+    }
+
+    /// Levels of the whole quadtree: the tiles' below, the texture over them above.
+    fn levels(&self) -> u32 {
+        if self.tiled() {
+            self.tile_levels + self.top_levels - 1
+        } else {
+            self.tile_levels
+        }
+    }
+
+    /// The first sample (east, north) and the samples (east, north) of tile `layer`.
+    fn samples_of(&self, layer: usize, grid: &TerrainGrid) -> ([usize; 2], [usize; 2]) {
+        if !self.tiled() {
+            return ([0, 0], [grid.nx, grid.ny]);
+        }
+        let s = self.tile_patches;
+        let (i0, j0) = (layer % self.tiles[0] * s, layer / self.tiles[0] * s);
+        ([i0, j0], [(s + 1).min(grid.nx - i0), (s + 1).min(grid.ny - j0)])
+    }
+
+    /// The shader's `tiles` parameter: patches per tile, tiles east, log2 of the patches per
+    /// tile, tiles north (all 0 when not tiled).
+    fn params(&self) -> [u32; 4] {
+        if !self.tiled() {
+            return [0; 4];
+        }
+        [self.tile_patches as u32, self.tiles[0] as u32, self.tile_levels - 1, self.tiles[1] as u32]
+    }
+}
+
 /// A heightfield resident on the GPU with its pyramid, ready to render any camera.
 pub struct GpuTerrain {
     heights_view: wgpu::TextureView,
     pyramid_view: wgpu::TextureView,
+    top_view: wgpu::TextureView,
+    tiling: Tiling,
     colour_view: wgpu::TextureView,
     sampler: wgpu::Sampler,
     has_texture: bool,
@@ -216,63 +344,76 @@ impl GpuTerrain {
     /// memory above all — come back as errors, not the panic wgpu's default handler gives.
     /// `texture`: the drape and its placement (see `shading::LinearTexture::placement`).
     pub fn new(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>) -> Result<GpuTerrain> {
-        gpu.guarded("uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture))
+        let max_dim = gpu.device.limits().max_texture_dimension_2d as usize;
+        GpuTerrain::with_texture_limit(gpu, grid, texture, max_dim)
     }
 
-    fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>) -> Result<GpuTerrain> {
+    /// As [`GpuTerrain::new`], with textures no larger than `limit` texels a side (at most
+    /// the adapter's): a grid larger than that is tiled. Tests lower it to tile small grids.
+    pub fn with_texture_limit(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>, limit: usize) -> Result<GpuTerrain> {
+        gpu.guarded("uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture, limit))
+    }
+
+    fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>, limit: usize) -> Result<GpuTerrain> {
         let device = &gpu.device;
         let max_dim = device.limits().max_texture_dimension_2d as usize;
-        if grid.nx > max_dim || grid.ny > max_dim {
-            bail!("heightfield {}×{} exceeds the GPU's largest texture ({max_dim}²) on '{}'", grid.nx, grid.ny, gpu.info.name);
-        }
+        let tiling = Tiling::new(grid, limit.min(max_dim), device.limits().max_texture_array_layers as usize)?;
         let [cx, cy] = grid.cells();
-        let pw = cx.next_power_of_two() as u32;
-        let ph = cy.next_power_of_two() as u32;
-        if pw as usize > max_dim || ph as usize > max_dim {
-            bail!("the quadtree over {cx}×{cy} patches needs a {pw}×{ph} texture, more than the GPU's {max_dim}²");
+        let layers = tiling.layers();
+        let levels = tiling.levels();
+        let texture_2d_array = |label: &str, size: [u32; 2], mips: u32, usage: wgpu::TextureUsages| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: layers as u32 },
+                mip_level_count: mips,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::R32Float,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let heights =
+            texture_2d_array("heights", tiling.heights_size, 1, wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST);
+        // Each tile's samples uploaded in bands of rows of about 16 MiB, each submitted and
+        // finished before the next: a copy of the whole grid (and wgpu's staging of it)
+        // would add twice the heights to the peak memory.
+        for tile in 0..layers {
+            let ([i0, j0], [w, h]) = tiling.samples_of(tile, grid);
+            let band_rows = ((16usize << 20) / (4 * w)).clamp(1, h);
+            for r0 in (0..h).step_by(band_rows) {
+                let rows = band_rows.min(h - r0);
+                let mut band = Vec::with_capacity(rows * w);
+                for j in j0 + r0..j0 + r0 + rows {
+                    band.extend(grid.heights[j * grid.nx + i0..j * grid.nx + i0 + w].iter().map(|&z| if z.is_finite() { z } else { HOLE }));
+                }
+                gpu.queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &heights,
+                        mip_level: 0,
+                        origin: wgpu::Origin3d { x: 0, y: r0 as u32, z: tile as u32 },
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    bytemuck::cast_slice(&band),
+                    wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * w as u32), rows_per_image: None },
+                    wgpu::Extent3d { width: w as u32, height: rows as u32, depth_or_array_layers: 1 },
+                );
+                gpu.queue.submit(std::iter::empty());
+                device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("uploading the heights: {e}"))?;
+            }
         }
-        let levels = 32 - pw.max(ph).leading_zeros();
-
-        let heights = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("heights"),
-            size: wgpu::Extent3d { width: grid.nx as u32, height: grid.ny as u32, depth_or_array_layers: 1 },
-            mip_level_count: 1,
+        let storage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
+        let pyramid = texture_2d_array("lid pyramid", tiling.pyramid_size, tiling.tile_levels, storage);
+        // Above the tiles: one texel per tile (the tile's top level), then its own levels.
+        let top_size = [tiling.tiles[0].next_power_of_two() as u32, tiling.tiles[1].next_power_of_two() as u32];
+        let top = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("lid pyramid over tiles"),
+            size: wgpu::Extent3d { width: top_size[0], height: top_size[1], depth_or_array_layers: 1 },
+            mip_level_count: tiling.top_levels.max(1),
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format: wgpu::TextureFormat::R32Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        // Uploaded in bands of rows of about 16 MiB, each submitted and finished before the
-        // next: a copy of the whole grid (and wgpu's staging of it) would add twice the
-        // heights to the peak memory.
-        let band_rows = ((16usize << 20) / (4 * grid.nx)).clamp(1, grid.ny);
-        for row0 in (0..grid.ny).step_by(band_rows) {
-            let rows = band_rows.min(grid.ny - row0);
-            let band: Vec<f32> =
-                grid.heights[row0 * grid.nx..(row0 + rows) * grid.nx].iter().map(|&z| if z.is_finite() { z } else { HOLE }).collect();
-            gpu.queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &heights,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d { x: 0, y: row0 as u32, z: 0 },
-                    aspect: wgpu::TextureAspect::All,
-                },
-                bytemuck::cast_slice(&band),
-                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * grid.nx as u32), rows_per_image: None },
-                wgpu::Extent3d { width: grid.nx as u32, height: rows as u32, depth_or_array_layers: 1 },
-            );
-            gpu.queue.submit(std::iter::empty());
-            device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("uploading the heights: {e}"))?;
-        }
-        let pyramid = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("lid pyramid"),
-            size: wgpu::Extent3d { width: pw, height: ph, depth_or_array_layers: 1 },
-            mip_level_count: levels,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R32Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING,
+            usage: storage | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
         let (colour, has_texture, placement) = match texture {
@@ -282,66 +423,121 @@ impl GpuTerrain {
                 (colour_texture(gpu, &blank, max_dim)?, false, [0.0; 4])
             }
         };
+        // Tiles that do not exist (the padding up to a power of two) are holes.
+        let holes = vec![HOLE; (top_size[0] * top_size[1]) as usize];
+        gpu.queue.write_texture(
+            top.as_image_copy(),
+            bytemuck::cast_slice(&holes),
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * top_size[0]), rows_per_image: None },
+            wgpu::Extent3d { width: top_size[0], height: top_size[1], depth_or_array_layers: 1 },
+        );
         // Uploads first, so that the build time below is the compute passes alone.
         gpu.queue.submit([]);
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU upload failed: {e}"))?;
 
         let start = Instant::now();
-        let level_view = |level: u32| {
-            pyramid.create_view(&wgpu::TextureViewDescriptor { base_mip_level: level, mip_level_count: Some(1), ..Default::default() })
+        let layer_view = |t: &wgpu::Texture, layer: usize, level: u32| {
+            t.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2),
+                base_mip_level: level,
+                mip_level_count: Some(1),
+                base_array_layer: layer as u32,
+                array_layer_count: Some(1),
+                ..Default::default()
+            })
         };
-        let cells_buf = uniform_buffer(gpu, bytemuck::cast_slice(&[cx as u32, cy as u32, 0, 0]));
-        let heights_view = heights.create_view(&Default::default());
         let mut enc = device.create_command_encoder(&Default::default());
         let groups = |w: u32, h: u32| (w.div_ceil(8), h.div_ceil(8));
-        {
-            let dst = level_view(0);
-            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("lid"),
-                layout: &gpu.pipelines.lid_layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&heights_view) },
-                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
-                    wgpu::BindGroupEntry { binding: 2, resource: cells_buf.as_entire_binding() },
-                ],
-            });
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&gpu.pipelines.lid);
-            pass.set_bind_group(0, &bg, &[]);
-            let (gx, gy) = groups(pw, ph);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        for level in 1..levels {
-            let (src, dst) = (level_view(level - 1), level_view(level));
+        let reduce = |enc: &mut wgpu::CommandEncoder, src: &wgpu::TextureView, dst: &wgpu::TextureView, size: [u32; 2]| {
             let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("reduce"),
                 layout: &gpu.pipelines.reduce_layout,
                 entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&src) },
-                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
+                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(src) },
+                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(dst) },
                 ],
             });
             let mut pass = enc.begin_compute_pass(&Default::default());
             pass.set_pipeline(&gpu.pipelines.reduce);
             pass.set_bind_group(0, &bg, &[]);
-            let (gx, gy) = groups((pw >> level).max(1), (ph >> level).max(1));
+            let (gx, gy) = groups(size[0], size[1]);
             pass.dispatch_workgroups(gx, gy, 1);
+        };
+        let mut cell_buffers = Vec::new();
+        for tile in 0..layers {
+            let (_, [w, h]) = tiling.samples_of(tile, grid);
+            let cells_buf = uniform_buffer(gpu, bytemuck::cast_slice(&[w as u32 - 1, h as u32 - 1, 0, 0]));
+            let (src, dst) = (layer_view(&heights, tile, 0), layer_view(&pyramid, tile, 0));
+            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("lid"),
+                layout: &gpu.pipelines.lid_layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&src) },
+                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
+                    wgpu::BindGroupEntry { binding: 2, resource: cells_buf.as_entire_binding() },
+                ],
+            });
+            cell_buffers.push(cells_buf);
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&gpu.pipelines.lid);
+                pass.set_bind_group(0, &bg, &[]);
+                let (gx, gy) = groups(tiling.pyramid_size[0], tiling.pyramid_size[1]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            for level in 1..tiling.tile_levels {
+                let size = tiling.pyramid_size.map(|s| (s >> level).max(1));
+                reduce(&mut enc, &layer_view(&pyramid, tile, level - 1), &layer_view(&pyramid, tile, level), size);
+            }
+            if tiling.tiled() {
+                // The tile's top level (one texel) into the texture over the tiles.
+                let [a, b] = [tile % tiling.tiles[0], tile / tiling.tiles[0]];
+                enc.copy_texture_to_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &pyramid,
+                        mip_level: tiling.tile_levels - 1,
+                        origin: wgpu::Origin3d { x: 0, y: 0, z: tile as u32 },
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &top,
+                        mip_level: 0,
+                        origin: wgpu::Origin3d { x: a as u32, y: b as u32, z: 0 },
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    wgpu::Extent3d { width: 1, height: 1, depth_or_array_layers: 1 },
+                );
+            }
+        }
+        for level in 1..tiling.top_levels {
+            let size = top_size.map(|s| (s >> level).max(1));
+            reduce(&mut enc, &layer_view(&top, 0, level - 1), &layer_view(&top, 0, level), size);
         }
         gpu.queue.submit([enc.finish()]);
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU pyramid build failed: {e}"))?;
         let build_seconds = start.elapsed().as_secs_f64();
 
-        let pyramid_bytes: u64 = (0..levels).map(|l| 4 * ((pw >> l).max(1) as u64) * ((ph >> l).max(1) as u64)).sum();
-        let gpu_bytes = 4 * (grid.nx * grid.ny) as u64 + pyramid_bytes + 4 * colour.width() as u64 * colour.height() as u64;
+        let mip_bytes = |size: [u32; 2], levels: u32| -> u64 {
+            (0..levels).map(|l| 4 * ((size[0] >> l).max(1) as u64) * ((size[1] >> l).max(1) as u64)).sum()
+        };
+        let gpu_bytes = 4 * (tiling.heights_size[0] as u64 * tiling.heights_size[1] as u64) * layers as u64
+            + mip_bytes(tiling.pyramid_size, tiling.tile_levels) * layers as u64
+            + mip_bytes(top_size, tiling.top_levels.max(1))
+            + 4 * colour.width() as u64 * colour.height() as u64;
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("colour"),
             mag_filter: wgpu::FilterMode::Linear,
             min_filter: wgpu::FilterMode::Linear,
             ..Default::default()
         });
+        let array_view = |t: &wgpu::Texture| {
+            t.create_view(&wgpu::TextureViewDescriptor { dimension: Some(wgpu::TextureViewDimension::D2Array), ..Default::default() })
+        };
         Ok(GpuTerrain {
-            heights_view,
-            pyramid_view: pyramid.create_view(&Default::default()),
+            heights_view: array_view(&heights),
+            pyramid_view: array_view(&pyramid),
+            top_view: top.create_view(&Default::default()),
+            tiling,
             colour_view: colour.create_view(&Default::default()),
             sampler,
             has_texture,
@@ -384,6 +580,7 @@ impl GpuTerrain {
         let flags = shading.shadows as u32 | (self.has_texture as u32) << 1 | (shading.smooth as u32) << 2;
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];
         p.drape = self.placement;
+        p.tiles = self.tiling.params();
         for (entry, c) in p.ramp.iter_mut().zip(super::shading::elevation_ramp(shading.colormap)) {
             *entry = [c[0], c[1], c[2], 0.0];
         }
@@ -430,6 +627,7 @@ impl GpuTerrain {
                 wgpu::BindGroupEntry { binding: 6, resource: depth.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 7, resource: steps.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 8, resource: counters.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 9, resource: wgpu::BindingResource::TextureView(&self.top_view) },
             ],
         });
         Ok(Target { width, height, colour, depth, steps, counters, bind_group })
