@@ -124,7 +124,7 @@ impl RenderCache {
             }
         }
         // The prepared terrain holds the texture, so its address stays taken too.
-        let p = Arc::new(terrain::Prepared::new(hf, texture, node_to_world, limits)?);
+        let p = Arc::new(terrain::Prepared::new(hf.clone(), texture, node_to_world, limits)?);
         map.insert(key, (hf.clone(), placement, p.clone()));
         Ok(p)
     }

@@ -383,9 +383,10 @@ impl GpuTerrain {
             let band_rows = ((16usize << 20) / (4 * w)).clamp(1, h);
             for r0 in (0..h).step_by(band_rows) {
                 let rows = band_rows.min(h - r0);
-                let mut band = Vec::with_capacity(rows * w);
-                for j in j0 + r0..j0 + r0 + rows {
-                    band.extend(grid.heights[j * grid.nx + i0..j * grid.nx + i0 + w].iter().map(|&z| if z.is_finite() { z } else { HOLE }));
+                let mut band = vec![0f32; rows * w];
+                for (r, row) in band.chunks_exact_mut(w).enumerate() {
+                    grid.heights_of_row(i0, j0 + r0 + r, row);
+                    row.iter_mut().filter(|z| !z.is_finite()).for_each(|z| *z = HOLE);
                 }
                 gpu.queue.write_texture(
                     wgpu::TexelCopyTextureInfo {

@@ -11,6 +11,7 @@ use crate::render::geometry::clip_box;
 use crate::scene::camera::Ray;
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3};
+use std::sync::Arc;
 use volterra_formats::Heightfield;
 
 /// Lid-map value of a patch that touches a NoData sample: lower than any ray.
@@ -21,8 +22,9 @@ pub struct TerrainGrid {
     /// Samples east-west and south-north.
     pub nx: usize,
     pub ny: usize,
-    /// Heights relative to `z_ref`, `j * nx + i` with j = 0 the southern row; NoData = NaN.
-    pub heights: Vec<f32>,
+    /// The heightfield itself, shared and not copied (a large DEM is most of the memory a
+    /// render holds): heights are read from it relative to `z_ref` (see `height`).
+    heightfield: Arc<Heightfield>,
     pub z_ref: f64,
     /// Range of valid heights relative to `z_ref` (0, 0 when every sample is NoData).
     pub z_lo: f64,
@@ -46,10 +48,18 @@ pub struct Hit {
 }
 
 impl TerrainGrid {
+    /// The grid of a copy of `hf` (see [`TerrainGrid::shared`] to share it).
     pub fn new(hf: &Heightfield, node_to_world: DMat4) -> Result<TerrainGrid> {
+        TerrainGrid::shared(Arc::new(hf.clone()), node_to_world)
+    }
+
+    pub fn shared(hf: Arc<Heightfield>, node_to_world: DMat4) -> Result<TerrainGrid> {
         let (nx, ny) = (hf.width, hf.height);
         if nx < 2 || ny < 2 {
             bail!("a terrain needs at least 2×2 samples (this heightfield has {nx}×{ny})");
+        }
+        if hf.elevations.len() != nx * ny {
+            bail!("the heightfield holds {} elevations for {nx}×{ny} samples", hf.elevations.len());
         }
         let [cx, cy] = hf.cell_size;
         if !(cx > 0.0 && cy > 0.0 && cx.is_finite() && cy.is_finite()) {
@@ -61,23 +71,13 @@ impl TerrainGrid {
         let range = hf.range();
         let (lo, hi) = range.map(|(a, b)| (a as f64, b as f64)).unwrap_or((0.0, 0.0));
         let z_ref = 0.5 * (lo + hi);
-        let mut heights = vec![f32::NAN; nx * ny];
-        for row in 0..ny {
-            let j = ny - 1 - row;
-            for i in 0..nx {
-                let z = hf.elevations[row * nx + i];
-                if !hf.is_nodata(i, row) && z.is_finite() {
-                    heights[j * nx + i] = (z as f64 - z_ref) as f32;
-                }
-            }
-        }
         let local_to_grid = DMat4::from_scale(DVec3::new(1.0 / cx, 1.0 / cy, 1.0)) * DMat4::from_translation(DVec3::new(0.0, 0.0, -z_ref));
         let world_to_grid = local_to_grid * node_to_world.inverse();
         let lin = DMat3::from_mat4(node_to_world);
         Ok(TerrainGrid {
             nx,
             ny,
-            heights,
+            heightfield: hf,
             z_ref,
             z_lo: lo - z_ref,
             z_hi: hi - z_ref,
@@ -88,13 +88,29 @@ impl TerrainGrid {
         })
     }
 
+    /// Heights of samples i0 … i0 + out.len() − 1 of row j (grid space: j = 0 the southern
+    /// row), relative to `z_ref`; NaN for NoData.
+    pub fn heights_of_row(&self, i0: usize, j: usize, out: &mut [f32]) {
+        for (k, h) in out.iter_mut().enumerate() {
+            *h = self.height(i0 + k, j);
+        }
+    }
+
     /// Number of patches (cells) east-west and south-north.
     pub fn cells(&self) -> [usize; 2] {
         [self.nx - 1, self.ny - 1]
     }
 
+    /// The height of sample (i, j) relative to `z_ref` (f32, as the GPU holds it); NaN for
+    /// NoData.
     pub fn height(&self, i: usize, j: usize) -> f32 {
-        self.heights[j * self.nx + i]
+        let row = self.ny - 1 - j;
+        let z = self.heightfield.elevations[row * self.nx + i];
+        if z.is_finite() && !self.heightfield.is_nodata(i, row) {
+            (z as f64 - self.z_ref) as f32
+        } else {
+            f32::NAN
+        }
     }
 
     /// The patch's corner heights (z00, z10, z01, z11), or None where one is NoData.

@@ -204,21 +204,22 @@ pub fn drape_placement(hf: &Heightfield, drape: &Drape) -> Result<[f64; 4]> {
 }
 
 impl Prepared {
+    /// `heightfield` is shared, not copied.
     pub fn new(
-        heightfield: &Heightfield,
+        heightfield: std::sync::Arc<Heightfield>,
         texture: Option<std::sync::Arc<Drape>>,
         node_to_world: DMat4,
         limits: &Limits,
     ) -> Result<Prepared> {
-        // The grid's heights and their upload copy, against the memory limit (on lavapipe the
-        // GPU textures live in host memory too, allocated by Mesa outside this count).
+        // The pyramid on the GPU, against the memory limit (on lavapipe the GPU textures live
+        // in host memory, allocated by Mesa outside this count; the grid shares the heights).
         let samples = (heightfield.width * heightfield.height) as u64;
-        limits.check(std::path::Path::new("terrain"), "the height grid and its upload", &[samples, 8])?;
-        let grid = grid::TerrainGrid::new(heightfield, node_to_world)?;
+        limits.check(std::path::Path::new("terrain"), "the height pyramid", &[samples, 8])?;
         let placement = match &texture {
-            Some(t) => drape_placement(heightfield, t)?,
+            Some(t) => drape_placement(&heightfield, t)?,
             None => [0.0; 4],
         };
+        let grid = grid::TerrainGrid::shared(heightfield, node_to_world)?;
         Ok(Prepared { grid, texture, placement, gpu: std::sync::OnceLock::new() })
     }
 
@@ -290,7 +291,8 @@ impl TerrainInput<'_> {
     /// A one-off preparation, within the memory available on this machine (a scene hands
     /// its own limits to [`Prepared::new`]).
     fn prepare(&self) -> Result<Prepared> {
-        Prepared::new(self.heightfield, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world, &Limits::default())
+        let hf = std::sync::Arc::new(self.heightfield.clone());
+        Prepared::new(hf, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world, &Limits::default())
     }
 }
 
