@@ -42,8 +42,8 @@ struct Params {
     // Where the drape lies: texture coordinates s = x + y·gx, t = z + w·gy of grid point
     // (gx, gy) (LinearTexture::placement in shading.rs).
     drape: vec4<f32>,
-    // Tiling (gpu.rs, Tiling::params): patches per tile (0: one texture, not tiled), tiles
-    // east, log2 of the patches per tile, tiles north.
+    // Tiling (gpu.rs, Tiling::params): patches per tile, tiles east, k = log2 of the
+    // patches per tile (31 when not tiled), tiles north.
     tiles: vec4<u32>,
     // Per light: unit direction toward it (world), the same in grid space, colour × intensity.
     light_world: array<vec4<f32>, 4>,
@@ -67,24 +67,19 @@ struct Params {
 @group(0) @binding(8) var<storage, read_write> counters: array<atomic<u32>, 4>;
 @group(0) @binding(9) var pyramid_top: texture_2d<f32>;
 
-// The stored height of sample c (grid space).
+// The stored height of sample c (grid space). Tiles hold 2^k patches and share their
+// border samples: the sample at a border is read from the tile east (north) of it, except
+// past the last tile. Not tiled, k = 31 and every sample is in tile 0 (no branch: a
+// branch on the tiling costs software rasterisers both paths).
 fn height_at(c: vec2<i32>) -> f32 {
-    if P.tiles.x == 0u {
-        return textureLoad(heights, c, 0, 0).r;
-    }
-    // Tiles of S patches share their border samples: the sample at a border is read from
-    // the tile east (north) of it, except past the last tile.
-    let s = i32(P.tiles.x);
-    let tile = min(c / s, vec2<i32>(i32(P.tiles.y), i32(P.tiles.w)) - 1);
-    return textureLoad(heights, c - tile * s, tile.y * i32(P.tiles.y) + tile.x, 0).r;
+    let k = vec2<u32>(P.tiles.z);
+    let tile = min(c >> k, vec2<i32>(i32(P.tiles.y), i32(P.tiles.w)) - 1);
+    return textureLoad(heights, c - (tile << k), tile.y * i32(P.tiles.y) + tile.x, 0).r;
 }
 
 // The lid of quadtree node `node` at `level`: in its tile's pyramid below level k (tiles of
-// 2^k patches), in the texture over the tiles from level k up.
+// 2^k patches), in the texture over the tiles from level k up (never, not tiled: k = 31).
 fn lid(node: vec2<i32>, level: u32) -> f32 {
-    if P.tiles.x == 0u {
-        return textureLoad(pyramid, node, 0, i32(level)).r;
-    }
     let k = P.tiles.z;
     if level >= k {
         return textureLoad(pyramid_top, node, i32(level - k)).r;

@@ -465,6 +465,10 @@ enum BenchCommand {
         /// Image size in pixels, as in the paper.
         #[arg(long, default_value = "1920x1080", value_parser = parse_image_size)]
         image: (usize, usize),
+        /// Also a large DEM of this many samples (e.g. 20000x3000; tiled where a side
+        /// exceeds the GPU's largest texture): memory, pyramid build and time per frame.
+        #[arg(long, value_parser = parse_image_size)]
+        large: Option<(usize, usize)>,
         /// Print the rows as JSON.
         #[arg(long)]
         json: bool,
@@ -728,11 +732,12 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
                 only,
             })
         }
-        BenchCommand::Terrain { sizes, image: (width, height), json, plot, runs, common } => {
+        BenchCommand::Terrain { sizes, image: (width, height), large, json, plot, runs, common } => {
             plot_dir(&plot)?;
             b::terrain::run(&b::terrain::TerrainBench {
                 env: common.resolve(limits)?,
                 sizes: sizes.into_iter().map(|s| s as usize).collect(),
+                large,
                 width,
                 height,
                 runs: runs.runs as usize,

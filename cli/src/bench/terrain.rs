@@ -3,7 +3,9 @@
 //! walk-through camera (2 m above the ground): pyramid build time, median ms per frame,
 //! steps per ray, for the paper's traversal and the two baselines (no raise, linear
 //! march), and the depth error against the f64 reference; on the largest DEM, the cost and
-//! colour error of 1, 4, 9 and 16 rays per pixel (anti-aliasing).
+//! colour error of 1, 4, 9 and 16 rays per pixel (anti-aliasing); with `--large W×H`, a
+//! DEM of that size (tiled where a side exceeds the GPU's largest texture): peak memory,
+//! pyramid build and time per frame.
 
 use super::median;
 use anyhow::{bail, Result};
@@ -19,6 +21,8 @@ use volterra_formats::{Crs, Heightfield};
 
 pub struct TerrainBench {
     pub sizes: Vec<usize>,
+    /// A large DEM's samples (east, north), for the memory and tiling rows.
+    pub large: Option<(usize, usize)>,
     pub width: usize,
     pub height: usize,
     pub env: super::BenchEnv,
@@ -46,7 +50,8 @@ pub struct Row {
     pub hit_mismatches_off_silhouette: Option<usize>,
     /// Anti-aliasing rows: colour relative RMSE from 256 rays per pixel (small image).
     pub colour_rel_rmse_vs_256: Option<f64>,
-    /// Ours: GPU memory held (heights, pyramid). VTK: resident memory its mesh and
+    /// Ours: GPU memory held (heights, pyramid); the large DEM's rows: the process's peak
+    /// resident memory from reading the DEM on. VTK: resident memory its mesh and
     /// rendering added to the process (software OpenGL keeps GPU buffers there too).
     pub memory_mib: f64,
 }
@@ -215,6 +220,9 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         }
     }
     bar.finish_and_clear();
+    if let Some((w, h)) = b.large {
+        rows.extend(large_rows(b, gpu, w, h, &shading)?);
+    }
     match vtk_rows(b) {
         Ok(r) => rows.extend(r),
         Err(e) => eprintln!("VTK rows skipped: {e:#}"),
@@ -257,6 +265,72 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// A w × h DEM of 30 m cells and 4000 m of relief: the 4097² fractal tile mirrored as often
+/// as needed (continuous across the mirror lines).
+pub fn large_dem(w: usize, h: usize) -> Heightfield {
+    let base = volterra::samples::fractal_dem(12, 30.0, 11);
+    let period = 2 * (base.width - 1);
+    let fold = |c: usize| {
+        let m = c % period;
+        if m < base.width {
+            m
+        } else {
+            period - m
+        }
+    };
+    let mut elevations = Vec::with_capacity(w * h);
+    for row in 0..h {
+        let r = fold(row);
+        elevations.extend((0..w).map(|col| base.elevations[r * base.width + fold(col)] * 1.6));
+    }
+    Heightfield { width: w, height: h, elevations, nodata: vec![], ..bench_dem(2) }
+}
+
+/// The large DEM's rows: the process's peak memory from reading the DEM to the last frame
+/// (the DEM's own float32 bytes beside it), the pyramid build, and time per frame for the
+/// fly and walk cameras.
+fn large_rows(b: &TerrainBench, gpu: &gpu::Gpu, w: usize, h: usize, shading: &Shading) -> Result<Vec<Row>> {
+    // The resident peak is reset first (Linux: clear_refs 5), so it counts from here.
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    let hf = std::sync::Arc::new(large_dem(w, h));
+    let dem_mib = (4 * w * h) as f64 / (1 << 20) as f64;
+    let grid = TerrainGrid::shared(hf.clone(), DMat4::IDENTITY)?;
+    let terrain = GpuTerrain::new(gpu, &grid, None)?;
+    let mut rows = Vec::new();
+    for (camera_name, cam) in bench_cameras(&grid, &hf) {
+        let rays = cam.rays(b.width, b.height);
+        let cap = Settings::default().step_cap(&grid);
+        let view = View { grid: &grid, rays: &rays, shading, traversal: Traversal::Quadtree, max_steps: cap };
+        let mut times = terrain.time_frames(gpu, &view, b.runs)?;
+        let peak = std::fs::read_to_string("/proc/self/status")
+            .ok()
+            .and_then(|s| s.lines().find(|l| l.starts_with("VmHWM:"))?.split_whitespace().nth(1)?.parse::<f64>().ok())
+            .map_or(f64::NAN, |kb| kb / 1024.0);
+        eprintln!(
+            "large DEM {w}×{h} ({dem_mib:.0} MiB as float32), {}: peak resident {peak:.0} MiB ({:.2}× the DEM)",
+            if terrain.tiled() { "tiled" } else { "one texture" },
+            peak / dem_mib
+        );
+        rows.push(Row {
+            config: format!("quadtree, {}", if terrain.tiled() { "tiled" } else { "one texture" }),
+            camera: camera_name.into(),
+            size: w.max(h),
+            build_ms: 1e3 * terrain.build_seconds,
+            median_ms: 1e3 * median(&mut times),
+            mean_steps: None,
+            p95_steps: None,
+            max_steps: None,
+            capped_rays: None,
+            median_rel_depth_error: None,
+            p999_rel_depth_error: None,
+            hit_mismatches_off_silhouette: None,
+            colour_rel_rmse_vs_256: None,
+            memory_mib: peak,
+        });
+    }
+    Ok(rows)
 }
 
 /// VTK/pyvista's way: the same DEMs as triangle meshes, same cameras and image size.

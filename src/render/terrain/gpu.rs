@@ -300,10 +300,10 @@ impl Tiling {
     }
 
     /// The shader's `tiles` parameter: patches per tile, tiles east, log2 of the patches per
-    /// tile, tiles north (all 0 when not tiled).
+    /// tile, tiles north. Not tiled: one tile of 2^31 (every sample and node in tile 0).
     fn params(&self) -> [u32; 4] {
         if !self.tiled() {
-            return [0; 4];
+            return [0, 1, 31, 1];
         }
         [self.tile_patches as u32, self.tiles[0] as u32, self.tile_levels - 1, self.tiles[1] as u32]
     }
@@ -548,6 +548,11 @@ impl GpuTerrain {
             build_seconds,
             gpu_bytes,
         })
+    }
+
+    /// Whether the heightfield is cut into tiles (larger than one GPU texture).
+    pub fn tiled(&self) -> bool {
+        self.tiling.tiled()
     }
 
     /// Pyramid levels, the lid map (level 0) included.
