@@ -451,14 +451,7 @@ fn shadows_leave_no_acne_on_a_large_dem() {
     let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
     let (ex, ey) = (grid.cell[0] * grid.cells()[0] as f64, grid.cell[1] * grid.cells()[1] as f64);
     let top = grid.z_ref + grid.z_hi;
-    let lights = [volterra::scene::Light {
-        kind: volterra::scene::LightKind::Directional,
-        direction: Some([-0.8, -0.5, -0.35]),
-        position: None,
-        color: [1.0; 3],
-        intensity: 1.0,
-        cone_angle: None,
-    }];
+    let lights = [common::sun([-0.8, -0.5, -0.35])];
     let fly = perspective([-0.02 * ex, 0.5 * ey, top + 2000.0], [0.9 * ex, 0.5 * ey, grid.z_ref], [0.0, 0.0, 1.0], 30.0);
     let (x, y) = (0.93 * ex, 0.45 * ey);
     let ground = hf.surface_height(x, y).unwrap();
@@ -545,14 +538,7 @@ fn elevation_colour_maps_colour_by_elevation_with_a_legend() {
     let hf = field(n, n, cell, |col, _| (200.0 + 0.1 * cell * col as f64) as f32);
     let ext = (n - 1) as f64 * cell;
     let cam = parallel([0.5 * ext, 0.5 * ext, 1000.0], [0.5 * ext, 0.5 * ext, 0.0], [0.0, 1.0, 0.0], 0.5 * ext);
-    let lights = [volterra::scene::Light {
-        kind: volterra::scene::LightKind::Directional,
-        direction: Some([0.0, 0.0, -1.0]),
-        position: None,
-        color: [1.0; 3],
-        intensity: 1.0,
-        cone_angle: None,
-    }];
+    let lights = [common::sun([0.0, 0.0, -1.0])];
     let input = TerrainInput { heightfield: &hf, texture: None, node_to_world: DMat4::IDENTITY, lights: &lights };
     let rays = cam.rays(64, 64);
     let cosine = 1.0 / (1.0f64 + 0.1 * 0.1).sqrt();
@@ -649,14 +635,7 @@ fn tiled_terrains_render_exactly_as_one_texture() {
     let (x, y) = (0.3 * ex, 0.3 * ey);
     let ground = hf.surface_height(x, y).unwrap();
     let walk = perspective([x, y, ground + 2.0], [x + 0.5 * ex, y + 0.4 * ey, ground + 40.0], [0.0, 0.0, 1.0], 60.0);
-    let lights = [volterra::scene::Light {
-        kind: volterra::scene::LightKind::Directional,
-        direction: Some([-0.8, -0.5, -0.45]),
-        position: None,
-        color: [1.0; 3],
-        intensity: 1.0,
-        cone_angle: None,
-    }];
+    let lights = [common::sun([-0.8, -0.5, -0.45])];
     let shading = Shading {
         lights: sun_lights(&lights).unwrap(),
         ambient: 0.25,

@@ -70,14 +70,7 @@ fn top_down(hf: &Heightfield, drape: Option<&Drape>) -> Option<(Frame, Frame, vo
         parallel_projection: true,
         parallel_scale: 0.5 * ext,
     };
-    let lights = [volterra::scene::Light {
-        kind: volterra::scene::LightKind::Directional,
-        direction: Some([0.0, 0.0, -1.0]),
-        position: None,
-        color: [1.0; 3],
-        intensity: 1.0,
-        cone_angle: None,
-    }];
+    let lights = [common::sun([0.0, 0.0, -1.0])];
     let rays = cam.rays(N - 1, N - 1);
     let input = TerrainInput { heightfield: hf, texture: drape, node_to_world: DMat4::IDENTITY, lights: &lights };
     let s = Settings { ambient: 0.0, rays_per_pixel: 1, ..Default::default() };

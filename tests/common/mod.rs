@@ -95,3 +95,15 @@ pub fn volterra_bin() -> PathBuf {
     );
     bin
 }
+
+/// A white directional light of intensity 1 travelling along `direction`.
+pub fn sun(direction: [f64; 3]) -> volterra::scene::Light {
+    volterra::scene::Light {
+        kind: volterra::scene::LightKind::Directional,
+        direction: Some(direction),
+        position: None,
+        color: [1.0; 3],
+        intensity: 1.0,
+        cone_angle: None,
+    }
+}

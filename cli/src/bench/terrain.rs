@@ -56,6 +56,29 @@ pub struct Row {
     pub memory_mib: f64,
 }
 
+impl Row {
+    /// A row of timings alone (no steps or errors), for the anti-aliasing, large-DEM and
+    /// VTK rows.
+    fn timed(config: String, camera: &str, size: usize, build_ms: f64, median_ms: f64, memory_mib: f64) -> Row {
+        Row {
+            config,
+            camera: camera.into(),
+            size,
+            build_ms,
+            median_ms,
+            mean_steps: None,
+            p95_steps: None,
+            max_steps: None,
+            capped_rays: None,
+            median_rel_depth_error: None,
+            p999_rel_depth_error: None,
+            hit_mismatches_off_silhouette: None,
+            colour_rel_rmse_vs_256: None,
+            memory_mib,
+        }
+    }
+}
+
 /// A size² DEM, 30 m cells, 0..4000 m: the built-in fractal terrain, cropped.
 pub fn bench_dem(size: usize) -> Heightfield {
     let levels = size.next_power_of_two().trailing_zeros().max(1);
@@ -198,21 +221,11 @@ pub fn run(b: &TerrainBench) -> Result<()> {
                     let view = View { grid: &grid, rays: &rays, shading: &sh, traversal: Traversal::Quadtree, max_steps: cap };
                     let mut times = terrain.time_frames(gpu, &view, b.runs)?;
                     let check = terrain.render(gpu, &View { rays: &small, ..view })?;
+                    let memory = terrain.gpu_bytes as f64 / (1 << 20) as f64;
+                    let config = format!("quadtree, {} rays/px", k * k);
                     rows.push(Row {
-                        config: format!("quadtree, {} rays/px", k * k),
-                        camera: camera_name.into(),
-                        size,
-                        build_ms,
-                        median_ms: 1e3 * median(&mut times),
-                        mean_steps: None,
-                        p95_steps: None,
-                        max_steps: None,
-                        capped_rays: None,
-                        median_rel_depth_error: None,
-                        p999_rel_depth_error: None,
-                        hit_mismatches_off_silhouette: None,
                         colour_rel_rmse_vs_256: Some(volterra::compare::rgba_rel_rmse(&check.rgba, &truth.rgba)),
-                        memory_mib: terrain.gpu_bytes as f64 / (1 << 20) as f64,
+                        ..Row::timed(config, camera_name, size, build_ms, 1e3 * median(&mut times), memory)
                     });
                 }
             }
@@ -313,22 +326,8 @@ fn large_rows(b: &TerrainBench, gpu: &gpu::Gpu, w: usize, h: usize, shading: &Sh
             if terrain.tiled() { "tiled" } else { "one texture" },
             peak / dem_mib
         );
-        rows.push(Row {
-            config: format!("quadtree, {}", if terrain.tiled() { "tiled" } else { "one texture" }),
-            camera: camera_name.into(),
-            size: w.max(h),
-            build_ms: 1e3 * terrain.build_seconds,
-            median_ms: 1e3 * median(&mut times),
-            mean_steps: None,
-            p95_steps: None,
-            max_steps: None,
-            capped_rays: None,
-            median_rel_depth_error: None,
-            p999_rel_depth_error: None,
-            hit_mismatches_off_silhouette: None,
-            colour_rel_rmse_vs_256: None,
-            memory_mib: peak,
-        });
+        let config = format!("quadtree, {}", if terrain.tiled() { "tiled" } else { "one texture" });
+        rows.push(Row::timed(config, camera_name, w.max(h), 1e3 * terrain.build_seconds, 1e3 * median(&mut times), peak));
     }
     Ok(rows)
 }
@@ -351,21 +350,15 @@ fn vtk_rows(b: &TerrainBench) -> Result<Vec<Row>> {
     let rows = v["rows"].as_array().context("no VTK rows")?;
     Ok(rows
         .iter()
-        .map(|r| Row {
-            config: format!("vtk mesh {version}"),
-            camera: r["camera"].as_str().unwrap_or("").into(),
-            size: r["size"].as_u64().unwrap_or(0) as usize,
-            build_ms: r["build_ms"].as_f64().unwrap_or(f64::NAN),
-            median_ms: r["median_ms"].as_f64().unwrap_or(f64::NAN),
-            mean_steps: None,
-            p95_steps: None,
-            max_steps: None,
-            capped_rays: None,
-            median_rel_depth_error: None,
-            p999_rel_depth_error: None,
-            hit_mismatches_off_silhouette: None,
-            colour_rel_rmse_vs_256: None,
-            memory_mib: r["added_rss_mib"].as_f64().unwrap_or(f64::NAN),
+        .map(|r| {
+            Row::timed(
+                format!("vtk mesh {version}"),
+                r["camera"].as_str().unwrap_or(""),
+                r["size"].as_u64().unwrap_or(0) as usize,
+                r["build_ms"].as_f64().unwrap_or(f64::NAN),
+                r["median_ms"].as_f64().unwrap_or(f64::NAN),
+                r["added_rss_mib"].as_f64().unwrap_or(f64::NAN),
+            )
         })
         .collect())
 }
