@@ -26,22 +26,11 @@ fn utm(epsg: u32) -> Crs {
 
 /// A flat DEM (100 m) of N × N samples, 30 m apart, in UTM 10N.
 fn dem() -> Heightfield {
-    Heightfield {
-        width: N,
-        height: N,
-        cell_size: [CELL; 2],
-        cell_size_native: [CELL; 2],
-        origin: [500_015.0, 4_200_015.0],
-        crs: utm(32610),
-        elevations: vec![100.0; N * N],
-        nodata: vec![],
-        nodata_value: None,
-        notes: vec![],
-        attributes: vec![],
-    }
+    Heightfield { elevations: vec![100.0; N * N], ..drape_grid(N, N, CELL, [500_015.0, 4_200_015.0], utm(32610)) }
 }
 
-/// A grid for a drape: w × h pixels of `pixel` m, its north-west pixel centred at `origin`.
+/// A grid of w × h pixels of `pixel` m (elevations 0), its north-west pixel centred at
+/// `origin`: a drape's, or the DEM's.
 fn drape_grid(w: usize, h: usize, pixel: f64, origin: [f64; 2], crs: Crs) -> Heightfield {
     Heightfield {
         width: w,

@@ -61,18 +61,13 @@ impl Drape {
             return Ok(Drape::stretched(&read_rgb_png(path, limits)?));
         }
         let img = read_geotiff_image(path, limits)?;
+        if band.is_some() && !matches!(img.pixels, GeoPixels::Values(_)) {
+            bail!("{}: texture_colormap and texture_range colour a single-band GeoTIFF; this one is RGB(A)", path.display());
+        }
         let georef = DrapeGeoref { crs: img.crs.clone(), origin: img.origin, cell_size_native: img.cell_size_native };
         let (rgba, scale) = match img.pixels {
-            GeoPixels::Rgb8(v) => {
-                if band.is_some() {
-                    bail!("{}: texture_colormap and texture_range colour a single-band GeoTIFF; this one is RGB", path.display());
-                }
-                (v.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(), None)
-            }
+            GeoPixels::Rgb8(v) => (v.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(), None),
             GeoPixels::Rgba8(v) => {
-                if band.is_some() {
-                    bail!("{}: texture_colormap and texture_range colour a single-band GeoTIFF; this one is RGBA", path.display());
-                }
                 // Premultiplied (in sRGB bytes: exact for the usual alpha of 0 or 255).
                 let pre = |c: u8, a: u8| ((c as u32 * a as u32 + 127) / 255) as u8;
                 (v.chunks_exact(4).flat_map(|p| [pre(p[0], p[3]), pre(p[1], p[3]), pre(p[2], p[3]), p[3]]).collect(), None)
