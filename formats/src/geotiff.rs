@@ -181,39 +181,80 @@ fn georeferencing<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder
     Ok(Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, notes })
 }
 
-/// The decoder at the file's full-resolution image (a GeoTIFF may carry overviews: the
-/// first directory that is not a reduced image), its size and samples per pixel, with the
-/// decoder's limits sized by ours for `what` so that it decodes no more than the raster.
-fn open_full_resolution(path: &Path, limits: &Limits, what: &str) -> Result<(Decoder<BufReader<std::fs::File>>, u32, u32, u16)> {
+/// One image of a GeoTIFF: its directory index and size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Image {
+    index: usize,
+    width: u32,
+    height: u32,
+}
+
+/// The decoder at the file's full-resolution image (the first directory that is neither a
+/// reduced image nor a mask) and the file's images: that one first, then its overviews
+/// (reduced-resolution images, as `gdaladdo` and Cloud-Optimised GeoTIFFs store them),
+/// largest first. Transparency masks (NewSubfileType bit 2) are not images.
+fn open_images(path: &Path) -> Result<(Decoder<BufReader<std::fs::File>>, Vec<Image>)> {
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
     let mut d = Decoder::new(BufReader::new(file)).map_err(|e| tiff_err(path, e))?;
+    let (mut full, mut overviews) = (None, Vec::new());
     let mut index = 0;
     loop {
         let subfile = d.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(|e| tiff_err(path, e))?.unwrap_or(0);
-        if subfile & 1 == 0 {
-            break;
+        if subfile & 4 == 0 {
+            let (width, height) = d.dimensions().map_err(|e| tiff_err(path, e))?;
+            let image = Image { index, width, height };
+            match (subfile & 1, full) {
+                (0, None) => full = Some(image),
+                (1, _) => overviews.push(image),
+                _ => {} // a further full-resolution image (a multi-page TIFF): not this raster's
+            }
         }
-        if !d.more_images() {
-            return Err(FormatError::invalid(path, "TIFF holds only reduced-resolution images"));
+        // A file lists a few dozen images at most; a loop in the directory chain would not end.
+        if !d.more_images() || index >= 64 {
+            break;
         }
         index += 1;
         d.seek_to_image(index).map_err(|e| tiff_err(path, e))?;
     }
-    let (w, h) = d.dimensions().map_err(|e| tiff_err(path, e))?;
+    let full = full.ok_or_else(|| FormatError::invalid(path, "TIFF holds only reduced-resolution images"))?;
+    // An overview is smaller than the full image in both directions.
+    overviews.retain(|o| o.width < full.width && o.height < full.height && o.width > 0 && o.height > 0);
+    overviews.sort_by_key(|o| std::cmp::Reverse(o.width as u64 * o.height as u64));
+    d.seek_to_image(full.index).map_err(|e| tiff_err(path, e))?;
+    Ok((d, std::iter::once(full).chain(overviews).collect()))
+}
+
+/// Samples per pixel and the bytes of one decoded sample of the decoder's current image.
+fn sample_layout<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -> Result<(u16, u64)> {
     let spp = d.find_tag_unsigned::<u16>(Tag::SamplesPerPixel).map_err(|e| tiff_err(path, e))?.unwrap_or(1);
     // One value per sample (RGB files list three).
     let bps = match d.find_tag(Tag::BitsPerSample).map_err(|e| tiff_err(path, e))? {
         Some(v) => v.into_u16_vec().map_err(|e| tiff_err(path, e))?.into_iter().max().unwrap_or(1) as u64,
         None => 1,
     };
-    let bytes = limits.check(path, what, &[w as u64, h as u64, spp.max(1) as u64, bps.div_ceil(8).max(1)])?;
+    Ok((spp, bps.div_ceil(8).max(1)))
+}
+
+/// Readies the decoder, at `image`, to decode no more than that raster (`bytes`) and
+/// checks its data offsets against the file.
+fn ready(path: &Path, d: Decoder<BufReader<std::fs::File>>, bytes: usize) -> Result<Decoder<BufReader<std::fs::File>>> {
     let mut tiff_limits = tiff::decoder::Limits::default();
     tiff_limits.decoding_buffer_size = bytes.max(1 << 20);
     tiff_limits.intermediate_buffer_size = bytes.max(1 << 20);
     tiff_limits.ifd_value_size = 64 << 20;
-    d = d.with_limits(tiff_limits);
+    let mut d = d.with_limits(tiff_limits);
     check_data_offsets(path, &mut d)?;
-    Ok((d, w, h, spp))
+    Ok(d)
+}
+
+/// The decoder at the file's full-resolution image, its size and samples per pixel, with
+/// the decoder's limits sized by ours for `what` so that it decodes no more than the raster.
+fn open_full_resolution(path: &Path, limits: &Limits, what: &str) -> Result<(Decoder<BufReader<std::fs::File>>, u32, u32, u16)> {
+    let (mut d, images) = open_images(path)?;
+    let (w, h) = (images[0].width, images[0].height);
+    let (spp, sample_bytes) = sample_layout(path, &mut d)?;
+    let bytes = limits.check(path, what, &[w as u64, h as u64, spp.max(1) as u64, sample_bytes])?;
+    Ok((ready(path, d, bytes)?, w, h, spp))
 }
 
 /// The GDAL_NODATA value, where the file declares one.
@@ -333,14 +374,45 @@ impl Metres {
     }
 }
 
+/// Reads a GeoTIFF elevation raster in metres. Where the full-resolution raster needs more
+/// memory than `limits` allow and the file has overviews (`gdaladdo`, a Cloud-Optimised
+/// GeoTIFF), the largest overview that fits is read instead, with a note: its cells are
+/// the full raster's scaled by the size ratio, its corner the same (GDAL's rule), so it
+/// lies exactly where the full raster does.
 pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
-    let (mut d, w, h, spp) = open_full_resolution(path, limits, "elevation raster")?;
+    let (mut d, images) = open_images(path)?;
+    let (spp, sample_bytes) = sample_layout(path, &mut d)?;
     if spp != 1 {
         return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: an elevation raster has one band")));
     }
-
+    let full = images[0];
     let Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, mut notes } = georeferencing(path, &mut d)?;
     let nodata_value = gdal_nodata(path, &mut d)?;
+    let need = |i: &Image| [i.width as u64, i.height as u64, sample_bytes];
+    let (image, bytes) = match limits.check(path, "elevation raster", &need(&full)) {
+        Ok(bytes) => (full, bytes),
+        Err(too_large) => {
+            let fits = images[1..].iter().find_map(|o| limits.check(path, "elevation overview", &need(o)).ok().map(|b| (*o, b)));
+            let Some((o, bytes)) = fits else { return Err(too_large) };
+            notes.push(format!(
+                "read the {}×{} overview of the {}×{} raster: the full raster needs more than the memory limit",
+                o.width, o.height, full.width, full.height
+            ));
+            (o, bytes)
+        }
+    };
+    if image != full {
+        d.seek_to_image(image.index).map_err(|e| tiff_err(path, e))?;
+        let (spp_o, bytes_o) = sample_layout(path, &mut d)?;
+        if (spp_o, bytes_o) != (spp, sample_bytes) {
+            return Err(FormatError::invalid(path, "an overview's samples differ from the full raster's"));
+        }
+    }
+    let mut d = ready(path, d, bytes)?;
+    let (w, h) = (image.width, image.height);
+    // An overview's cells: the full raster's scaled by the size ratio; the same corner.
+    let (osx, osy) = (sx * full.width as f64 / w as f64, sy * full.height as f64 / h as f64);
+    let (ox, oy, sx, sy) = (ox - 0.5 * sx + 0.5 * osx, oy + 0.5 * sy - 0.5 * osy, osx, osy);
     // What gdalinfo users look for: the storage, before the image is read.
     let compression = match d.get_tag_u32(tiff::tags::Tag::Compression).unwrap_or(1) {
         1 => "none".to_string(),
@@ -382,6 +454,11 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
         ("layout".to_string(), layout),
         ("raster type".to_string(), if point { "PixelIsPoint".into() } else { "PixelIsArea".into() }),
     ];
+    let mut attributes = attributes;
+    if images.len() > 1 {
+        let sizes: Vec<String> = images[1..].iter().map(|o| format!("{}×{}", o.width, o.height)).collect();
+        attributes.push(("overviews".to_string(), sizes.join(", ")));
+    }
     let n = w as usize * h as usize;
     let vertical = match short_key(&keys, KEY_VERTICAL_UNITS) {
         Some(9002) => {

@@ -1,0 +1,152 @@
+//! GeoTIFF overviews (issue 20, "DEMs larger than memory allows"): a DEM whose full raster
+//! needs more memory than the limit is read from its largest overview that fits. GDAL
+//! makes the files (a tiled GeoTIFF with `gdaladdo` overviews, and a Cloud-Optimised
+//! GeoTIFF) and is the reference for what an overview holds and where it lies:
+//! `gdal_translate -oo OVERVIEW_LEVEL=k` writes overview k as a plain GeoTIFF with the
+//! georeferencing GDAL gives it, which must read equal — size, origin, cell size, every
+//! elevation and NoData cell — to what `read_geotiff` makes of the overview in place.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use volterra_formats::geotiff::read_geotiff;
+use volterra_formats::memory::{in_use, Limits};
+use volterra_formats::Heightfield;
+
+/// gdal_translate, or a skip (a failure under CI).
+fn gdal() -> Option<PathBuf> {
+    let p = PathBuf::from("/usr/bin/gdal_translate");
+    if p.exists() {
+        return Some(p);
+    }
+    if common::under_ci() {
+        panic!("gdal_translate missing under CI (tests/setup-system.sh installs gdal-bin)");
+    }
+    eprintln!("SKIPPED: gdal_translate not installed (apt install gdal-bin)");
+    None
+}
+
+fn run(cmd: &mut Command) {
+    let out = cmd.output().unwrap();
+    assert!(out.status.success(), "{cmd:?}: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// 1001 × 703 cells of 30 m in UTM 10N (odd sizes: overviews round up), hills, two NoData
+/// holes.
+fn dem(path: &Path) -> Heightfield {
+    let (w, h) = (1001, 703);
+    let mut elevations = Vec::with_capacity(w * h);
+    let mut nodata = Vec::with_capacity(w * h);
+    for r in 0..h {
+        for c in 0..w {
+            let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
+            let hole = ((c as f64 - 300.0).powi(2) + (r as f64 - 200.0).powi(2)) < 400.0 || (c > 600 && c < 640 && r > 400 && r < 470);
+            elevations.push(if hole { f32::NAN } else { (300.0 + 80.0 * (x / 4000.0).sin() * (y / 3000.0).cos() + 0.005 * x) as f32 });
+            nodata.push(hole);
+        }
+    }
+    let hf = Heightfield {
+        width: w,
+        height: h,
+        cell_size: [30.0, 30.0],
+        cell_size_native: [30.0, 30.0],
+        origin: [500_015.0, 4_200_015.0],
+        crs: volterra_formats::Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
+        elevations,
+        nodata,
+        nodata_value: Some(-32768.0),
+        notes: vec![],
+        attributes: vec![],
+    };
+    volterra_formats::geotiff::write_geotiff(path, &hf).unwrap();
+    hf
+}
+
+/// The same grid, cell for cell: size, where it lies, every elevation (bit for bit) and
+/// NoData cell.
+fn assert_same_grid(ours: &Heightfield, gdal: &Heightfield, what: &str) {
+    assert_eq!((ours.width, ours.height), (gdal.width, gdal.height), "{what}: size");
+    for k in 0..2 {
+        let tol = 1e-9 * gdal.origin[k].abs();
+        assert!((ours.origin[k] - gdal.origin[k]).abs() <= tol, "{what}: origin {:?} vs GDAL's {:?}", ours.origin, gdal.origin);
+        let tol = 1e-12 * gdal.cell_size_native[k];
+        assert!(
+            (ours.cell_size_native[k] - gdal.cell_size_native[k]).abs() <= tol,
+            "{what}: cells {:?} vs GDAL's {:?}",
+            ours.cell_size_native,
+            gdal.cell_size_native
+        );
+    }
+    assert_eq!(ours.crs.epsg, gdal.crs.epsg, "{what}: CRS");
+    let nodata = |hf: &Heightfield, i: usize| !hf.nodata.is_empty() && hf.nodata[i];
+    let mut differ = 0;
+    for i in 0..gdal.elevations.len() {
+        let same = match (nodata(ours, i), nodata(gdal, i)) {
+            (true, true) => true,
+            (false, false) => ours.elevations[i].to_bits() == gdal.elevations[i].to_bits(),
+            _ => false,
+        };
+        differ += usize::from(!same);
+    }
+    assert_eq!(differ, 0, "{what}: {differ} of {} cells differ from GDAL's", gdal.elevations.len());
+    assert!(gdal.nodata_count() > 0, "{what}: the holes survive in the overview");
+}
+
+#[test]
+fn a_dem_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits_where_gdal_puts_it() {
+    let Some(gdal_translate) = gdal() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let plain = dir.path().join("hills.tif");
+    let original = dem(&plain);
+    // A tiled GeoTIFF with internal overviews at 2 and 4 (averaged, NoData-aware), and a
+    // COG (its overviews made by the COG driver, down to one 256-pixel block).
+    let tiled = dir.path().join("tiled.tif");
+    run(Command::new(&gdal_translate).args(["-q", "-co", "TILED=YES", "-co", "COMPRESS=DEFLATE"]).arg(&plain).arg(&tiled));
+    run(Command::new("gdaladdo").args(["-q", "-r", "average"]).arg(&tiled).args(["2", "4"]));
+    let cog = dir.path().join("cog.tif");
+    run(Command::new(&gdal_translate)
+        .args(["-q", "-of", "COG", "-co", "BLOCKSIZE=256", "-co", "RESAMPLING=AVERAGE", "-co", "COMPRESS=LZW"])
+        .arg(&plain)
+        .arg(&cog));
+
+    // gdaladdo rounds an overview's size up, the COG driver down.
+    for (file, overviews, first) in [(&tiled, "501×352, 251×176", "501×352"), (&cog, "500×351, 250×175", "500×351")] {
+        let name = file.file_name().unwrap().to_string_lossy().into_owned();
+        // Without a limit: the full raster, as written, and its overviews listed for `info`.
+        let full = read_geotiff(file, &Limits::default()).unwrap();
+        assert_same_grid(&full, &original, &format!("{name}, full"));
+        let listed = full.attributes.iter().find(|(k, _)| k == "overviews").map(|(_, v)| v.as_str());
+        assert_eq!(listed, Some(overviews), "{name}: overviews listed");
+        assert!(!full.notes.iter().any(|n| n.contains("overview")), "{name}: {:?}", full.notes);
+
+        // Room for the first overview (501 × 352 × 4 bytes = 0.7 MB) but not the full
+        // raster (2.8 MB): overview 0, where and as GDAL reads it.
+        let limit = Limits::max(in_use() + 1_600_000);
+        let ov = read_geotiff(file, &limit).unwrap();
+        let gdal_ov = dir.path().join(format!("{name}.ov0.tif"));
+        run(Command::new(&gdal_translate).args(["-q", "-oo", "OVERVIEW_LEVEL=0"]).arg(file).arg(&gdal_ov));
+        let reference = read_geotiff(&gdal_ov, &Limits::default()).unwrap();
+        assert_same_grid(&ov, &reference, &format!("{name}, overview 0"));
+        assert!(
+            ov.notes.iter().any(|n| n.contains(&format!("{first} overview of the 1001×703 raster"))),
+            "{name}: the overview read is stated: {:?}",
+            ov.notes
+        );
+        // The overview covers the full raster's extent: the same outer corner.
+        let corner = |hf: &Heightfield| [hf.origin[0] - 0.5 * hf.cell_size_native[0], hf.origin[1] + 0.5 * hf.cell_size_native[1]];
+        assert_eq!(corner(&ov), corner(&original), "{name}: north-west corner");
+
+        // Room for the second overview only (0.18 MB).
+        let limit = Limits::max(in_use() + 400_000);
+        let ov1 = read_geotiff(file, &limit).unwrap();
+        let gdal_ov1 = dir.path().join(format!("{name}.ov1.tif"));
+        run(Command::new(&gdal_translate).args(["-q", "-oo", "OVERVIEW_LEVEL=1"]).arg(file).arg(&gdal_ov1));
+        assert_same_grid(&ov1, &read_geotiff(&gdal_ov1, &Limits::default()).unwrap(), &format!("{name}, overview 1"));
+
+        // Room for none: the full raster's refusal, naming the file.
+        let err = read_geotiff(file, &Limits::max(in_use() + 50_000)).expect_err("refused");
+        let msg = err.to_string();
+        assert!(msg.contains(&name) && msg.contains("elevation raster needs") && msg.contains("memory limit"), "{msg}");
+    }
+}
