@@ -150,3 +150,61 @@ fn a_dem_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits_whe
         assert!(msg.contains(&name) && msg.contains("elevation raster needs") && msg.contains("memory limit"), "{msg}");
     }
 }
+
+#[test]
+fn an_extent_reads_the_samples_inside_it_as_gdal_translate_srcwin_does_decoding_only_their_tiles() {
+    let Some(gdal_translate) = gdal() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let plain = dir.path().join("hills.tif");
+    dem(&plain);
+    let tiled = dir.path().join("tiled.tif");
+    run(Command::new(&gdal_translate)
+        .args(["-q", "-co", "TILED=YES", "-co", "BLOCKXSIZE=128", "-co", "BLOCKYSIZE=64", "-co", "COMPRESS=DEFLATE"])
+        .arg(&plain)
+        .arg(&tiled));
+    let strips = dir.path().join("strips.tif");
+    run(Command::new(&gdal_translate).args(["-q", "-co", "BLOCKYSIZE=7"]).arg(&plain).arg(&strips));
+    // Sample centres lie at 500015 + 30·c east and 4200015 − 30·r north: this extent holds
+    // columns 250..=612 and rows 100..=377 (10 m beyond their centres), the first NoData
+    // hole among them, across tile and strip borders.
+    let extent = [
+        500_015.0 + 250.0 * 30.0 - 10.0,
+        4_200_015.0 - 377.0 * 30.0 - 10.0,
+        500_015.0 + 612.0 * 30.0 + 10.0,
+        4_200_015.0 - 100.0 * 30.0 + 10.0,
+    ];
+    let opts = volterra_formats::geotiff::GeoTiffOptions { extent: Some(extent) };
+    for file in [&plain, &tiled, &strips] {
+        let name = file.file_name().unwrap().to_string_lossy().into_owned();
+        let ours = volterra_formats::geotiff::read_geotiff_with(file, &opts, &Limits::default()).unwrap();
+        let reference = dir.path().join(format!("{name}.srcwin.tif"));
+        run(Command::new(&gdal_translate).args(["-q", "-srcwin", "250", "100", "363", "278"]).arg(file).arg(&reference));
+        assert_same_grid(&ours, &read_geotiff(&reference, &Limits::default()).unwrap(), &format!("{name}, window"));
+        let window = ours.attributes.iter().find(|(k, _)| k == "window").map(|(_, v)| v.as_str());
+        assert_eq!(window, Some("columns 250..=612, rows 100..=377"), "{name}");
+    }
+    // Only the window counts against the limit: 363 × 278 × 4 bytes = 0.4 MB of a 2.8 MB
+    // raster.
+    let small = Limits::max(in_use() + 600_000);
+    let ours = volterra_formats::geotiff::read_geotiff_with(&tiled, &opts, &small).unwrap();
+    assert_eq!((ours.width, ours.height), (363, 278));
+    assert!(!ours.notes.iter().any(|n| n.contains("overview")), "{:?}", ours.notes);
+    // An extent beside the raster: refused, naming the file and the raster's bounds.
+    let beside = volterra_formats::geotiff::GeoTiffOptions { extent: Some([0.0, 0.0, 10.0, 10.0]) };
+    let msg = volterra_formats::geotiff::read_geotiff_with(&tiled, &beside, &Limits::default()).expect_err("beside").to_string();
+    assert!(msg.contains("tiled.tif") && msg.contains("holds no sample") && msg.contains("500000"), "{msg}");
+
+    // The scene key: a heightfield node's `extent`, through the loader.
+    let scene = dir.path().join("scene.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "[camera]\nposition = [0.0, -10.0, 10.0]\nfocal_point = [0.0, 0.0, 0.0]\n\n[[node]]\nname = \"dem\"\nkind = \"heightfield\"\nfile = \"tiled.tif\"\nextent = [{}, {}, {}, {}]\n",
+            extent[0], extent[1], extent[2], extent[3]
+        ),
+    )
+    .unwrap();
+    let scene = volterra::scene::Scene::load(&scene, &[]).unwrap();
+    let hf = scene.heightfield(0).unwrap();
+    assert_eq!((hf.width, hf.height, hf.origin), (363, 278, [500_015.0 + 250.0 * 30.0, 4_200_015.0 - 100.0 * 30.0]));
+}

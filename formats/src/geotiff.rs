@@ -374,12 +374,125 @@ impl Metres {
     }
 }
 
+/// What to read of a GeoTIFF elevation raster.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct GeoTiffOptions {
+    /// Only the samples whose centres lie in [west, south, east, north] (CRS units): the
+    /// tiles or strips holding them are decoded, no others.
+    pub extent: Option<[f64; 4]>,
+}
+
+/// Columns and rows [c0, c1] × [r0, r1] (inclusive) of a w × h raster, origin (ox, oy) at
+/// the centre of its north-west sample and cells (sx, sy), whose sample centres lie in
+/// `extent` (1e-9 cell of slack for rounding); None where none do.
+fn window_of(extent: [f64; 4], (ox, oy): (f64, f64), (sx, sy): (f64, f64), (w, h): (u32, u32)) -> Option<[u32; 4]> {
+    let [west, south, east, north] = extent;
+    const SLACK: f64 = 1e-9;
+    let c0 = ((west - ox) / sx - SLACK).ceil().max(0.0);
+    let c1 = ((east - ox) / sx + SLACK).floor().min(w as f64 - 1.0);
+    let r0 = ((oy - north) / sy - SLACK).ceil().max(0.0);
+    let r1 = ((oy - south) / sy + SLACK).floor().min(h as f64 - 1.0);
+    (c0 <= c1 && r0 <= r1).then_some([c0 as u32, r0 as u32, c1 as u32, r1 as u32])
+}
+
+/// The sample type of decoded data, as GDAL names it.
+fn type_name(raw: &DecodingResult) -> &'static str {
+    match raw {
+        DecodingResult::U8(_) => "uint8",
+        DecodingResult::I8(_) => "int8",
+        DecodingResult::U16(_) => "uint16",
+        DecodingResult::I16(_) => "int16",
+        DecodingResult::U32(_) => "uint32",
+        DecodingResult::I32(_) => "int32",
+        DecodingResult::F32(_) => "float32",
+        DecodingResult::F64(_) => "float64",
+        _ => "other",
+    }
+}
+
+/// Sample k of a decoded chunk as f64.
+#[inline]
+fn sample_f64(raw: &DecodingResult, k: usize) -> f64 {
+    match raw {
+        DecodingResult::U8(v) => v[k] as f64,
+        DecodingResult::I8(v) => v[k] as f64,
+        DecodingResult::U16(v) => v[k] as f64,
+        DecodingResult::I16(v) => v[k] as f64,
+        DecodingResult::U32(v) => v[k] as f64,
+        DecodingResult::I32(v) => v[k] as f64,
+        DecodingResult::F32(v) => v[k] as f64,
+        DecodingResult::F64(v) => v[k],
+        _ => f64::NAN,
+    }
+}
+
+/// The samples of `window` ([c0, r0, c1, r1], inclusive) of the decoder's current w × h
+/// image in metres, decoding only the chunks (tiles or strips) that hold them.
+fn read_window(
+    path: &Path,
+    d: &mut Decoder<BufReader<std::fs::File>>,
+    w: u32,
+    window: [u32; 4],
+    conv: &mut Metres,
+) -> Result<(Vec<f32>, &'static str)> {
+    let [c0, r0, c1, r1] = window;
+    let ww = (c1 - c0 + 1) as usize;
+    let mut out = vec![f32::NAN; ww * (r1 - r0 + 1) as usize];
+    let (cw, ch) = crate::guard::third_party(path, "the TIFF decoder", || {
+        let (cw, ch) = d.chunk_dimensions();
+        if cw == 0 || ch == 0 {
+            return Err(FormatError::invalid(path, "TIFF tiles or strips of size 0"));
+        }
+        Ok((cw, ch))
+    })?;
+    let across = w.div_ceil(cw);
+    let mut data_type = "other";
+    for ty in r0 / ch..=r1 / ch {
+        for tx in c0 / cw..=c1 / cw {
+            let index = ty * across + tx;
+            let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_chunk(index).map_err(|e| tiff_err(path, e)))?;
+            let (dw, dh) = crate::guard::third_party(path, "the TIFF decoder", || Ok(d.chunk_data_dimensions(index)))?;
+            data_type = type_name(&raw);
+            let len = match &raw {
+                DecodingResult::U8(v) => v.len(),
+                DecodingResult::I8(v) => v.len(),
+                DecodingResult::U16(v) => v.len(),
+                DecodingResult::I16(v) => v.len(),
+                DecodingResult::U32(v) => v.len(),
+                DecodingResult::I32(v) => v.len(),
+                DecodingResult::F32(v) => v.len(),
+                DecodingResult::F64(v) => v.len(),
+                _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
+            };
+            // Tiles at the right and bottom edges may be stored whole or clipped.
+            let stride = if len >= (cw * dh) as usize { cw as usize } else { dw as usize };
+            if len < stride * (dh as usize - 1) + dw as usize {
+                return Err(FormatError::invalid(path, format!("chunk {index} holds {len} samples, fewer than its {dw}×{dh}")));
+            }
+            let (x0, y0) = (tx * cw, ty * ch);
+            for y in y0.max(r0)..(y0 + dh).min(r1 + 1) {
+                for x in x0.max(c0)..(x0 + dw).min(c1 + 1) {
+                    let i = (y - r0) as usize * ww + (x - c0) as usize;
+                    out[i] = conv.metres(i, sample_f64(&raw, (y - y0) as usize * stride + (x - x0) as usize));
+                }
+            }
+        }
+    }
+    Ok((out, data_type))
+}
+
 /// Reads a GeoTIFF elevation raster in metres. Where the full-resolution raster needs more
 /// memory than `limits` allow and the file has overviews (`gdaladdo`, a Cloud-Optimised
 /// GeoTIFF), the largest overview that fits is read instead, with a note: its cells are
 /// the full raster's scaled by the size ratio, its corner the same (GDAL's rule), so it
 /// lies exactly where the full raster does.
 pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
+    read_geotiff_with(path, &GeoTiffOptions::default(), limits)
+}
+
+/// As `read_geotiff`, of `opts.extent` only where given: the window of samples inside it,
+/// at the finest level (the full raster or an overview) whose window fits the limit.
+pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) -> Result<Heightfield> {
     let (mut d, images) = open_images(path)?;
     let (spp, sample_bytes) = sample_layout(path, &mut d)?;
     if spp != 1 {
@@ -388,17 +501,48 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
     let full = images[0];
     let Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, mut notes } = georeferencing(path, &mut d)?;
     let nodata_value = gdal_nodata(path, &mut d)?;
-    let need = |i: &Image| [i.width as u64, i.height as u64, sample_bytes];
-    let (image, bytes) = match limits.check(path, "elevation raster", &need(&full)) {
-        Ok(bytes) => (full, bytes),
+    // Each level's georeferencing: an overview's cells are the full raster's scaled by the
+    // size ratio, its corner the same.
+    let level_geo = |i: &Image| {
+        let (lsx, lsy) = (sx * full.width as f64 / i.width as f64, sy * full.height as f64 / i.height as f64);
+        (ox - 0.5 * sx + 0.5 * lsx, oy + 0.5 * sy - 0.5 * lsy, lsx, lsy)
+    };
+    // Each level's window: the whole image, or the samples inside the extent.
+    let window = |i: &Image| -> Result<[u32; 4]> {
+        match opts.extent {
+            None => Ok([0, 0, i.width - 1, i.height - 1]),
+            Some(extent) => {
+                let (lox, loy, lsx, lsy) = level_geo(i);
+                window_of(extent, (lox, loy), (lsx, lsy), (i.width, i.height)).ok_or_else(|| {
+                    let bounds = [ox - 0.5 * sx, oy - (full.height as f64 - 0.5) * sy, ox + (full.width as f64 - 0.5) * sx, oy + 0.5 * sy];
+                    FormatError::invalid(path, format!("extent {extent:?} holds no sample of the raster, whose bounds are {bounds:?}"))
+                })
+            }
+        }
+    };
+    let need = |win: [u32; 4]| [(win[2] - win[0] + 1) as u64, (win[3] - win[1] + 1) as u64, sample_bytes];
+    let full_window = window(&full)?;
+    let (image, win, bytes) = match limits.check(path, "elevation raster", &need(full_window)) {
+        Ok(bytes) => (full, full_window, bytes),
         Err(too_large) => {
-            let fits = images[1..].iter().find_map(|o| limits.check(path, "elevation overview", &need(o)).ok().map(|b| (*o, b)));
-            let Some((o, bytes)) = fits else { return Err(too_large) };
+            let mut fits = None;
+            for o in &images[1..] {
+                let Ok(win) = window(o) else { continue };
+                if let Ok(bytes) = limits.check(path, "elevation overview", &need(win)) {
+                    fits = Some((*o, win, bytes));
+                    break;
+                }
+            }
+            let Some((o, win, bytes)) = fits else { return Err(too_large) };
             notes.push(format!(
-                "read the {}×{} overview of the {}×{} raster: the full raster needs more than the memory limit",
-                o.width, o.height, full.width, full.height
+                "read the {}×{} overview of the {}×{} raster: the full raster{} needs more than the memory limit",
+                o.width,
+                o.height,
+                full.width,
+                full.height,
+                if opts.extent.is_some() { "'s window" } else { "" }
             ));
-            (o, bytes)
+            (o, win, bytes)
         }
     };
     if image != full {
@@ -409,10 +553,11 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
         }
     }
     let mut d = ready(path, d, bytes)?;
-    let (w, h) = (image.width, image.height);
-    // An overview's cells: the full raster's scaled by the size ratio; the same corner.
-    let (osx, osy) = (sx * full.width as f64 / w as f64, sy * full.height as f64 / h as f64);
-    let (ox, oy, sx, sy) = (ox - 0.5 * sx + 0.5 * osx, oy + 0.5 * sy - 0.5 * osy, osx, osy);
+    let (ox, oy, sx, sy) = level_geo(&image);
+    let whole = win == [0, 0, image.width - 1, image.height - 1];
+    // The window's north-west sample and size.
+    let (ox, oy) = (ox + win[0] as f64 * sx, oy - win[1] as f64 * sy);
+    let (w, h) = (win[2] - win[0] + 1, win[3] - win[1] + 1);
     // What gdalinfo users look for: the storage, before the image is read.
     let compression = match d.get_tag_u32(tiff::tags::Tag::Compression).unwrap_or(1) {
         1 => "none".to_string(),
@@ -436,29 +581,20 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
         (Ok(tw), Ok(th)) => format!("tiles of {tw}×{th}"),
         _ => "strips".into(),
     };
-    let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
-    let data_type = match &raw {
-        DecodingResult::U8(_) => "uint8",
-        DecodingResult::I8(_) => "int8",
-        DecodingResult::U16(_) => "uint16",
-        DecodingResult::I16(_) => "int16",
-        DecodingResult::U32(_) => "uint32",
-        DecodingResult::I32(_) => "int32",
-        DecodingResult::F32(_) => "float32",
-        DecodingResult::F64(_) => "float64",
-        _ => "other",
+    // What `info` shows of the file, given the sample type decoded.
+    let attributes = |data_type: &str| {
+        let mut a = vec![
+            ("data type".to_string(), data_type.to_string()),
+            ("compression".to_string(), if predictor > 1 { format!("{compression}, predictor {predictor}") } else { compression.clone() }),
+            ("layout".to_string(), layout.clone()),
+            ("raster type".to_string(), if point { "PixelIsPoint".into() } else { "PixelIsArea".into() }),
+        ];
+        if images.len() > 1 {
+            let sizes: Vec<String> = images[1..].iter().map(|o| format!("{}×{}", o.width, o.height)).collect();
+            a.push(("overviews".to_string(), sizes.join(", ")));
+        }
+        a
     };
-    let attributes = vec![
-        ("data type".to_string(), data_type.to_string()),
-        ("compression".to_string(), if predictor > 1 { format!("{compression}, predictor {predictor}") } else { compression }),
-        ("layout".to_string(), layout),
-        ("raster type".to_string(), if point { "PixelIsPoint".into() } else { "PixelIsArea".into() }),
-    ];
-    let mut attributes = attributes;
-    if images.len() > 1 {
-        let sizes: Vec<String> = images[1..].iter().map(|o| format!("{}×{}", o.width, o.height)).collect();
-        attributes.push(("overviews".to_string(), sizes.join(", ")));
-    }
     let n = w as usize * h as usize;
     let vertical = match short_key(&keys, KEY_VERTICAL_UNITS) {
         Some(9002) => {
@@ -471,10 +607,23 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
         }
         _ => 1.0,
     };
+    let mut conversion = Metres { nodata_value, vertical, n, nodata: Vec::new(), not_finite: 0 };
+    if !whole {
+        // A window: only the chunks that hold it.
+        let (elevations, data_type) = read_window(path, &mut d, image.width, win, &mut conversion)?;
+        let mut attributes = attributes(data_type);
+        attributes.push(("window".to_string(), format!("columns {}..={}, rows {}..={}", win[0], win[2], win[1], win[3])));
+        return finish(
+            path,
+            Raster { w, h, origin: [ox, oy], scale: [sx, sy], crs, elevations, nodata_value, notes, attributes },
+            conversion,
+        );
+    }
+    let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
+    let attributes = attributes(type_name(&raw));
     // Each sample to metres as f32 straight from the decoded type: no f64 copy of the raster
     // (at the peak that copy alone was twice the f32 elevations), and float32 samples are
     // converted in place.
-    let mut conversion = Metres { nodata_value, vertical, n, nodata: Vec::new(), not_finite: 0 };
     let elevations: Vec<f32> = match raw {
         DecodingResult::U8(v) => conversion.convert(&v, f64::from),
         DecodingResult::I8(v) => conversion.convert(&v, f64::from),
@@ -496,6 +645,26 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
     if elevations.len() < n {
         return Err(FormatError::invalid(path, format!("image data holds {} of {n} samples", elevations.len())));
     }
+    finish(path, Raster { w, h, origin: [ox, oy], scale: [sx, sy], crs, elevations, nodata_value, notes, attributes }, conversion)
+}
+
+/// A raster read, before its cell size in metres and its notes are settled.
+struct Raster {
+    w: u32,
+    h: u32,
+    origin: [f64; 2],
+    scale: [f64; 2],
+    crs: Crs,
+    elevations: Vec<f32>,
+    nodata_value: Option<f64>,
+    notes: Vec<String>,
+    attributes: Vec<(String, String)>,
+}
+
+/// The heightfield of a raster read: cell size in metres (from degrees at the centre
+/// latitude for a geographic CRS), NoData flags and notes.
+fn finish(path: &Path, raster: Raster, conversion: Metres) -> Result<Heightfield> {
+    let Raster { w, h, origin: [ox, oy], scale: [sx, sy], crs, elevations, nodata_value, mut notes, attributes } = raster;
     let Metres { nodata, not_finite, .. } = conversion;
     if not_finite > 0 {
         notes.push(format!("{not_finite} infinite or out-of-range sample(s) treated as NoData"));

@@ -23,6 +23,7 @@ pub struct LoadOptions {
     pub nifti: NiftiOptions,
     pub dicom: DicomOptions,
     pub png: PngHeightOptions,
+    pub geotiff: geotiff::GeoTiffOptions,
     pub particles: ParticleArrayNames,
     pub limits: Limits,
 }
@@ -83,7 +84,7 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     Ok(match detect(path)? {
         FileKind::Nifti => Dataset::Volume(nifti::read_nifti(path, &opts.nifti, &opts.limits)?),
         FileKind::Dicom | FileKind::DicomDir => Dataset::Volume(dicom::read_dicom(path, &opts.dicom, &opts.limits)?),
-        FileKind::GeoTiff => Dataset::Heightfield(geotiff::read_geotiff(path, &opts.limits)?),
+        FileKind::GeoTiff => Dataset::Heightfield(geotiff::read_geotiff_with(path, &opts.geotiff, &opts.limits)?),
         FileKind::PngHeightmap => Dataset::Heightfield(png_height::read_png_heightmap(path, &opts.png, &opts.limits)?),
         FileKind::VtkLegacy => match crate::vtk_image::legacy_dataset(path)?.as_deref() {
             // Regular grids are volumes; point sets (POLYDATA, UNSTRUCTURED_GRID, the points of

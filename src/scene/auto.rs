@@ -47,6 +47,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         texture: None,
         texture_colormap: None,
         texture_range: None,
+        extent: None,
         arrays: None,
         medium: None,
         color_by: None,

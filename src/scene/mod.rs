@@ -171,6 +171,10 @@ pub struct NodeDesc {
     pub opacity_scale: f64,
     // --- heightfields
     pub png: Option<PngHeightOptions>,
+    /// Only the part of a GeoTIFF heightfield inside [west, south, east, north] (its CRS's
+    /// units): the samples whose centres lie there, reading only the tiles or strips that
+    /// hold them (as `gdal_translate -projwin`, on sample centres).
+    pub extent: Option<[f64; 4]>,
     /// Colour image draped over the terrain, relative to the scene file: a PNG (stretched
     /// over the heightfield's extent) or a GeoTIFF (placed by its georeferencing, in the
     /// heightfield's CRS).
@@ -546,6 +550,14 @@ impl Scene {
                 }
                 s.validate().map_err(|m| anyhow!("{src}: node '{}': {m}", n.name))?;
             }
+            if let Some(e) = n.extent {
+                if n.kind != NodeKind::Heightfield {
+                    bail!("{src}: node '{}': extent applies to heightfield nodes only", n.name);
+                }
+                if !e.iter().all(|v| v.is_finite()) || e[0] >= e[2] || e[1] >= e[3] {
+                    bail!("{src}: node '{}': extent {e:?} must be [west, south, east, north], west < east, south < north", n.name);
+                }
+            }
             if n.kind != NodeKind::Heightfield && (n.texture.is_some() || n.texture_colormap.is_some() || n.texture_range.is_some()) {
                 bail!("{src}: node '{}': texture, texture_colormap and texture_range apply to heightfield nodes only", n.name);
             }
@@ -857,6 +869,12 @@ impl Scene {
         }
         if let Some(p) = &n.png {
             opts.png = p.clone();
+        }
+        if let Some(extent) = n.extent {
+            if volterra_formats::detect(&path)? != volterra_formats::FileKind::GeoTiff {
+                bail!("{}: node '{}': extent needs a georeferenced raster (a GeoTIFF)", path.display(), n.name);
+            }
+            opts.geotiff.extent = Some(extent);
         }
         if let Some(a) = &n.arrays {
             opts.particles = a.clone();
