@@ -199,24 +199,41 @@ fn open_images(path: &Path) -> Result<(Decoder<BufReader<std::fs::File>>, Vec<Im
     let (mut full, mut overviews) = (None, Vec::new());
     let mut index = 0;
     loop {
-        let subfile = d.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(|e| tiff_err(path, e))?.unwrap_or(0);
-        if subfile & 4 == 0 {
-            let (width, height) = d.dimensions().map_err(|e| tiff_err(path, e))?;
-            let image = Image { index, width, height };
-            match (subfile & 1, full) {
-                (0, None) => full = Some(image),
-                (1, _) => overviews.push(image),
-                _ => {} // a further full-resolution image (a multi-page TIFF): not this raster's
+        // The image at `index`, where its directory reads.
+        let mut visit = |d: &mut Decoder<BufReader<std::fs::File>>| -> Result<()> {
+            let subfile = d.find_tag_unsigned::<u32>(Tag::NewSubfileType).map_err(|e| tiff_err(path, e))?.unwrap_or(0);
+            if subfile & 4 == 0 {
+                let (width, height) = d.dimensions().map_err(|e| tiff_err(path, e))?;
+                let image = Image { index, width, height };
+                match (subfile & 1, full) {
+                    (0, None) => full = Some(image),
+                    (1, _) => overviews.push(image),
+                    _ => {} // a further full-resolution image (a multi-page TIFF): not this raster's
+                }
             }
+            Ok(())
+        };
+        match visit(&mut d) {
+            Ok(()) => {}
+            // A broken directory after the full image only ends the list of overviews.
+            Err(_) if full.is_some() => break,
+            Err(e) => return Err(e),
         }
         // A file lists a few dozen images at most; a loop in the directory chain would not end.
         if !d.more_images() || index >= 64 {
             break;
         }
         index += 1;
-        d.seek_to_image(index).map_err(|e| tiff_err(path, e))?;
+        match d.seek_to_image(index) {
+            Ok(()) => {}
+            Err(_) if full.is_some() => break,
+            Err(e) => return Err(tiff_err(path, e)),
+        }
     }
     let full = full.ok_or_else(|| FormatError::invalid(path, "TIFF holds only reduced-resolution images"))?;
+    if full.width == 0 || full.height == 0 {
+        return Err(FormatError::invalid(path, format!("the raster is {}×{} samples", full.width, full.height)));
+    }
     // An overview is smaller than the full image in both directions.
     overviews.retain(|o| o.width < full.width && o.height < full.height && o.width > 0 && o.height > 0);
     overviews.sort_by_key(|o| std::cmp::Reverse(o.width as u64 * o.height as u64));
@@ -447,12 +464,17 @@ fn read_window(
     })?;
     let across = w.div_ceil(cw);
     let mut data_type = "other";
+    let mut written = 0usize;
     for ty in r0 / ch..=r1 / ch {
         for tx in c0 / cw..=c1 / cw {
-            let index = ty * across + tx;
+            let index =
+                ty.checked_mul(across).and_then(|i| i.checked_add(tx)).ok_or_else(|| FormatError::invalid(path, "too many TIFF chunks"))?;
             let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_chunk(index).map_err(|e| tiff_err(path, e)))?;
             let (dw, dh) = crate::guard::third_party(path, "the TIFF decoder", || Ok(d.chunk_data_dimensions(index)))?;
             data_type = type_name(&raw);
+            if dw == 0 || dh == 0 {
+                return Err(FormatError::invalid(path, format!("chunk {index} is empty")));
+            }
             let len = match &raw {
                 DecodingResult::U8(v) => v.len(),
                 DecodingResult::I8(v) => v.len(),
@@ -470,13 +492,17 @@ fn read_window(
                 return Err(FormatError::invalid(path, format!("chunk {index} holds {len} samples, fewer than its {dw}×{dh}")));
             }
             let (x0, y0) = (tx * cw, ty * ch);
-            for y in y0.max(r0)..(y0 + dh).min(r1 + 1) {
-                for x in x0.max(c0)..(x0 + dw).min(c1 + 1) {
+            for y in y0.max(r0)..y0.saturating_add(dh).min(r1 + 1) {
+                for x in x0.max(c0)..x0.saturating_add(dw).min(c1 + 1) {
                     let i = (y - r0) as usize * ww + (x - c0) as usize;
                     out[i] = conv.metres(i, sample_f64(&raw, (y - y0) as usize * stride + (x - x0) as usize));
+                    written += 1;
                 }
             }
         }
+    }
+    if written != out.len() {
+        return Err(FormatError::invalid(path, format!("the tiles or strips cover {written} of the window's {} samples", out.len())));
     }
     Ok((out, data_type))
 }

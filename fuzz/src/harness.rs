@@ -84,7 +84,18 @@ pub fn run(target: &str, data: &[u8]) {
         "geotiff" => {
             let path = dir.join("input.tif");
             write(&path, data);
-            check_heightfield(&path, formats::geotiff::read_geotiff(&path, &limits));
+            let whole = formats::geotiff::read_geotiff(&path, &limits);
+            // The windowed reader too: the middle of the raster's bounds, where it has any.
+            if let Ok(hf) = &whole {
+                let (w, h) = ((hf.width as f64 - 1.0) * hf.cell_size_native[0], (hf.height as f64 - 1.0) * hf.cell_size_native[1]);
+                let [x, y] = hf.origin;
+                let extent = [x + 0.25 * w, y - 0.75 * h, x + 0.75 * w, y - 0.25 * h];
+                if extent.iter().all(|v| v.is_finite()) {
+                    let opts = formats::geotiff::GeoTiffOptions { extent: Some(extent) };
+                    check_heightfield(&path, formats::geotiff::read_geotiff_with(&path, &opts, &limits));
+                }
+            }
+            check_heightfield(&path, whole);
         }
         "png_height" => {
             let path = dir.join("input.png");
