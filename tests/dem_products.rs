@@ -238,30 +238,11 @@ fn dem_products_equal_gdaldem_on_a_projected_dem_with_nodata() {
     }
     let dir = tempfile::tempdir().unwrap();
     // 90 × 70 cells of 30 m in UTM 10N: smooth hills, two NoData holes and a NoData edge run.
-    let (w, h) = (90, 70);
-    let mut elevations = Vec::with_capacity(w * h);
-    let mut nodata = Vec::with_capacity(w * h);
-    for r in 0..h {
-        for c in 0..w {
-            let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
-            elevations.push((300.0 + 80.0 * (x / 400.0).sin() * (y / 300.0).cos() + 0.05 * x) as f32);
-            let hole = ((c as f64 - 30.0).powi(2) + (r as f64 - 20.0).powi(2)) < 25.0 || (c > 60 && c < 66 && r > 40 && r < 50);
-            nodata.push(hole || (r == 0 && c < 10));
-        }
-    }
-    let hf = volterra_formats::Heightfield {
-        width: w,
-        height: h,
-        cell_size: [30.0, 30.0],
-        cell_size_native: [30.0, 30.0],
-        origin: [500_015.0, 4_200_015.0],
-        crs: volterra_formats::Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
-        elevations,
-        nodata,
-        nodata_value: Some(-32768.0),
-        notes: vec![],
-        attributes: vec![],
-    };
+    let hf = common::utm_heightfield(90, 70, |c, r| {
+        let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
+        let hole = ((c as f64 - 30.0).powi(2) + (r as f64 - 20.0).powi(2)) < 25.0 || (c > 60 && c < 66 && r > 40 && r < 50);
+        (!(hole || (r == 0 && c < 10))).then(|| (300.0 + 80.0 * (x / 400.0).sin() * (y / 300.0).cos() + 0.05 * x) as f32)
+    });
     let dem = dir.path().join("hills.tif");
     volterra_formats::geotiff::write_geotiff(&dem, &hf).unwrap();
     let n = compare_products(&dem, dir.path(), &[], &[]);

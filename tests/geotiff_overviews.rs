@@ -35,30 +35,11 @@ fn run(cmd: &mut Command) {
 /// 1001 × 703 cells of 30 m in UTM 10N (odd sizes: overviews round up), hills, two NoData
 /// holes.
 fn dem(path: &Path) -> Heightfield {
-    let (w, h) = (1001, 703);
-    let mut elevations = Vec::with_capacity(w * h);
-    let mut nodata = Vec::with_capacity(w * h);
-    for r in 0..h {
-        for c in 0..w {
-            let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
-            let hole = ((c as f64 - 300.0).powi(2) + (r as f64 - 200.0).powi(2)) < 400.0 || (c > 600 && c < 640 && r > 400 && r < 470);
-            elevations.push(if hole { f32::NAN } else { (300.0 + 80.0 * (x / 4000.0).sin() * (y / 3000.0).cos() + 0.005 * x) as f32 });
-            nodata.push(hole);
-        }
-    }
-    let hf = Heightfield {
-        width: w,
-        height: h,
-        cell_size: [30.0, 30.0],
-        cell_size_native: [30.0, 30.0],
-        origin: [500_015.0, 4_200_015.0],
-        crs: volterra_formats::Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
-        elevations,
-        nodata,
-        nodata_value: Some(-32768.0),
-        notes: vec![],
-        attributes: vec![],
-    };
+    let hf = common::utm_heightfield(1001, 703, |c, r| {
+        let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
+        let hole = ((c as f64 - 300.0).powi(2) + (r as f64 - 200.0).powi(2)) < 400.0 || (c > 600 && c < 640 && r > 400 && r < 470);
+        (!hole).then(|| (300.0 + 80.0 * (x / 4000.0).sin() * (y / 3000.0).cos() + 0.005 * x) as f32)
+    });
     volterra_formats::geotiff::write_geotiff(path, &hf).unwrap();
     hf
 }

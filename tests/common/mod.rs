@@ -107,3 +107,23 @@ pub fn sun(direction: [f64; 3]) -> volterra::scene::Light {
         cone_angle: None,
     }
 }
+
+/// A w × h heightfield of 30 m cells in UTM 10N (the north-west sample's centre at
+/// 500015 E, 4200015 N; NoData written as −32768): `elevation(column, row)` in metres, None
+/// for NoData.
+pub fn utm_heightfield(w: usize, h: usize, elevation: impl Fn(usize, usize) -> Option<f32>) -> volterra_formats::Heightfield {
+    let cells: Vec<Option<f32>> = (0..h).flat_map(|r| (0..w).map(move |c| (c, r))).map(|(c, r)| elevation(c, r)).collect();
+    volterra_formats::Heightfield {
+        width: w,
+        height: h,
+        cell_size: [30.0, 30.0],
+        cell_size_native: [30.0, 30.0],
+        origin: [500_015.0, 4_200_015.0],
+        crs: volterra_formats::Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
+        elevations: cells.iter().map(|e| e.unwrap_or(f32::NAN)).collect(),
+        nodata: cells.iter().map(|e| e.is_none()).collect(),
+        nodata_value: Some(-32768.0),
+        notes: vec![],
+        attributes: vec![],
+    }
+}
