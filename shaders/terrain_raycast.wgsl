@@ -8,6 +8,8 @@
 
 const HOLE: f32 = -3.0e38;
 const BIG: f32 = 3.0e38;
+// Heights below this are NoData (uploaded as HOLE).
+const NODATA_BELOW: f32 = -1.0e37;
 
 struct Params {
     // w: 1 = parallel projection (xyz unused: every position is relative to the eye).
@@ -77,8 +79,10 @@ fn height_at(c: vec2<i32>) -> f32 {
     return textureLoad(heights, c - (tile << k), tile.y * i32(P.tiles.y) + tile.x, 0).r;
 }
 
-// The lid of quadtree node `node` at `level`: in its tile's pyramid below level k (tiles of
-// 2^k patches), in the texture over the tiles from level k up (never, not tiled: k = 31).
+// The lid of quadtree node `node` at `level` ≥ 1 (level 0, the lid map, is not stored:
+// `trace` takes it from the patch's heights): in its tile's pyramid below level k (tiles
+// of 2^k patches; the pyramid's mip m is level m + 1), in the texture over the tiles from
+// level k up (never, not tiled: k = 31).
 fn lid(node: vec2<i32>, level: u32) -> f32 {
     let k = P.tiles.z;
     if level >= k {
@@ -86,7 +90,7 @@ fn lid(node: vec2<i32>, level: u32) -> f32 {
     }
     let shift = vec2<u32>(k - level);
     let tile = node >> shift;
-    return textureLoad(pyramid, node - (tile << shift), tile.y * i32(P.tiles.y) + tile.x, i32(level)).r;
+    return textureLoad(pyramid, node - (tile << shift), tile.y * i32(P.tiles.y) + tile.x, i32(level) - 1).r;
 }
 
 struct Hit {
@@ -135,13 +139,19 @@ fn from_eye_xy(g: vec2<f32>) -> vec2<f32> {
     return (g - P.eye_hi.xy) - P.eye_lo.xy;
 }
 
-// z00, z10, z01, z11 of patch c, relative to the eye.
+// z00, z10, z01, z11 of patch c, relative to the eye. A patch lies in one tile, its east
+// and north corners included (tiles share their border samples), so the tile is found
+// once for the four loads (the traversal reads every level-0 node's corners).
 fn patch_heights(c: vec2<i32>) -> vec4<f32> {
+    let k = vec2<u32>(P.tiles.z);
+    let tile = min(c >> k, vec2<i32>(i32(P.tiles.y), i32(P.tiles.w)) - 1);
+    let l = c - (tile << k);
+    let layer = tile.y * i32(P.tiles.y) + tile.x;
     return vec4<f32>(
-        from_eye(height_at(c)),
-        from_eye(height_at(c + vec2<i32>(1, 0))),
-        from_eye(height_at(c + vec2<i32>(0, 1))),
-        from_eye(height_at(c + vec2<i32>(1, 1))),
+        from_eye(textureLoad(heights, l, layer, 0).r),
+        from_eye(textureLoad(heights, l + vec2<i32>(1, 0), layer, 0).r),
+        from_eye(textureLoad(heights, l + vec2<i32>(0, 1), layer, 0).r),
+        from_eye(textureLoad(heights, l + vec2<i32>(1, 1), layer, 0).r),
     );
 }
 
@@ -325,7 +335,18 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
             ty = (lo.y - o.y) / d.y;
         }
         let t_exit = max(min(min(tx, ty), t_end), t);
-        let zmax = from_eye(lid(node, level));
+        // Level 0: the patch's lid from its four heights (HOLE where one is NoData).
+        var z = vec4<f32>(HOLE);
+        var zmax: f32;
+        if level == 0u {
+            z = patch_heights(node);
+            zmax = max(max(z.x, z.y), max(z.z, z.w));
+            if min(min(z.x, z.y), min(z.z, z.w)) <= from_eye(NODATA_BELOW) {
+                zmax = HOLE;
+            }
+        } else {
+            zmax = from_eye(lid(node, level));
+        }
         let z_in = o.z + t * d.z;
         let z_out = o.z + t_exit * d.z;
         if min(z_in, z_out) <= zmax {
@@ -333,7 +354,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32) -> Hit {
                 let pa = o + t * d;
                 let u0 = pa.x - lo.x;
                 let v0 = pa.y - lo.y;
-                let s = intersect_patch(patch_heights(node), u0, v0, pa.z, d, t_exit - t);
+                let s = intersect_patch(z, u0, v0, pa.z, d, t_exit - t);
                 if s >= 0.0 {
                     h.found = true;
                     h.t = t + s;

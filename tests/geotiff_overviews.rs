@@ -11,7 +11,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use volterra_formats::geotiff::read_geotiff;
-use volterra_formats::memory::{in_use, Limits};
+use volterra_formats::memory::{human_bytes, in_use, Limits};
 use volterra_formats::Heightfield;
 
 /// gdal_translate, or a skip (a failure under CI).
@@ -25,6 +25,13 @@ fn gdal() -> Option<PathBuf> {
     }
     eprintln!("SKIPPED: gdal_translate not installed (apt install gdal-bin)");
     None
+}
+
+/// The limits below are the heap in use plus a margin of a few hundred kB: tests of this
+/// file run one at a time, so one's allocations never eat another's margin.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 fn run(cmd: &mut Command) {
@@ -77,6 +84,7 @@ fn assert_same_grid(ours: &Heightfield, gdal: &Heightfield, what: &str) {
 #[test]
 fn a_dem_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits_where_gdal_puts_it() {
     let Some(gdal_translate) = gdal() else { return };
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let plain = dir.path().join("hills.tif");
     let original = dem(&plain);
@@ -109,11 +117,14 @@ fn a_dem_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits_whe
         run(Command::new(&gdal_translate).args(["-q", "-oo", "OVERVIEW_LEVEL=0"]).arg(file).arg(&gdal_ov));
         let reference = read_geotiff(&gdal_ov, &Limits::default()).unwrap();
         assert_same_grid(&ov, &reference, &format!("{name}, overview 0"));
-        assert!(
-            ov.notes.iter().any(|n| n.contains(&format!("{first} overview of the 1001×703 raster"))),
-            "{name}: the overview read is stated: {:?}",
-            ov.notes
+        // Stated with what the full raster needed (1001 × 703 float32) and the limit.
+        let stated = format!(
+            "{first} overview ({}) of the 1001×703 raster: the full elevation raster needs {}, more than the memory limit of {}",
+            human_bytes(ov.width as u64 * ov.height as u64 * 4),
+            human_bytes(1001 * 703 * 4),
+            human_bytes(limit.bytes())
         );
+        assert!(ov.notes.iter().any(|n| n.contains(&stated)), "{name}: the overview read is stated ({stated}): {:?}", ov.notes);
         // The overview covers the full raster's extent: the same outer corner.
         let corner = |hf: &Heightfield| [hf.origin[0] - 0.5 * hf.cell_size_native[0], hf.origin[1] + 0.5 * hf.cell_size_native[1]];
         assert_eq!(corner(&ov), corner(&original), "{name}: north-west corner");
@@ -135,6 +146,7 @@ fn a_dem_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits_whe
 #[test]
 fn an_extent_reads_the_samples_inside_it_as_gdal_translate_srcwin_does_decoding_only_their_tiles() {
     let Some(gdal_translate) = gdal() else { return };
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let plain = dir.path().join("hills.tif");
     dem(&plain);
@@ -188,4 +200,78 @@ fn an_extent_reads_the_samples_inside_it_as_gdal_translate_srcwin_does_decoding_
     let scene = volterra::scene::Scene::load(&scene, &[]).unwrap();
     let hf = scene.heightfield(0).unwrap();
     assert_eq!((hf.width, hf.height, hf.origin), (363, 278, [500_015.0 + 250.0 * 30.0, 4_200_015.0 - 100.0 * 30.0]));
+}
+
+/// A drape (an orthophoto, a classified band) larger than the memory limit allows is read
+/// from its largest overview that fits, where GDAL puts it: an RGB GeoTIFF with `gdaladdo`
+/// overviews and a float32 band in a COG, each equal — size, corner, pixel size, every
+/// byte or value and NoData — to what `gdal_translate -oo OVERVIEW_LEVEL=0` writes.
+#[test]
+fn a_drape_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits() {
+    use volterra_formats::geotiff::{read_geotiff_image, GeoImage, GeoPixels};
+    let Some(gdal_translate) = gdal() else { return };
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let plain = dir.path().join("hills.tif");
+    dem(&plain);
+    // RGB bytes: the elevations scaled to 0..255 in three bands (NoData 0), tiled, with
+    // overviews at 2 and 4.
+    let rgb = dir.path().join("rgb.tif");
+    run(Command::new(&gdal_translate)
+        .args(["-q", "-ot", "Byte", "-scale", "250", "420", "1", "255", "-a_nodata", "none", "-b", "1", "-b", "1", "-b", "1"])
+        .args(["-co", "TILED=YES", "-co", "PHOTOMETRIC=RGB", "-co", "INTERLEAVE=PIXEL"])
+        .arg(&plain)
+        .arg(&rgb));
+    // GDAL's band-interleaved layout (its choice here without INTERLEAVE=PIXEL) is refused
+    // by name, not read as its first plane.
+    let planes = dir.path().join("rgb_planes.tif");
+    run(Command::new(&gdal_translate).args(["-q", "-co", "INTERLEAVE=BAND"]).arg(&rgb).arg(&planes));
+    let err = read_geotiff_image(&planes, &Limits::default()).map(|_| ()).expect_err("band-interleaved RGB refused");
+    assert!(err.to_string().contains("rgb_planes.tif") && err.to_string().contains("INTERLEAVE=PIXEL"), "{err}");
+    run(Command::new("gdaladdo").args(["-q", "-r", "nearest"]).arg(&rgb).args(["2", "4"]));
+    let band = dir.path().join("band_cog.tif");
+    run(Command::new(&gdal_translate)
+        .args(["-q", "-of", "COG", "-co", "BLOCKSIZE=256", "-co", "RESAMPLING=AVERAGE", "-co", "COMPRESS=LZW"])
+        .arg(&plain)
+        .arg(&band));
+    let same = |ours: &GeoImage, gdal: &GeoImage, what: &str| {
+        assert_eq!((ours.width, ours.height), (gdal.width, gdal.height), "{what}: size");
+        for k in 0..2 {
+            assert!(
+                (ours.origin[k] - gdal.origin[k]).abs() <= 1e-9 * gdal.origin[k].abs(),
+                "{what}: origin {:?} vs {:?}",
+                ours.origin,
+                gdal.origin
+            );
+            let cells = (ours.cell_size_native[k], gdal.cell_size_native[k]);
+            assert!((cells.0 - cells.1).abs() <= 1e-12 * cells.1, "{what}: pixel size {cells:?}");
+        }
+        match (&ours.pixels, &gdal.pixels) {
+            (GeoPixels::Rgb8(a), GeoPixels::Rgb8(b)) => assert!(a == b, "{what}: bytes differ"),
+            (GeoPixels::Values(a), GeoPixels::Values(b)) => {
+                let differ = a.iter().zip(b).filter(|(p, q)| !(p.to_bits() == q.to_bits() || p.is_nan() && q.is_nan())).count();
+                assert_eq!(differ, 0, "{what}: {differ} values differ");
+                assert!(b.iter().any(|v| v.is_nan()), "{what}: NoData survives");
+            }
+            _ => panic!("{what}: different pixel kinds"),
+        }
+    };
+    // RGB: 1001 × 703 × 3 bytes (2.1 MB) full, 501 × 352 × 3 (0.53 MB) at overview 0.
+    // Band: 12 bytes a pixel (float32 decoded, f64 kept): 8.4 MB full, 2.1 MB at 500 × 351.
+    for (file, margin, first) in [(&rgb, 1_000_000, "501×352"), (&band, 3_000_000, "500×351")] {
+        let name = file.file_name().unwrap().to_string_lossy().into_owned();
+        let full = read_geotiff_image(file, &Limits::default()).unwrap();
+        assert_eq!((full.width, full.height), (1001, 703), "{name}: full image without a limit");
+        let ov = read_geotiff_image(file, &Limits::max(in_use() + margin)).unwrap();
+        let gdal_ov = dir.path().join(format!("{name}.ov0.tif"));
+        run(Command::new(&gdal_translate).args(["-q", "-oo", "OVERVIEW_LEVEL=0"]).arg(file).arg(&gdal_ov));
+        same(&ov, &read_geotiff_image(&gdal_ov, &Limits::default()).unwrap(), &format!("{name}, overview 0"));
+        assert!(
+            ov.notes.iter().any(|n| n.contains(&format!("{first} overview (")) && n.contains("the full draped image needs")),
+            "{name}: {:?}",
+            ov.notes
+        );
+        let err = read_geotiff_image(file, &Limits::max(in_use() + 20_000)).map(|_| ()).expect_err("no level fits");
+        assert!(err.to_string().contains("draped image needs"), "{err}");
+    }
 }

@@ -664,3 +664,50 @@ fn tiled_terrains_render_exactly_as_one_texture() {
         }
     }
 }
+
+/// The smallest pyramids: the lid map (level 0) is read from the heights, so a grid of
+/// one patch has no stored level at all, a row of patches a pyramid one texel high, and
+/// tiles of 2 patches one stored level each. Each is drawn as the f64 reference draws it,
+/// and the tiles exactly as one texture.
+#[test]
+fn the_smallest_pyramids_and_tiles_of_two_patches() {
+    use volterra::render::terrain::gpu::{self, GpuTerrain, View};
+    use volterra::render::terrain::shading::{sun_lights, Shading};
+    let settings = Settings { rays_per_pixel: 1, ..Default::default() };
+    for (w, h) in [(2, 2), (2, 6), (7, 2), (3, 3), (9, 7)] {
+        // A tilted, bumpy surface with one NoData sample where there is room for it.
+        let hf = field(w, h, 10.0, |c, r| {
+            if w * h > 20 && (c, r) == (w / 2, h / 2) {
+                f32::NAN
+            } else {
+                5.0 * c as f32 - 3.0 * r as f32 + if (c + r) % 2 == 0 { 4.0 } else { 0.0 }
+            }
+        });
+        let (ex, ey) = (10.0 * (w - 1) as f64, 10.0 * (h - 1) as f64);
+        let cam = perspective([-0.6 * ex - 10.0, -0.7 * ey - 10.0, 60.0], [0.5 * ex, 0.5 * ey, 0.0], [0.0, 0.0, 1.0], 50.0);
+        let Some((g, reference)) = render_both(&hf, &cam, (96, 64), &settings) else { return };
+        assert!(g.depth.iter().any(|d| d.is_finite()), "{w}×{h}: the terrain is in view");
+        assert_agree(&format!("{w}×{h} samples"), &g, &reference);
+        if (w, h) == (9, 7) {
+            // Tiles of 2 patches (3 samples a side): 4 × 3 tiles, each pyramid one level.
+            let gpu = gpu::gpu().unwrap();
+            let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
+            let shading = Shading {
+                lights: sun_lights(&[common::sun([-0.8, -0.5, -0.45])]).unwrap(),
+                ambient: 0.25,
+                shadows: true,
+                smooth: true,
+                rays_per_side: 1,
+                colormap: volterra::render::colormap::Colormap::Hypsometric,
+            };
+            let (whole, tiled) = (GpuTerrain::new(gpu, &grid, None).unwrap(), GpuTerrain::with_texture_limit(gpu, &grid, None, 3).unwrap());
+            assert!(tiled.tiled());
+            let rays = cam.rays(96, 64);
+            let view =
+                View { grid: &grid, rays: &rays, shading: &shading, traversal: Traversal::Quadtree, max_steps: settings.step_cap(&grid) };
+            let (a, b) = (whole.render(gpu, &view).unwrap(), tiled.render(gpu, &view).unwrap());
+            assert!(a.depth.iter().zip(&b.depth).all(|(p, q)| p.to_bits() == q.to_bits()), "tiles of 2 patches: depth");
+            assert_eq!(a.rgba, b.rgba, "tiles of 2 patches: colour");
+        }
+    }
+}

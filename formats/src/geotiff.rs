@@ -6,7 +6,7 @@
 use crate::atomic::write_bytes_atomically;
 use crate::error::{FormatError, Result};
 use crate::heightfield::{metres_per_degree, Crs, Heightfield};
-use crate::memory::Limits;
+use crate::memory::{human_bytes, Limits};
 use std::io::{BufReader, Cursor};
 use std::path::Path;
 use tiff::decoder::{Decoder, DecodingResult};
@@ -264,14 +264,66 @@ fn ready(path: &Path, d: Decoder<BufReader<std::fs::File>>, bytes: usize) -> Res
     Ok(d)
 }
 
-/// The decoder at the file's full-resolution image, its size and samples per pixel, with
-/// the decoder's limits sized by ours for `what` so that it decodes no more than the raster.
-fn open_full_resolution(path: &Path, limits: &Limits, what: &str) -> Result<(Decoder<BufReader<std::fs::File>>, u32, u32, u16)> {
-    let (mut d, images) = open_images(path)?;
-    let (w, h) = (images[0].width, images[0].height);
-    let (spp, sample_bytes) = sample_layout(path, &mut d)?;
-    let bytes = limits.check(path, what, &[w as u64, h as u64, spp.max(1) as u64, sample_bytes])?;
-    Ok((ready(path, d, bytes)?, w, h, spp))
+/// The finest of `images` (the full raster, then its overviews, largest first) whose
+/// `need` (factors of its bytes) fits the memory limit, those bytes, and where it is an
+/// overview a note saying which and why. None fits: the full raster's refusal. A level
+/// whose `need` fails (an extent that holds none of its samples) is passed over; the full
+/// raster's failure is the error.
+fn finest_fitting(
+    path: &Path,
+    limits: &Limits,
+    images: &[Image],
+    what: &str,
+    need: impl Fn(&Image) -> Result<[u64; 3]>,
+) -> Result<(Image, usize, Option<String>)> {
+    let full = images[0];
+    let full_need = need(&full)?;
+    let too_large = match limits.check(path, what, &full_need) {
+        Ok(bytes) => return Ok((full, bytes, None)),
+        Err(e) => e,
+    };
+    for o in &images[1..] {
+        let Ok(n) = need(o) else { continue };
+        if let Ok(bytes) = limits.check(path, what, &n) {
+            let note = format!(
+                "read the {}×{} overview ({}) of the {}×{} raster: the full {what} needs {}, more than the memory limit of {}",
+                o.width,
+                o.height,
+                human_bytes(bytes as u64),
+                full.width,
+                full.height,
+                human_bytes(full_need.iter().product()),
+                human_bytes(limits.bytes())
+            );
+            return Ok((*o, bytes, Some(note)));
+        }
+    }
+    Err(too_large)
+}
+
+/// The decoder (at the full raster, `full`) moved to `image`, checked to hold samples like
+/// the full raster's, and readied to decode `bytes`.
+fn at_level(
+    path: &Path,
+    mut d: Decoder<BufReader<std::fs::File>>,
+    (full, image): (&Image, &Image),
+    layout: (u16, u64),
+    bytes: usize,
+) -> Result<Decoder<BufReader<std::fs::File>>> {
+    if image != full {
+        d.seek_to_image(image.index).map_err(|e| tiff_err(path, e))?;
+        if sample_layout(path, &mut d)? != layout {
+            return Err(FormatError::invalid(path, "an overview's samples differ from the full raster's"));
+        }
+    }
+    ready(path, d, bytes)
+}
+
+/// An overview's georeferencing (centre of its north-west sample, cell size) from the full
+/// raster's, as GDAL places it: the same outer corner, cells scaled by the size ratio.
+fn level_georeferencing(origin: [f64; 2], scale: [f64; 2], full: &Image, level: &Image) -> ([f64; 2], [f64; 2]) {
+    let (lsx, lsy) = (scale[0] * full.width as f64 / level.width as f64, scale[1] * full.height as f64 / level.height as f64);
+    ([origin[0] - 0.5 * scale[0] + 0.5 * lsx, origin[1] + 0.5 * scale[1] - 0.5 * lsy], [lsx, lsy])
 }
 
 /// The GDAL_NODATA value, where the file declares one.
@@ -307,14 +359,33 @@ pub struct GeoImage {
 }
 
 /// Reads a GeoTIFF image to drape: one band of any sample type, or 3 or 4 bands of bytes,
-/// with its georeferencing (north-up only, as elevation rasters).
+/// with its georeferencing (north-up only, as elevation rasters). Where the full image
+/// needs more than the memory limit, its largest overview that fits is read instead (an
+/// orthophoto over a large DEM), placed as GDAL places it, with a note.
 pub fn read_geotiff_image(path: &Path, limits: &Limits) -> Result<GeoImage> {
-    let (mut d, w, h, spp) = open_full_resolution(path, limits, "draped image")?;
+    let (mut d, images) = open_images(path)?;
+    let (spp, sample_bytes) = sample_layout(path, &mut d)?;
     if !matches!(spp, 1 | 3 | 4) {
         return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: a drape has 1 band, or 3 or 4 (RGB, RGBA)")));
     }
-    let geo = georeferencing(path, &mut d)?;
+    // The tiff crate decodes one plane of a band-interleaved image (GDAL's INTERLEAVE=BAND,
+    // which it chooses for some RGB outputs): refused by name, not read as a third.
+    if spp > 1 && d.find_tag_unsigned::<u16>(Tag::PlanarConfiguration).map_err(|e| tiff_err(path, e))? == Some(2) {
+        return Err(FormatError::unsupported(
+            path,
+            "bands stored as separate planes (PlanarConfiguration 2); rewrite it pixel-interleaved: gdal_translate -co INTERLEAVE=PIXEL",
+        ));
+    }
+    // The georeferencing is the full image's (a COG's overviews carry none).
+    let mut geo = georeferencing(path, &mut d)?;
     let nodata = gdal_nodata(path, &mut d)?;
+    // Per pixel: the decoded samples, and a band's values as f64.
+    let per_pixel = spp as u64 * sample_bytes + if spp == 1 { 8 } else { 0 };
+    let (image, bytes, note) = finest_fitting(path, limits, &images, "draped image", |i| Ok([i.width as u64, i.height as u64, per_pixel]))?;
+    geo.notes.extend(note);
+    (geo.origin, geo.scale) = level_georeferencing(geo.origin, geo.scale, &images[0], &image);
+    let mut d = at_level(path, d, (&images[0], &image), (spp, sample_bytes), bytes)?;
+    let (w, h) = (image.width, image.height);
     let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
     let n = w as usize * h as usize;
     let pixels = match (spp, raw) {
@@ -530,8 +601,8 @@ pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) ->
     // Each level's georeferencing: an overview's cells are the full raster's scaled by the
     // size ratio, its corner the same.
     let level_geo = |i: &Image| {
-        let (lsx, lsy) = (sx * full.width as f64 / i.width as f64, sy * full.height as f64 / i.height as f64);
-        (ox - 0.5 * sx + 0.5 * lsx, oy + 0.5 * sy - 0.5 * lsy, lsx, lsy)
+        let ([lox, loy], [lsx, lsy]) = level_georeferencing([ox, oy], [sx, sy], &full, i);
+        (lox, loy, lsx, lsy)
     };
     // Each level's window: the whole image, or the samples inside the extent.
     let window = |i: &Image| -> Result<[u32; 4]> {
@@ -546,39 +617,12 @@ pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) ->
             }
         }
     };
-    let need = |win: [u32; 4]| [(win[2] - win[0] + 1) as u64, (win[3] - win[1] + 1) as u64, sample_bytes];
-    let full_window = window(&full)?;
-    let (image, win, bytes) = match limits.check(path, "elevation raster", &need(full_window)) {
-        Ok(bytes) => (full, full_window, bytes),
-        Err(too_large) => {
-            let mut fits = None;
-            for o in &images[1..] {
-                let Ok(win) = window(o) else { continue };
-                if let Ok(bytes) = limits.check(path, "elevation overview", &need(win)) {
-                    fits = Some((*o, win, bytes));
-                    break;
-                }
-            }
-            let Some((o, win, bytes)) = fits else { return Err(too_large) };
-            notes.push(format!(
-                "read the {}×{} overview of the {}×{} raster: the full raster{} needs more than the memory limit",
-                o.width,
-                o.height,
-                full.width,
-                full.height,
-                if opts.extent.is_some() { "'s window" } else { "" }
-            ));
-            (o, win, bytes)
-        }
-    };
-    if image != full {
-        d.seek_to_image(image.index).map_err(|e| tiff_err(path, e))?;
-        let (spp_o, bytes_o) = sample_layout(path, &mut d)?;
-        if (spp_o, bytes_o) != (spp, sample_bytes) {
-            return Err(FormatError::invalid(path, "an overview's samples differ from the full raster's"));
-        }
-    }
-    let mut d = ready(path, d, bytes)?;
+    let need = |i: &Image| window(i).map(|win| [(win[2] - win[0] + 1) as u64, (win[3] - win[1] + 1) as u64, sample_bytes]);
+    let what = if opts.extent.is_some() { "elevation raster's window" } else { "elevation raster" };
+    let (image, bytes, note) = finest_fitting(path, limits, &images, what, need)?;
+    notes.extend(note);
+    let win = window(&image)?;
+    let mut d = at_level(path, d, (&full, &image), (spp, sample_bytes), bytes)?;
     let (ox, oy, sx, sy) = level_geo(&image);
     let whole = win == [0, 0, image.width - 1, image.height - 1];
     // The window's north-west sample and size.

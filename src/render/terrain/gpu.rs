@@ -1,5 +1,6 @@
 //! The terrain ray-caster on the GPU (wgpu): the heightfield as an R32Float texture, the
-//! lid map and max-quadtree built from it by compute passes (`shaders/terrain_pyramid.wgsl`),
+//! max-quadtree above the lid map built from it by compute passes (the lid map itself is
+//! read from the heights: `shaders/terrain_pyramid.wgsl`),
 //! one compute invocation per pixel for the rays (`shaders/terrain_raycast.wgsl`).
 
 use super::grid::{TerrainGrid, HOLE};
@@ -31,7 +32,7 @@ struct Pipelines {
     lid_layout: wgpu::BindGroupLayout,
     reduce_layout: wgpu::BindGroupLayout,
     ray_layout: wgpu::BindGroupLayout,
-    lid: wgpu::ComputePipeline,
+    level1: wgpu::ComputePipeline,
     reduce: wgpu::ComputePipeline,
     ray: wgpu::ComputePipeline,
 }
@@ -149,7 +150,7 @@ impl Pipelines {
             })
         };
         Pipelines {
-            lid: pipeline(&lid_layout, &pyramid, "build_lid"),
+            level1: pipeline(&lid_layout, &pyramid, "build_level1"),
             reduce: pipeline(&reduce_layout, &pyramid, "reduce"),
             ray: pipeline(&ray_layout, &raycast, "main"),
             lid_layout,
@@ -211,7 +212,8 @@ pub struct Tiling {
     pub tile_patches: usize,
     /// Tiles east and north.
     pub tiles: [usize; 2],
-    /// Samples per tile texture layer, and its pyramid's level-0 size.
+    /// Samples per tile texture layer, and its pyramid's level-0 size (patches, padded;
+    /// level 0 itself is not stored: see `pyramid_texture`).
     pub heights_size: [u32; 2],
     pub pyramid_size: [u32; 2],
     /// Levels of each tile's pyramid, and of the texture over the tiles (0 when not tiled).
@@ -276,6 +278,15 @@ impl Tiling {
         self.tile_patches > 0
     }
 
+    /// Size and mip levels of each tile's pyramid texture: quadtree levels 1 and up (mip m
+    /// is level m + 1). Level 0, the lid map, is the highest of each patch's four heights,
+    /// which the ray-caster reads anyway to intersect the patch; not storing it keeps the
+    /// pyramid at a third of the heights' texels instead of four thirds. A grid of one
+    /// patch has no level 1: a 1×1 texture stands in.
+    fn pyramid_texture(&self) -> ([u32; 2], u32) {
+        (self.pyramid_size.map(|s| (s / 2).max(1)), (self.tile_levels - 1).max(1))
+    }
+
     fn layers(&self) -> usize {
         self.tiles[0] * self.tiles[1]
     }
@@ -322,7 +333,7 @@ pub struct GpuTerrain {
     placement: [f32; 4],
     levels: u32,
     cells: [u32; 2],
-    /// Seconds to build the lid map and the quadtree on the GPU (upload excluded).
+    /// Seconds to build the quadtree on the GPU (upload excluded).
     pub build_seconds: f64,
     /// Bytes of GPU memory held: heights, pyramid, colour texture.
     pub gpu_bytes: u64,
@@ -404,7 +415,8 @@ impl GpuTerrain {
             }
         }
         let storage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
-        let pyramid = texture_2d_array("lid pyramid", tiling.pyramid_size, tiling.tile_levels, storage);
+        let (pyramid_size, pyramid_mips) = tiling.pyramid_texture();
+        let pyramid = texture_2d_array("lid pyramid", pyramid_size, pyramid_mips, storage);
         // Above the tiles: one texel per tile (the tile's top level), then its own levels.
         let top_size = [tiling.tiles[0].next_power_of_two() as u32, tiling.tiles[1].next_power_of_two() as u32];
         let top = device.create_texture(&wgpu::TextureDescriptor {
@@ -479,16 +491,17 @@ impl GpuTerrain {
                 ],
             });
             cell_buffers.push(cells_buf);
-            {
+            if tiling.tile_levels > 1 {
                 let mut pass = enc.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&gpu.pipelines.lid);
+                pass.set_pipeline(&gpu.pipelines.level1);
                 pass.set_bind_group(0, &bg, &[]);
-                let (gx, gy) = groups(tiling.pyramid_size[0], tiling.pyramid_size[1]);
+                let (gx, gy) = groups(pyramid_size[0], pyramid_size[1]);
                 pass.dispatch_workgroups(gx, gy, 1);
             }
-            for level in 1..tiling.tile_levels {
+            // Quadtree level L is the pyramid texture's mip L − 1.
+            for level in 2..tiling.tile_levels {
                 let size = tiling.pyramid_size.map(|s| (s >> level).max(1));
-                reduce(&mut enc, &layer_view(&pyramid, tile, level - 1), &layer_view(&pyramid, tile, level), size);
+                reduce(&mut enc, &layer_view(&pyramid, tile, level - 2), &layer_view(&pyramid, tile, level - 1), size);
             }
             if tiling.tiled() {
                 // The tile's top level (one texel) into the texture over the tiles.
@@ -496,7 +509,7 @@ impl GpuTerrain {
                 enc.copy_texture_to_texture(
                     wgpu::TexelCopyTextureInfo {
                         texture: &pyramid,
-                        mip_level: tiling.tile_levels - 1,
+                        mip_level: tiling.tile_levels - 2,
                         origin: wgpu::Origin3d { x: 0, y: 0, z: tile as u32 },
                         aspect: wgpu::TextureAspect::All,
                     },
@@ -522,7 +535,7 @@ impl GpuTerrain {
             (0..levels).map(|l| 4 * ((size[0] >> l).max(1) as u64) * ((size[1] >> l).max(1) as u64)).sum()
         };
         let gpu_bytes = 4 * (tiling.heights_size[0] as u64 * tiling.heights_size[1] as u64) * layers as u64
-            + mip_bytes(tiling.pyramid_size, tiling.tile_levels) * layers as u64
+            + mip_bytes(pyramid_size, pyramid_mips) * layers as u64
             + mip_bytes(top_size, tiling.top_levels.max(1))
             + 4 * colour.width() as u64 * colour.height() as u64;
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
@@ -555,7 +568,7 @@ impl GpuTerrain {
         self.tiling.tiled()
     }
 
-    /// Pyramid levels, the lid map (level 0) included.
+    /// Quadtree levels, the lid map (level 0, read from the heights) included.
     pub fn levels(&self) -> u32 {
         self.levels
     }
