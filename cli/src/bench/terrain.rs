@@ -50,9 +50,10 @@ pub struct Row {
     pub hit_mismatches_off_silhouette: Option<usize>,
     /// Anti-aliasing rows: colour relative RMSE from 256 rays per pixel (small image).
     pub colour_rel_rmse_vs_256: Option<f64>,
-    /// Ours: GPU memory held (heights, pyramid); the large DEM's rows: the process's peak
-    /// resident memory from reading the DEM on. VTK: resident memory its mesh and
-    /// rendering added to the process (software OpenGL keeps GPU buffers there too).
+    /// Ours: GPU memory held (heights, pyramid); the large DEM's rows: how far the process's
+    /// peak resident memory rose above what it held before making the DEM. VTK: resident
+    /// memory its mesh and rendering added to the process (software OpenGL keeps GPU
+    /// buffers there too).
     pub memory_mib: f64,
 }
 
