@@ -49,9 +49,7 @@ fn view(k: usize, dist: f64) -> Camera {
 
 /// This process's peak resident memory since the last reset, bytes (Linux).
 fn peak_rss() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let kb: u64 = s.lines().find(|l| l.starts_with("VmHWM:"))?.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    super::proc_status_bytes("VmHWM:")
 }
 
 pub fn run(b: &ClinicalBench) -> Result<()> {

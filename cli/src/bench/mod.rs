@@ -77,3 +77,10 @@ pub fn median(v: &mut [f64]) -> f64 {
         0.5 * (v[m - 1] + v[m])
     }
 }
+
+/// A memory line of /proc/self/status ("VmHWM:", "VmRSS:"), in bytes (None: not Linux).
+pub fn proc_status_bytes(key: &str) -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kb: u64 = s.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}

@@ -336,10 +336,7 @@ fn large_rows(b: &TerrainBench, gpu: &gpu::Gpu, w: usize, h: usize, shading: &Sh
 
 /// A line of /proc/self/status in MiB (NaN where there is none: not Linux).
 fn status_mib(key: &str) -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
+    super::proc_status_bytes(key).map_or(f64::NAN, |b| b as f64 / (1 << 20) as f64)
 }
 
 /// VTK/pyvista's way: the same DEMs as triangle meshes, same cameras and image size.
