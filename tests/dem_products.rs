@@ -152,6 +152,96 @@ fn compare_contours(dem: &Path, dir: &Path, tag: &str, gdal_levels: &[&str], our
     compared
 }
 
+/// Twice a ring's signed area (positive: counter-clockwise), about its first vertex (about
+/// the origin, rounding would drown the rings round single cell centres).
+fn ring_area2(r: &[[f64; 2]]) -> f64 {
+    let o = r[0];
+    r.windows(2).map(|w| (w[0][0] - o[0]) * (w[1][1] - o[1]) - (w[1][0] - o[0]) * (w[0][1] - o[1])).sum()
+}
+
+/// A polygon file's bands in order: (ELEV_MIN, ELEV_MAX, polygons as rings of points).
+type PolygonBands = Vec<(f64, f64, Vec<Vec<Vec<[f64; 2]>>>)>;
+
+fn contour_polygons(path: &Path) -> (String, PolygonBands) {
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let crs = v["crs"]["properties"]["name"].as_str().unwrap_or_default().to_string();
+    let point = |c: &serde_json::Value| [c[0].as_f64().unwrap(), c[1].as_f64().unwrap()];
+    let bands = v["features"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            assert_eq!(f["geometry"]["type"], "MultiPolygon");
+            let polys = f["geometry"]["coordinates"].as_array().unwrap();
+            let polys = polys
+                .iter()
+                .map(|p| p.as_array().unwrap().iter().map(|r| r.as_array().unwrap().iter().map(point).collect()).collect())
+                .collect();
+            (f["properties"]["ELEV_MIN"].as_f64().unwrap(), f["properties"]["ELEV_MAX"].as_f64().unwrap(), polys)
+        })
+        .collect();
+    (crs, bands)
+}
+
+/// gdal_contour -p and ours --polygons at `levels`: the same bands (bounds as GDAL writes
+/// them, except its placeholders 0 and 2³²−1 for the lowest band's minimum and a fixed
+/// list's highest band's maximum, where ours gives the data's extremes), the same polygons
+/// per band (each's outer ring's vertex count and area to 1e-9 of it, its holes' count and
+/// areas), every vertex of GDAL's among ours. Returns the polygons compared.
+fn compare_contour_polygons(dem: &Path, dir: &Path, tag: &str, gdal_levels: &[&str], our_levels: &[&str]) -> usize {
+    let (reference, ours) = (dir.join(format!("gdal_{tag}_p.geojson")), dir.join(format!("ours_{tag}_p.geojson")));
+    let mut g = Command::new("gdal_contour");
+    g.args(["-q", "-p", "-amin", "ELEV_MIN", "-amax", "ELEV_MAX", "-f", "GeoJSON"]).args(gdal_levels).arg(dem).arg(&reference);
+    run(&mut g);
+    let mut v = Command::new(common::volterra_bin());
+    v.args(["dem", "contours", "--polygons"]).arg(dem).arg(&ours).args(our_levels);
+    run(&mut v);
+    let ((crs_a, a), (crs_b, b)) = (contour_polygons(&ours), contour_polygons(&reference));
+    assert_eq!(crs_a, crs_b, "{tag}: the CRS");
+    assert_eq!(a.len(), b.len(), "{tag}: bands");
+    let (data_lo, data_hi) = (a[0].0, a[a.len() - 1].1);
+    let (mut polygons, mut worst) = (0, 0.0f64);
+    for (i, ((min_a, max_a, pa), (min_b, max_b, pb))) in a.iter().zip(&b).enumerate() {
+        let min_b = if i == 0 && *min_b == 0.0 { data_lo } else { *min_b };
+        let max_b = if i == b.len() - 1 && *max_b == 4294967295.0 { data_hi } else { *max_b };
+        assert_eq!((*min_a, *max_a), (min_b, max_b), "{tag}: band {i}'s bounds");
+        assert_eq!(pa.len(), pb.len(), "{tag}: polygons in band {min_b}…{max_b}");
+        // Each polygon by its outer ring's least vertex: (outer vertices, outer area, sorted
+        // hole areas), orientation aside (ours follows RFC 7946, GDAL 3.6 does not).
+        let summary = |ps: &Vec<Vec<Vec<[f64; 2]>>>| {
+            ps.iter()
+                .map(|p| {
+                    let mut holes: Vec<f64> = p[1..].iter().map(|r| ring_area2(r).abs() / 2.0).collect();
+                    holes.sort_by(f64::total_cmp);
+                    let least = p[0].iter().map(|q| (q[0].to_bits(), q[1].to_bits())).min().unwrap();
+                    (least, (ring_area2(&p[0]).abs() / 2.0, p[0].len(), holes))
+                })
+                .collect::<std::collections::BTreeMap<_, _>>()
+        };
+        let (sa, sb) = (summary(pa), summary(pb));
+        assert_eq!(sa.keys().collect::<Vec<_>>(), sb.keys().collect::<Vec<_>>(), "{tag}: polygons in band {min_b}…{max_b}");
+        for ((area_a, n_a, holes_a), (area_b, n_b, holes_b)) in sa.values().zip(sb.values()) {
+            assert_eq!(n_a, n_b, "{tag}: vertices of an outer ring of area {area_b} in band {min_b}…{max_b}");
+            assert_eq!(holes_a.len(), holes_b.len(), "{tag}: holes of the polygon of area {area_b}");
+            for (x, y) in std::iter::once((area_a, area_b)).chain(holes_a.iter().zip(holes_b)) {
+                worst = worst.max((x - y).abs() / y.abs().max(1e-300));
+            }
+        }
+        // Every vertex of GDAL's is one of ours, bit for bit.
+        let ours: std::collections::HashSet<(u64, u64)> = pa.iter().flatten().flatten().map(|p| (p[0].to_bits(), p[1].to_bits())).collect();
+        let missing = pb.iter().flatten().flatten().filter(|p| !ours.contains(&(p[0].to_bits(), p[1].to_bits()))).count();
+        assert_eq!(missing, 0, "{tag}: vertices of GDAL's band {min_b}…{max_b} not among ours");
+        polygons += pa.len();
+    }
+    eprintln!(
+        "{} contour polygons {tag}: {} bands, {polygons} polygons, largest relative area difference {worst:e}",
+        dem.display(),
+        a.len()
+    );
+    assert!(worst <= 1e-9, "{tag}: an area {worst:e} from gdal_contour's");
+    polygons
+}
+
 /// Runs every product on `dem` both ways and compares; returns the cells compared.
 fn compare_products(dem: &Path, dir: &Path, gdal_args: &[&str], our_args: &[&str]) -> usize {
     let gdaldem = gdaldem().unwrap();
@@ -229,6 +319,9 @@ fn dem_products_equal_gdaldem_on_a_real_geographic_dem() {
     let fl = ["-fl", &exact, "180", "200.5"];
     let v = v + compare_contours(&dem, dir.path(), "fl", &fl, &["--levels", &format!("180,200.5,{exact}")]);
     assert!(v > 20_000, "{v} vertices compared");
+    let p = compare_contour_polygons(&dem, dir.path(), "i10", &["-i", "10"], &["--interval", "10"]);
+    let p = p + compare_contour_polygons(&dem, dir.path(), "fl", &fl, &["--levels", &format!("180,200.5,{exact}")]);
+    assert!(p > 20, "{p} polygons compared");
 }
 
 #[test]
@@ -250,4 +343,8 @@ fn dem_products_equal_gdaldem_on_a_projected_dem_with_nodata() {
     // Lines round the holes stop half-way to the NoData centres, as GDAL's do.
     let v = compare_contours(&dem, dir.path(), "i5", &["-i", "5"], &["--interval", "5"]);
     assert!(v > 5_000, "{v} vertices compared");
+    // Band polygons: their edges run round the holes half-way to the NoData centres too.
+    let p = compare_contour_polygons(&dem, dir.path(), "i5", &["-i", "5"], &["--interval", "5"]);
+    let p = p + compare_contour_polygons(&dem, dir.path(), "i20o7", &["-i", "20", "-off", "7"], &["--interval", "20", "--offset", "7"]);
+    assert!(p > 20, "{p} polygons compared");
 }

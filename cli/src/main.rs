@@ -294,8 +294,18 @@ enum Command {
         #[arg(long, default_value = "elev")]
         attribute: String,
         /// contours: vertices with the elevation as z (gdal_contour -3d).
-        #[arg(long = "3d")]
+        #[arg(long = "3d", conflicts_with = "polygons")]
         three_d: bool,
+        /// contours: polygons of the bands between levels instead of lines, one
+        /// MultiPolygon feature per band (gdal_contour -p).
+        #[arg(long)]
+        polygons: bool,
+        /// contours --polygons: the name of each band's lower bound (gdal_contour -amin).
+        #[arg(long, default_value = "ELEV_MIN", requires = "polygons")]
+        attribute_min: String,
+        /// contours --polygons: the name of each band's upper bound (gdal_contour -amax).
+        #[arg(long, default_value = "ELEV_MAX", requires = "polygons")]
+        attribute_max: String,
         #[command(flatten)]
         read: ReadArgs,
     },
@@ -618,18 +628,26 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             levels,
             attribute,
             three_d,
+            polygons,
+            attribute_min,
+            attribute_max,
             read,
         } => {
-            let contour_args = interval.is_some() || levels.is_some() || three_d || attribute != "elev";
+            let contour_args = interval.is_some() || levels.is_some() || three_d || polygons || attribute != "elev";
             let contours = match (product, interval, levels) {
                 (DemProduct::Contours, Some(interval), None) => Some(volterra::dem::contours::Levels::Interval { interval, offset }),
                 (DemProduct::Contours, None, Some(levels)) => Some(volterra::dem::contours::Levels::Fixed(levels)),
                 (DemProduct::Contours, ..) => anyhow::bail!("contours need --interval or --levels"),
-                _ if contour_args => anyhow::bail!("--interval, --levels, --attribute and --3d are for contours only"),
+                _ if contour_args => anyhow::bail!("--interval, --levels, --attribute, --3d and --polygons are for contours only"),
                 _ => None,
             };
             if let Some(levels) = contours {
-                return cmd_contours(&input, &output, &levels, &attribute, three_d, &read.options(limits)?);
+                let output_kind = if polygons {
+                    ContourOutput::Polygons { min: &attribute_min, max: &attribute_max }
+                } else {
+                    ContourOutput::Lines { attribute: &attribute, three_d }
+                };
+                return cmd_contours(&input, &output, &levels, output_kind, &read.options(limits)?);
             }
             let options = volterra::dem::Options { z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges };
             let mode = match (exact_color_entry, nearest_color_entry) {
@@ -905,12 +923,17 @@ fn cmd_dem(
     Ok(())
 }
 
+/// What `dem contours` writes: lines (gdal_contour's default) or band polygons (-p).
+enum ContourOutput<'a> {
+    Lines { attribute: &'a str, three_d: bool },
+    Polygons { min: &'a str, max: &'a str },
+}
+
 fn cmd_contours(
     input: &Path,
     output: &Path,
     levels: &volterra::dem::contours::Levels,
-    attribute: &str,
-    three_d: bool,
+    kind: ContourOutput,
     load: &LoadOptions,
 ) -> Result<()> {
     let ext = output.extension().and_then(|e| e.to_str()).unwrap_or_default().to_ascii_lowercase();
@@ -920,11 +943,22 @@ fn cmd_contours(
     let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
         anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
     };
-    let lines = volterra::dem::contours::contours(&hf, levels).with_context(|| input.display().to_string())?;
-    let features = lines.iter().map(|l| formats::geojson::LineFeature { points: &l.points, value: l.level });
-    formats::geojson::write_lines(output, "contour", &hf.crs, attribute, three_d, features)?;
-    let vertices: usize = lines.iter().map(|l| l.points.len()).sum();
-    eprintln!("wrote {} ({} lines, {vertices} vertices)", output.display(), lines.len());
+    match kind {
+        ContourOutput::Lines { attribute, three_d } => {
+            let lines = volterra::dem::contours::contours(&hf, levels).with_context(|| input.display().to_string())?;
+            let features = lines.iter().map(|l| formats::geojson::LineFeature { points: &l.points, value: l.level });
+            formats::geojson::write_lines(output, "contour", &hf.crs, attribute, three_d, features)?;
+            let vertices: usize = lines.iter().map(|l| l.points.len()).sum();
+            eprintln!("wrote {} ({} lines, {vertices} vertices)", output.display(), lines.len());
+        }
+        ContourOutput::Polygons { min, max } => {
+            let bands = volterra::dem::contours::contour_polygons(&hf, levels).with_context(|| input.display().to_string())?;
+            let features = bands.iter().map(|b| formats::geojson::PolygonFeature { polygons: &b.polygons, min: b.min, max: b.max });
+            formats::geojson::write_polygons(output, "contour", &hf.crs, (min, max), features)?;
+            let polygons: usize = bands.iter().map(|b| b.polygons.len()).sum();
+            eprintln!("wrote {} ({} bands, {polygons} polygons)", output.display(), bands.len());
+        }
+    }
     Ok(())
 }
 

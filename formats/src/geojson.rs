@@ -31,18 +31,7 @@ pub fn write_lines<'a>(
     let io = |e: std::io::Error| FormatError::io(path, e);
     let quoted = |s: &str| serde_json::to_string(s).expect("a string serialises");
     write_atomically(path, |w| {
-        write!(w, "{{\"type\":\"FeatureCollection\",\"name\":{}", quoted(layer)).map_err(io)?;
-        // WGS 84 in longitude, latitude order is OGC's CRS84 (EPSG:4326 proper is latitude
-        // first), as GDAL names it.
-        let name = match crs.epsg {
-            Some(4326) => Some("urn:ogc:def:crs:OGC:1.3:CRS84".to_string()),
-            Some(code) => Some(format!("urn:ogc:def:crs:EPSG::{code}")),
-            None => None,
-        };
-        if let Some(name) = name {
-            write!(w, ",\"crs\":{{\"type\":\"name\",\"properties\":{{\"name\":{}}}}}", quoted(&name)).map_err(io)?;
-        }
-        w.write_all(b",\"features\":[\n").map_err(io)?;
+        write_header(w, layer, crs).map_err(io)?;
         for (id, f) in features.into_iter().enumerate() {
             if !f.value.is_finite() || f.points.iter().flatten().any(|c| !c.is_finite()) {
                 return Err(FormatError::invalid(path, format!("feature {id}: a coordinate or value is not finite")));
@@ -70,6 +59,79 @@ pub fn write_lines<'a>(
         w.write_all(b"\n]}\n").map_err(io)?;
         Ok(())
     })
+}
+
+/// One polygon band (gdal_contour -p): its polygons (outer ring first, then holes; each
+/// ring closed) and its bounds.
+pub struct PolygonFeature<'a> {
+    pub polygons: &'a [Vec<Vec<[f64; 2]>>],
+    pub min: f64,
+    pub max: f64,
+}
+
+/// Writes polygon bands to `path` as MultiPolygon features carrying an `ID` and the
+/// attributes `min_name` and `max_name` (gdal_contour -amin, -amax).
+pub fn write_polygons<'a>(
+    path: &Path,
+    layer: &str,
+    crs: &Crs,
+    (min_name, max_name): (&str, &str),
+    features: impl IntoIterator<Item = PolygonFeature<'a>>,
+) -> Result<()> {
+    let io = |e: std::io::Error| FormatError::io(path, e);
+    let quoted = |s: &str| serde_json::to_string(s).expect("a string serialises");
+    write_atomically(path, |w| {
+        write_header(w, layer, crs).map_err(io)?;
+        for (id, f) in features.into_iter().enumerate() {
+            let finite = f.polygons.iter().flatten().flatten().flatten().all(|c| c.is_finite());
+            if !f.min.is_finite() || !f.max.is_finite() || !finite {
+                return Err(FormatError::invalid(path, format!("feature {id}: a coordinate or value is not finite")));
+            }
+            if id > 0 {
+                w.write_all(b",\n").map_err(io)?;
+            }
+            write!(
+                w,
+                "{{\"type\":\"Feature\",\"properties\":{{\"ID\":{id},{}:{},{}:{}}},\"geometry\":{{\"type\":\"MultiPolygon\",\"coordinates\":[",
+                quoted(min_name),
+                f.min,
+                quoted(max_name),
+                f.max
+            )
+            .map_err(io)?;
+            for (pi, poly) in f.polygons.iter().enumerate() {
+                w.write_all(if pi > 0 { b",[" } else { b"[" }).map_err(io)?;
+                for (ri, ring) in poly.iter().enumerate() {
+                    w.write_all(if ri > 0 { b",[" } else { b"[" }).map_err(io)?;
+                    for (i, p) in ring.iter().enumerate() {
+                        write!(w, "{}[{},{}]", if i > 0 { "," } else { "" }, p[0], p[1]).map_err(io)?;
+                    }
+                    w.write_all(b"]").map_err(io)?;
+                }
+                w.write_all(b"]").map_err(io)?;
+            }
+            w.write_all(b"]}}").map_err(io)?;
+        }
+        w.write_all(b"\n]}\n").map_err(io)?;
+        Ok(())
+    })
+}
+
+/// The collection's opening, its name and CRS, up to the features' first.
+fn write_header(w: &mut impl Write, layer: &str, crs: &Crs) -> std::io::Result<()> {
+    let quoted = |s: &str| serde_json::to_string(s).expect("a string serialises");
+    write!(w, "{{\"type\":\"FeatureCollection\",\"name\":{}", quoted(layer))?;
+    // WGS 84 in longitude, latitude order is OGC's CRS84 (EPSG:4326 proper is latitude
+    // first), as GDAL names it.
+    let name = match crs.epsg {
+        Some(4326) => Some("urn:ogc:def:crs:OGC:1.3:CRS84".to_string()),
+        Some(code) => Some(format!("urn:ogc:def:crs:EPSG::{code}")),
+        None => None,
+    };
+    if let Some(name) = name {
+        write!(w, ",\"crs\":{{\"type\":\"name\",\"properties\":{{\"name\":{}}}}}", quoted(&name))?;
+    }
+    w.write_all(b",\"features\":[\n")
 }
 
 #[cfg(test)]

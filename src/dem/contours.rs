@@ -90,7 +90,7 @@ struct Square {
     quarter: bool,
 }
 
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Side {
     Left,
     Lower,
@@ -164,29 +164,44 @@ impl Square {
         }
     }
 
-    /// The segments of `level` in this (NoData-free) square.
-    fn segments(&self, level: f64, out: &mut impl FnMut([f64; 2], [f64; 2])) {
-        let above = |c: Corner| level < nudge(level, c.v);
+    /// The lowest and highest corner value.
+    fn value_range(&self) -> (f64, f64) {
+        let vs = [self.upper_left.v, self.upper_right.v, self.lower_left.v, self.lower_right.v];
+        vs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)))
+    }
+
+    /// Whether corner `c` counts as above `level` (after GDAL's nudge).
+    fn above(level: f64, c: Corner) -> bool {
+        level < nudge(level, c.v)
+    }
+
+    /// The sides each segment of `level` joins in this (NoData-free) square: none, one
+    /// segment, or two at a saddle.
+    fn segment_sides(&self, level: f64) -> &'static [(Side, Side)] {
+        let above = |c: Corner| Self::above(level, c);
         let case = (above(self.upper_left) as u8)
             | (above(self.lower_left) as u8) << 1
             | (above(self.lower_right) as u8) << 2
             | (above(self.upper_right) as u8) << 3;
-        let mut seg = |a: Side, b: Side| out(self.point_on(a, level), self.point_on(b, level));
         use Side::*;
         match case {
-            0 | 15 => {}
-            1 | 14 => seg(Upper, Left),
-            2 | 13 => seg(Left, Lower),
-            4 | 11 => seg(Lower, Right),
-            8 | 7 => seg(Right, Upper),
-            3 | 12 => seg(Upper, Lower),
-            6 | 9 => seg(Left, Right),
+            0 | 15 => &[],
+            1 | 14 => &[(Upper, Left)],
+            2 | 13 => &[(Left, Lower)],
+            4 | 11 => &[(Lower, Right)],
+            8 | 7 => &[(Right, Upper)],
+            3 | 12 => &[(Upper, Lower)],
+            6 | 9 => &[(Left, Right)],
             // The two saddles, always joined the same way.
-            5 | 10 => {
-                seg(Left, Lower);
-                seg(Right, Upper);
-            }
+            5 | 10 => &[(Left, Lower), (Right, Upper)],
             _ => unreachable!("four corner bits"),
+        }
+    }
+
+    /// The segments of `level` in this (NoData-free) square.
+    fn segments(&self, level: f64, out: &mut impl FnMut([f64; 2], [f64; 2])) {
+        for &(a, b) in self.segment_sides(level) {
+            out(self.point_on(a, level), self.point_on(b, level));
         }
     }
 }
@@ -215,8 +230,9 @@ fn level_value(levels: &Levels, k: i64) -> f64 {
     }
 }
 
-/// The contour lines of `hf` at `levels`, in map coordinates.
-pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
+/// `levels` checked and put in order (fixed levels sorted, repeats dropped), refused where
+/// `hf` would cross more than `MAX_LEVELS` of them.
+fn checked_levels(hf: &Heightfield, levels: &Levels) -> Result<Levels> {
     let levels = match levels {
         Levels::Interval { interval, offset } => {
             if !(interval.is_finite() && *interval > 0.0 && offset.is_finite()) {
@@ -234,44 +250,39 @@ pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
             Levels::Fixed(l)
         }
     };
-    let (w, h) = (hf.width, hf.height);
-    let value = |col: i64, row: i64| -> f64 {
-        if col < 0 || row < 0 || col >= w as i64 || row >= h as i64 {
-            return f64::NAN;
-        }
-        let i = row as usize * w + col as usize;
-        if hf.is_nodata(col as usize, row as usize) {
-            f64::NAN
-        } else {
-            hf.elevations[i] as f64
-        }
-    };
     if let Levels::Interval { interval, offset } = &levels {
-        let (lo, hi) = hf
-            .elevations
-            .iter()
-            .filter(|v| v.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v as f64), hi.max(v as f64)));
-        if lo <= hi && ((hi - offset) / interval).floor() - ((lo - offset) / interval).ceil() > MAX_LEVELS as f64 {
-            bail!("an interval of {interval} over elevations {lo}…{hi} gives more than {MAX_LEVELS} levels");
+        if let Some((lo, hi)) = valid_range(hf) {
+            if ((hi - offset) / interval).floor() - ((lo - offset) / interval).ceil() > MAX_LEVELS as f64 {
+                bail!("an interval of {interval} over elevations {lo}…{hi} gives more than {MAX_LEVELS} levels");
+            }
         }
     }
+    Ok(levels)
+}
 
-    // Segments per level index, in pixel space.
-    let mut segments: HashMap<i64, Vec<[[f64; 2]; 2]>> = HashMap::new();
-    let mut process = |sq: &Square| {
-        let vs = [sq.upper_left.v, sq.upper_right.v, sq.lower_left.v, sq.lower_right.v];
-        let (min, max) = vs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-        for k in level_range(&levels, min, max) {
-            let level = level_value(&levels, k);
-            sq.segments(level, &mut |a, b| {
-                if a != b {
-                    segments.entry(k).or_default().push([a, b]);
-                }
-            });
+/// The lowest and highest valid elevation (None: none is valid).
+fn valid_range(hf: &Heightfield) -> Option<(f64, f64)> {
+    let (lo, hi) = hf
+        .elevations
+        .iter()
+        .enumerate()
+        .filter(|&(i, v)| v.is_finite() && !hf.is_nodata(i % hf.width, i / hf.width))
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (_, &v)| (lo.min(v as f64), hi.max(v as f64)));
+    (lo <= hi).then_some((lo, hi))
+}
+
+/// Calls `visit` with every NoData-free square of the raster framed by a ring of NoData
+/// (squares between rows row − 1 and row, columns col and col + 1), or with the quarters
+/// of a square that has one to three NoData corners, as GDAL's marching squares visit
+/// them, with the square's column and row (rows in order, each left to right).
+fn for_each_square(hf: &Heightfield, mut visit: impl FnMut(&Square, i64, i64)) {
+    let (w, h) = (hf.width, hf.height);
+    let value = |col: i64, row: i64| -> f64 {
+        if col < 0 || row < 0 || col >= w as i64 || row >= h as i64 || hf.is_nodata(col as usize, row as usize) {
+            return f64::NAN;
         }
+        hf.elevations[row as usize * w + col as usize] as f64
     };
-    // Squares between rows row−1 and row, columns col and col+1, for the framed raster.
     for row in 0..=h as i64 {
         for col in -1..w as i64 {
             let corner = |c: i64, r: i64| Corner { x: c as f64 + 0.5, y: r as f64 + 0.5, v: value(c, r) };
@@ -284,26 +295,52 @@ pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
             };
             match sq.nan_count() {
                 4 => {}
-                0 => process(&sq),
-                _ => sq.quarters().for_each(|q| process(&q)),
+                0 => visit(&sq, col, row),
+                _ => sq.quarters().for_each(|q| visit(&q, col, row)),
             }
         }
     }
+}
 
+/// Pixel space (x east, y south, in cells from the raster's north-west corner) to the
+/// raster's map coordinates.
+fn to_map(hf: &Heightfield) -> impl Fn([f64; 2]) -> [f64; 2] {
     let [sx, sy] = hf.cell_size_native;
     let corner = [hf.origin[0] - 0.5 * sx, hf.origin[1] + 0.5 * sy];
-    let to_map = |p: [f64; 2]| [corner[0] + p[0] * sx, corner[1] - p[1] * sy];
+    move |p: [f64; 2]| [corner[0] + p[0] * sx, corner[1] - p[1] * sy]
+}
+
+/// The contour lines of `hf` at `levels`, in map coordinates.
+pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
+    let levels = checked_levels(hf, levels)?;
+    // Segments per level index, in pixel space.
+    let mut segments: HashMap<i64, Vec<[[f64; 2]; 2]>> = HashMap::new();
+    for_each_square(hf, |sq, _, _| {
+        let (min, max) = sq.value_range();
+        for k in level_range(&levels, min, max) {
+            let level = level_value(&levels, k);
+            sq.segments(level, &mut |a, b| {
+                if a != b {
+                    segments.entry(k).or_default().push([a, b]);
+                }
+            });
+        }
+    });
+    let to_map = to_map(hf);
     let mut keys: Vec<i64> = segments.keys().copied().collect();
     keys.sort_unstable();
     let mut lines = Vec::new();
     for k in keys {
         let level = level_value(&levels, k);
         for chain in join_segments(&segments[&k]) {
-            lines.push(ContourLine { level, points: chain.into_iter().map(to_map).collect() });
+            lines.push(ContourLine { level, points: chain.into_iter().map(&to_map).collect() });
         }
     }
     Ok(lines)
 }
+
+mod polygons;
+pub use polygons::{contour_polygons, Band};
 
 /// Joins segments sharing end points (equal bit for bit: each crossing is worked out the
 /// same way from both squares that share its edge) into maximal lines: open lines from
@@ -427,5 +464,66 @@ mod tests {
         assert!(contours(&hf, &Levels::Interval { interval: 0.0, offset: 0.0 }).is_err());
         assert!(contours(&hf, &Levels::Interval { interval: 1e-9, offset: 0.0 }).is_err());
         assert!(contours(&hf, &Levels::Fixed(vec![f64::NAN])).is_err());
+    }
+
+    /// Twice a ring's signed area about its first vertex.
+    fn area2(r: &[[f64; 2]]) -> f64 {
+        let o = r[0];
+        r.windows(2).map(|w| (w[0][0] - o[0]) * (w[1][1] - o[1]) - (w[1][0] - o[0]) * (w[0][1] - o[1])).sum()
+    }
+
+    /// A band's area: its outer rings less their holes (map units).
+    fn band_area(b: &Band) -> f64 {
+        b.polygons.iter().map(|p| area2(&p[0]) / 2.0 + p[1..].iter().map(|h| area2(h) / 2.0).sum::<f64>()).sum()
+    }
+
+    /// The bands partition the raster: their areas add up to its extent (half a cell
+    /// beyond the outer centres), outer rings run counter-clockwise and holes clockwise,
+    /// every ring is closed, and each band's bounds are its levels (the data's extremes at
+    /// the ends). Hard cases: a checkerboard of saddles (rings touching at points), and a
+    /// centre equal to a level (a ring 1e-7 of a cell across, far from the origin).
+    #[test]
+    fn contour_polygons_partition_the_raster() {
+        let cases: Vec<(Heightfield, Levels)> = vec![
+            (
+                grid(41, 41, |x, y| 100.0 - ((x as f32 - 20.0).powi(2) + (y as f32 - 20.0).powi(2)).sqrt()),
+                Levels::Interval { interval: 5.0, offset: 0.0 },
+            ),
+            (grid(9, 8, |x, y| if (x + y) % 2 == 0 { 10.0 } else { 0.0 }), Levels::Fixed(vec![5.0])),
+            (grid(7, 6, |x, y| if (x, y) == (3, 2) { 180.0 } else { 170.0 + x as f32 }), Levels::Interval { interval: 10.0, offset: 0.0 }),
+        ];
+        for (n, (mut hf, levels)) in cases.into_iter().enumerate() {
+            hf.origin = [5.0e5, 4.2e6];
+            let bands = contour_polygons(&hf, &levels).unwrap();
+            let total: f64 = bands.iter().map(band_area).sum();
+            let extent = (hf.width * hf.height) as f64;
+            assert!((total - extent).abs() < 1e-6 * extent, "case {n}: the bands cover {total}, the raster {extent}");
+            for b in &bands {
+                assert!(b.min < b.max, "case {n}: band {}…{}", b.min, b.max);
+                for p in &b.polygons {
+                    assert!(area2(&p[0]) > 0.0, "case {n}: an outer ring runs clockwise");
+                    assert!(p[1..].iter().all(|h| area2(h) < 0.0), "case {n}: a hole runs counter-clockwise");
+                    assert!(p.iter().all(|r| r.len() >= 4 && r.first() == r.last()), "case {n}: a ring is not closed");
+                }
+            }
+        }
+        // The cone: the band 85…90 is an annulus between radii 10 and 15 cells.
+        let hf = grid(41, 41, |x, y| 100.0 - ((x as f32 - 20.0).powi(2) + (y as f32 - 20.0).powi(2)).sqrt());
+        let bands = contour_polygons(&hf, &Levels::Interval { interval: 5.0, offset: 0.0 }).unwrap();
+        let annulus = bands.iter().find(|b| b.min == 85.0).unwrap();
+        assert_eq!((annulus.max, annulus.polygons.len(), annulus.polygons[0].len()), (90.0, 1, 2), "one polygon with one hole");
+        let want = std::f64::consts::PI * (15.0f64.powi(2) - 10.0f64.powi(2));
+        assert!((band_area(annulus) - want).abs() < 0.01 * want, "annulus area {} against {want}", band_area(annulus));
+        // The ends: the lowest band starts at the lowest elevation, a fixed list's highest
+        // ends at the highest.
+        let bands = contour_polygons(&hf, &Levels::Fixed(vec![90.0])).unwrap();
+        let lowest = hf.elevations.iter().fold(f32::INFINITY, |a, &b| a.min(b)) as f64;
+        assert_eq!((bands[0].min, bands[0].max, bands[1].min, bands[1].max), (lowest, 90.0, 90.0, 100.0));
+        // The centre equal to a level: a tiny diamond in the band above, a hole below.
+        let hf = grid(7, 6, |x, y| if (x, y) == (3, 2) { 180.0 } else { 170.0 + x as f32 });
+        let bands = contour_polygons(&hf, &Levels::Interval { interval: 10.0, offset: 0.0 }).unwrap();
+        let top = bands.iter().find(|b| b.min == 180.0).unwrap();
+        assert_eq!(top.polygons.len(), 1);
+        assert!(band_area(top) > 0.0 && band_area(top) < 1e-12, "{}", band_area(top));
     }
 }
