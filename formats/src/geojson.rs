@@ -1,9 +1,12 @@
-//! GeoJSON line features, as GDAL's GeoJSON driver writes them for `gdal_contour`: a
-//! FeatureCollection whose LineString features carry an `ID` and one numeric attribute,
-//! coordinates in the raster's own CRS (x, y: longitude first for a geographic one), named
-//! by the (2008 GeoJSON) `crs` member where its EPSG code is known — as GDAL does, so that GIS tools place the lines without being told.
-//! Numbers are written in Rust's shortest round-trip form, so a reader gets back the exact
-//! f64. Written atomically.
+//! GeoJSON features, as GDAL's GeoJSON driver writes them for `gdal_contour`: a
+//! FeatureCollection whose features carry an `ID` and numeric attributes — LineString
+//! contour lines with their level, or MultiPolygon bands between levels (`-p`) with their
+//! bounds — coordinates in the raster's own CRS (x, y: longitude first for a geographic
+//! one), named by the (2008 GeoJSON) `crs` member where its EPSG code is known, as GDAL
+//! does, so that GIS tools place them without being told. Numbers are written in Rust's
+//! shortest round-trip form, so a reader gets back the exact f64. Written atomically; a
+//! feature with a value or coordinate that is not finite is refused (JSON has no such
+//! numbers) and nothing is written.
 
 use std::io::Write;
 use std::path::Path;
@@ -28,35 +31,17 @@ pub fn write_lines<'a>(
     three_d: bool,
     features: impl IntoIterator<Item = LineFeature<'a>>,
 ) -> Result<()> {
-    let io = |e: std::io::Error| FormatError::io(path, e);
-    let quoted = |s: &str| serde_json::to_string(s).expect("a string serialises");
-    write_atomically(path, |w| {
-        write_header(w, layer, crs).map_err(io)?;
-        for (id, f) in features.into_iter().enumerate() {
-            if !f.value.is_finite() || f.points.iter().flatten().any(|c| !c.is_finite()) {
-                return Err(FormatError::invalid(path, format!("feature {id}: a coordinate or value is not finite")));
+    write_collection(path, layer, crs, features, |w, id, f| {
+        let finite = f.points.iter().flatten().all(|c| c.is_finite());
+        feature_start(w, id, &[(attribute, f.value)], "LineString", finite)?;
+        for (i, p) in f.points.iter().enumerate() {
+            let sep = if i > 0 { "," } else { "" };
+            if three_d {
+                write!(w, "{sep}[{},{},{}]", p[0], p[1], f.value)?;
+            } else {
+                write!(w, "{sep}[{},{}]", p[0], p[1])?;
             }
-            if id > 0 {
-                w.write_all(b",\n").map_err(io)?;
-            }
-            write!(
-                w,
-                "{{\"type\":\"Feature\",\"properties\":{{\"ID\":{id},{}:{}}},\"geometry\":{{\"type\":\"LineString\",\"coordinates\":[",
-                quoted(attribute),
-                f.value
-            )
-            .map_err(io)?;
-            for (i, p) in f.points.iter().enumerate() {
-                let sep = if i > 0 { "," } else { "" };
-                if three_d {
-                    write!(w, "{sep}[{},{},{}]", p[0], p[1], f.value).map_err(io)?;
-                } else {
-                    write!(w, "{sep}[{},{}]", p[0], p[1]).map_err(io)?;
-                }
-            }
-            w.write_all(b"]}}").map_err(io)?;
         }
-        w.write_all(b"\n]}\n").map_err(io)?;
         Ok(())
     })
 }
@@ -78,37 +63,71 @@ pub fn write_polygons<'a>(
     (min_name, max_name): (&str, &str),
     features: impl IntoIterator<Item = PolygonFeature<'a>>,
 ) -> Result<()> {
-    let io = |e: std::io::Error| FormatError::io(path, e);
+    write_collection(path, layer, crs, features, |w, id, f| {
+        let finite = f.polygons.iter().flatten().flatten().flatten().all(|c| c.is_finite());
+        feature_start(w, id, &[(min_name, f.min), (max_name, f.max)], "MultiPolygon", finite)?;
+        for (pi, poly) in f.polygons.iter().enumerate() {
+            w.write_all(if pi > 0 { b",[" } else { b"[" })?;
+            for (ri, ring) in poly.iter().enumerate() {
+                w.write_all(if ri > 0 { b",[" } else { b"[" })?;
+                for (i, p) in ring.iter().enumerate() {
+                    write!(w, "{}[{},{}]", if i > 0 { "," } else { "" }, p[0], p[1])?;
+                }
+                w.write_all(b"]")?;
+            }
+            w.write_all(b"]")?;
+        }
+        Ok(())
+    })
+}
+
+/// A feature whose coordinates or attribute values are not finite numbers (JSON has none).
+#[derive(Debug)]
+struct NotFinite;
+
+impl std::fmt::Display for NotFinite {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a coordinate or value is not finite")
+    }
+}
+
+impl std::error::Error for NotFinite {}
+
+/// Opens feature `id`: its properties (`ID` first) and its geometry up to the first
+/// coordinate; refuses one whose values or coordinates (`finite`) are not finite.
+fn feature_start(w: &mut dyn Write, id: usize, properties: &[(&str, f64)], geometry: &str, finite: bool) -> std::io::Result<()> {
+    if !finite || properties.iter().any(|(_, v)| !v.is_finite()) {
+        return Err(std::io::Error::new(std::io::ErrorKind::InvalidData, NotFinite));
+    }
     let quoted = |s: &str| serde_json::to_string(s).expect("a string serialises");
+    write!(w, "{{\"type\":\"Feature\",\"properties\":{{\"ID\":{id}")?;
+    for (name, value) in properties {
+        write!(w, ",{}:{value}", quoted(name))?;
+    }
+    write!(w, "}},\"geometry\":{{\"type\":{},\"coordinates\":[", quoted(geometry))
+}
+
+/// Writes a FeatureCollection atomically: its header, then each feature through `feature`
+/// (which writes it from `feature_start` up to its last coordinate), then the end.
+fn write_collection<T>(
+    path: &Path,
+    layer: &str,
+    crs: &Crs,
+    features: impl IntoIterator<Item = T>,
+    feature: impl Fn(&mut dyn Write, usize, &T) -> std::io::Result<()>,
+) -> Result<()> {
+    let io = |e: std::io::Error| FormatError::io(path, e);
     write_atomically(path, |w| {
         write_header(w, layer, crs).map_err(io)?;
         for (id, f) in features.into_iter().enumerate() {
-            let finite = f.polygons.iter().flatten().flatten().flatten().all(|c| c.is_finite());
-            if !f.min.is_finite() || !f.max.is_finite() || !finite {
-                return Err(FormatError::invalid(path, format!("feature {id}: a coordinate or value is not finite")));
-            }
             if id > 0 {
                 w.write_all(b",\n").map_err(io)?;
             }
-            write!(
-                w,
-                "{{\"type\":\"Feature\",\"properties\":{{\"ID\":{id},{}:{},{}:{}}},\"geometry\":{{\"type\":\"MultiPolygon\",\"coordinates\":[",
-                quoted(min_name),
-                f.min,
-                quoted(max_name),
-                f.max
-            )
-            .map_err(io)?;
-            for (pi, poly) in f.polygons.iter().enumerate() {
-                w.write_all(if pi > 0 { b",[" } else { b"[" }).map_err(io)?;
-                for (ri, ring) in poly.iter().enumerate() {
-                    w.write_all(if ri > 0 { b",[" } else { b"[" }).map_err(io)?;
-                    for (i, p) in ring.iter().enumerate() {
-                        write!(w, "{}[{},{}]", if i > 0 { "," } else { "" }, p[0], p[1]).map_err(io)?;
-                    }
-                    w.write_all(b"]").map_err(io)?;
+            match feature(w, id, &f) {
+                Err(e) if e.get_ref().is_some_and(|inner| inner.is::<NotFinite>()) => {
+                    return Err(FormatError::invalid(path, format!("feature {id}: {NotFinite}")));
                 }
-                w.write_all(b"]").map_err(io)?;
+                r => r.map_err(io)?,
             }
             w.write_all(b"]}}").map_err(io)?;
         }
@@ -158,5 +177,35 @@ mod tests {
         assert_eq!(c[1][2].as_f64(), Some(12.5));
         let nan = [[f64::NAN, 0.0]];
         assert!(write_lines(&path, "c", &crs, "e", false, [LineFeature { points: &nan, value: 1.0 }]).is_err());
+    }
+
+    /// Polygon bands parse back as MultiPolygons with their rings and bounds; a NaN is
+    /// refused naming the feature, and the file it would replace is left as it was.
+    #[test]
+    fn polygons_round_trip_and_nan_is_refused_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.geojson");
+        let outer = vec![[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0], [0.0, 0.0]];
+        let hole = vec![[1.0, 1.0], [1.0, 2.0], [2.0, 2.0], [1.0, 1.0]];
+        let polys = vec![vec![outer.clone(), hole.clone()], vec![outer.clone()]];
+        let crs = Crs { epsg: Some(4326), geographic: true, description: String::new() };
+        let band = |min, max| PolygonFeature { polygons: &polys, min, max };
+        write_polygons(&path, "contour", &crs, ("lo", "hi"), [band(0.5, 10.0), band(10.0, 20.25)]).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["crs"]["properties"]["name"], "urn:ogc:def:crs:OGC:1.3:CRS84");
+        let f = &v["features"][1];
+        assert_eq!(
+            (f["properties"]["ID"].as_u64(), f["properties"]["lo"].as_f64(), f["properties"]["hi"].as_f64()),
+            (Some(1), Some(10.0), Some(20.25))
+        );
+        assert_eq!(f["geometry"]["type"], "MultiPolygon");
+        let c = &f["geometry"]["coordinates"];
+        assert_eq!((c.as_array().unwrap().len(), c[0].as_array().unwrap().len()), (2, 2));
+        assert_eq!(c[0][1][1][1].as_f64(), Some(2.0));
+        let bad = PolygonFeature { polygons: &polys, min: f64::NAN, max: 1.0 };
+        let e = write_polygons(&path, "contour", &crs, ("lo", "hi"), [band(0.5, 10.0), bad]).unwrap_err().to_string();
+        assert!(e.contains("feature 1") && e.contains("not finite"), "{e}");
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), text);
     }
 }
