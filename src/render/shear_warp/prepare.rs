@@ -68,6 +68,8 @@ pub struct Prepared {
     pub(super) affine: DMat4,
     /// Checked before each permuted copy is made.
     pub(super) limits: Limits,
+    /// Coarser copies made so far (voxels averaged 2³, 4³), see `coarser`.
+    coarse: Mutex<[Option<Arc<Prepared>>; 2]>,
 }
 
 impl Prepared {
@@ -94,7 +96,54 @@ impl Prepared {
             volume,
             axes: Mutex::new([None, None, None]),
             limits: *limits,
+            coarse: Mutex::default(),
         })
+    }
+
+    /// The volume with its real values averaged over blocks of `factor`³ voxels (2 or 4;
+    /// an axis shorter than the factor is kept whole), prepared and kept: made on first
+    /// use straight from the volume, its voxel centres at its blocks' centres. At 4 it
+    /// holds 1/64 of the voxels (as f32: 1/32 of an int16 volume's bytes), so all three
+    /// of its permuted copies are kept and a turn of the view needs no new slices.
+    pub(super) fn coarser(&self, factor: usize) -> Result<Arc<Prepared>> {
+        let slot = match factor {
+            2 => 0,
+            4 => 1,
+            _ => anyhow::bail!("shear-warp: volumes are made coarser by 2 or 4, not {factor}"),
+        };
+        let mut coarse = self.coarse.lock().unwrap();
+        if let Some(p) = &coarse[slot] {
+            return Ok(p.clone());
+        }
+        let v = &*self.volume;
+        let f = v.dims.map(|d| if d >= factor { factor } else { 1 });
+        let dims: [usize; 3] = std::array::from_fn(|a| v.dims[a] / f[a]);
+        let count = dims.iter().product::<usize>();
+        self.limits.check(Path::new("shear-warp"), "a coarser copy of the volume", &[count as u64, 4])?;
+        // The rescale is linear: the mean of real values is the real value of the mean.
+        let data: Vec<f32> = match &v.data {
+            VoxelData::U8(d) => block_means(v.dims, f, dims, |i| d[i] as f64),
+            VoxelData::I16(d) => block_means(v.dims, f, dims, |i| d[i] as f64),
+            VoxelData::U16(d) => block_means(v.dims, f, dims, |i| d[i] as f64),
+            VoxelData::F32(d) => block_means(v.dims, f, dims, |i| d[i] as f64),
+            other => block_means(v.dims, f, dims, |i| other.stored(i)),
+        }
+        .into_iter()
+        .map(|m| v.rescale.apply(m) as f32)
+        .collect();
+        // Coarse index c is fine index f·c + (f − 1)/2: the block's centre.
+        let mut affine = v.affine;
+        for row in affine.iter_mut().take(3) {
+            let offset: f64 = (0..3).map(|a| row[a] * (f[a] as f64 - 1.0) / 2.0).sum();
+            for (a, fa) in f.iter().enumerate() {
+                row[a] *= *fa as f64;
+            }
+            row[3] += offset;
+        }
+        let volume = Volume::new(dims, affine, VoxelData::F32(data));
+        let p = Arc::new(Prepared::shared(Arc::new(volume), &self.limits)?);
+        coarse[slot] = Some(p.clone());
+        Ok(p)
     }
 
     /// Voxel i's value as a u16 quantum of [lo, hi].
@@ -156,6 +205,28 @@ impl Prepared {
         axes[perm[2]] = Some(axis.clone());
         Ok(axis)
     }
+}
+
+/// The means of a volume of `dims` (x fastest; voxel i's value `value_at(i)`) over blocks
+/// of `f` voxels per axis, for the `out` blocks per axis that fit (x fastest).
+fn block_means(dims: [usize; 3], f: [usize; 3], out: [usize; 3], value_at: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
+    let (nx, ny) = (dims[0], dims[1]);
+    let norm = 1.0 / (f[0] * f[1] * f[2]) as f64;
+    let mut means = vec![0.0; out.iter().product()];
+    means.par_chunks_mut(out[0] * out[1]).enumerate().for_each(|(k, slice)| {
+        for (j, row) in slice.chunks_mut(out[0]).enumerate() {
+            for kk in k * f[2]..(k + 1) * f[2] {
+                for jj in j * f[1]..(j + 1) * f[1] {
+                    let line = (kk * ny + jj) * nx;
+                    for (i, m) in row.iter_mut().enumerate() {
+                        *m += (line + i * f[0]..line + (i + 1) * f[0]).map(&value_at).sum::<f64>();
+                    }
+                }
+            }
+            row.iter_mut().for_each(|m| *m *= norm);
+        }
+    });
+    means
 }
 
 /// The voxels of a volume of `dims` (x fastest) permuted so that index axis perm[a] is
@@ -276,6 +347,41 @@ mod tests {
         }
         let z = p.axis([0, 1, 2]).unwrap();
         assert_eq!(z.data, (0..24).map(|i| p.quantum(i)).collect::<Vec<_>>());
+    }
+
+    /// A coarser copy holds the means of the real values over its blocks (the rescale
+    /// applied), an axis shorter than the factor kept whole and a remainder dropped, and
+    /// places each coarse voxel at its block's centre in the world.
+    #[test]
+    fn coarser_copies_average_blocks_and_sit_at_their_centres() {
+        let dims = [9, 4, 1];
+        let n = dims[0] * dims[1] * dims[2];
+        let mut v = volume(dims, (0..n).map(|i| (i * 37 % 101) as i16).collect());
+        v.affine = [[0.5, 0.0, 0.0, 10.0], [0.0, 0.0, -2.0, 20.0], [0.0, 1.5, 0.0, -5.0], [0.0, 0.0, 0.0, 1.0]];
+        let p = Prepared::new(&v, &Default::default()).unwrap();
+        for f in [2usize, 4] {
+            let c = p.coarser(f).unwrap();
+            assert!(Arc::ptr_eq(&c, &p.coarser(f).unwrap()), "kept");
+            let cv = &c.volume;
+            assert_eq!(cv.dims, [9 / f, 4 / f, 1]);
+            for (ci, cj) in [(0, 0), (9 / f - 1, 4 / f - 1), (1, 0)] {
+                let mut sum = 0.0;
+                for j in cj * f..(cj + 1) * f {
+                    for i in ci * f..(ci + 1) * f {
+                        sum += v.value(v.index(i, j, 0));
+                    }
+                }
+                let want = sum / (f * f) as f64;
+                let got = cv.value(cv.index(ci, cj, 0));
+                assert!((got - want).abs() < 1e-4 * want.abs().max(1.0), "factor {f} block ({ci}, {cj}): {got} vs {want}");
+                // The block's centre: fine index (f·c + (f − 1)/2) in both frames.
+                let centre = |i: f64, j: f64| v.index_to_world([i, j, 0.0]);
+                let fine = centre(f as f64 * ci as f64 + (f as f64 - 1.0) / 2.0, f as f64 * cj as f64 + (f as f64 - 1.0) / 2.0);
+                let coarse = cv.index_to_world([ci as f64, cj as f64, 0.0]);
+                assert!((0..3).all(|a| (fine[a] - coarse[a]).abs() < 1e-12), "factor {f}: {coarse:?} vs {fine:?}");
+            }
+        }
+        assert!(p.coarser(3).is_err());
     }
 
     #[test]
