@@ -25,9 +25,9 @@ else
     echo "no $TARGET_DIR/debug/volterra: built-in references not checked"; status=1
 fi
 set -e
-# Every reader under libFuzzer for a bounded time (tests/fuzz.sh; 60 s per target, two at once).
+# Every reader under libFuzzer for a bounded time (tests/fuzz.sh; 45 s per target, two at once).
 set +e
-bash tests/fuzz.sh "${VOLTERRA_FUZZ_SECONDS:-60}" 2>&1 | tee target/fuzz-output.log
+bash tests/fuzz.sh "${VOLTERRA_FUZZ_SECONDS:-45}" 2>&1 | tee target/fuzz-output.log
 fuzz_status=${PIPESTATUS[0]}
 set -e
 awk '/^test result:/ { for (i = 1; i <= NF; i++) { if ($(i+1) ~ /^passed/) p += $i; if ($(i+1) ~ /^failed/) f += $i } }

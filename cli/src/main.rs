@@ -525,6 +525,10 @@ enum BenchCommand {
         /// Print the rows as JSON.
         #[arg(long)]
         json: bool,
+        /// Only the first view at the defaults against Mitsuba (the bench scene's plume and
+        /// the built-in 400k plume), not the paper's table.
+        #[arg(long)]
+        race_only: bool,
         #[command(flatten)]
         common: BenchCommon,
     },
@@ -773,9 +777,9 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
             std::fs::create_dir_all(&common.work_dir)?;
             b::frames::run(&b::frames::FramesBench { env: common.resolve(limits)?, steps, particles, width, height, renderers, json })
         }
-        BenchCommand::Smoke { scene, photons, image: (width, height), json, common } => {
+        BenchCommand::Smoke { scene, photons, image: (width, height), json, race_only, common } => {
             std::fs::create_dir_all(&common.work_dir)?;
-            b::smoke::run(&b::smoke::SmokeBench { env: common.resolve(limits)?, scene, width, height, photons, json })
+            b::smoke::run(&b::smoke::SmokeBench { env: common.resolve(limits)?, scene, width, height, photons, json, race_only })
         }
     }
 }

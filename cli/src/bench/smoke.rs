@@ -7,10 +7,20 @@
 //! (tests/reference/smoke_scenes/plume110k.toml, 8192 spp, committed). Then Mitsuba's own
 //! time to reach comparable errors at rising sample counts; `view s` is each one's time for
 //! the comparison view itself, so time and error compare on one image.
+//!
+//! Then the race (alone with `--race-only`): the first view at the renderer's defaults —
+//! particles loaded, photons traced, no cache — of the bench scene's plume and of the
+//! built-in 400k-particle plume (tests/reference/bench_scenes/plume400k.toml, its
+//! reference committed; `volterra::samples::write_large_plume` writes the particles) on
+//! the comparison view and at 400², against Mitsuba at 64, 256 and 1024 spp in the same
+//! run: Mitsuba's time for our error, interpolated between its rows. At 400² there is no
+//! 8192 spp reference (half an hour of Mitsuba on 2 cores): Mitsuba's time there is
+//! estimated as the view's sample count for our error times its measured seconds per
+//! sample at 400².
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use volterra::compare::{rgba_pixels, rgba_rel_rmse};
 use volterra::render::smoke::{self, FreeFlight, Settings, ShadowMode, SmokeInput, Store};
 use volterra::render::Frame;
@@ -23,6 +33,8 @@ pub struct SmokeBench {
     pub photons: usize,
     pub env: super::BenchEnv,
     pub json: bool,
+    /// Only the first-view race against Mitsuba, not the paper's table.
+    pub race_only: bool,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -58,6 +70,33 @@ fn render(scene: &Scene, node: usize, sets: &Settings, size: (usize, usize)) -> 
 }
 
 pub fn run(b: &SmokeBench) -> Result<()> {
+    let rows = if b.race_only { Vec::new() } else { table(b)? };
+    // The race: the bench scene's plume and the large built-in one, written where its
+    // scene (tests/reference/bench_scenes/plume400k.toml) reads it.
+    let large_scene = b.env.scripts.join("bench_scenes/plume400k.toml");
+    let samples = b.env.scripts.join("../../target/builtin-samples");
+    if !samples.join("smoke_plume_400k.vtp").exists() {
+        std::fs::create_dir_all(&samples)?;
+        volterra::samples::write_large_plume(&samples)?;
+    }
+    let mut races = Vec::new();
+    for scene in [b.scene.clone(), large_scene] {
+        races.push(race(b, &scene, &[])?);
+    }
+    if b.json {
+        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "table": rows, "races": races }))?);
+        return Ok(());
+    }
+    if !rows.is_empty() {
+        let scene = Scene::load(&b.scene, &[])?;
+        print_table(b, &rows, (scene.file.image.width, scene.file.image.height));
+    }
+    print_races(&races);
+    Ok(())
+}
+
+/// The paper's Table 1 and its two variants, then Mitsuba's rows, on the bench scene.
+fn table(b: &SmokeBench) -> Result<Vec<Row>> {
     let scene = Scene::load(&b.scene, &[])?.with_limits(b.env.limits);
     let node = scene.nodes().iter().position(|n| n.kind == NodeKind::Particles).context("the bench scene needs a particle node")?;
     let reference_path = b
@@ -124,10 +163,10 @@ pub fn run(b: &SmokeBench) -> Result<()> {
         Ok(r) => rows.extend(r),
         Err(e) => eprintln!("Mitsuba rows skipped: {e:#}"),
     }
-    if b.json {
-        println!("{}", serde_json::to_string_pretty(&rows)?);
-        return Ok(());
-    }
+    Ok(rows)
+}
+
+fn print_table(b: &SmokeBench, rows: &[Row], ref_size: (usize, usize)) {
     println!(
         "{}: {}×{} timing image, 4 rays/pixel, {} photons; error on the {}×{} view against Mitsuba 8192 spp; {} threads",
         b.scene.display(),
@@ -142,7 +181,7 @@ pub fn run(b: &SmokeBench) -> Result<()> {
         "{:<50} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10} {:>8}",
         "config", "total s", "trace s", "store s", "march s", "rel. RMSE", "memory MB", "view s"
     );
-    for r in &rows {
+    for r in rows {
         println!(
             "{:<50} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2}% {:>10.1} {:>8.2}",
             r.config,
@@ -155,50 +194,220 @@ pub fn run(b: &SmokeBench) -> Result<()> {
             r.view_s
         );
     }
-    Ok(())
 }
 
-/// Mitsuba at rising sample counts on the comparison view: render time against error.
-fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) -> Result<Vec<Row>> {
-    let mut rows = Vec::new();
-    for spp in [16, 64, 256, 1024] {
-        let out_dir = b.env.work_dir.join(format!("mitsuba_{spp}"));
-        let out = std::process::Command::new(&b.env.python)
-            .arg(b.env.scripts.join("mitsuba_smoke.py"))
-            .arg(&out_dir)
-            .arg(spp.to_string())
-            .arg(&b.scene)
-            .output()
-            .with_context(|| format!("cannot run {}", b.env.python.display()))?;
-        if !out.status.success() {
-            bail!("mitsuba_smoke.py failed: {}", crate::child::last_line(&out.stderr));
+/// One plume's first view at the renderer's defaults (photons traced, no cache) against
+/// Mitsuba: the error on the comparison view, and the time at that view and at 400².
+#[derive(Debug, Clone, Serialize)]
+pub struct Race {
+    pub plume: String,
+    pub particles: usize,
+    pub view: (usize, usize),
+    /// Loading the particles and rendering, every phase included.
+    pub ours_s: f64,
+    pub ours_rel_rmse: f64,
+    /// Mitsuba's rows on the view: sample count, seconds, relative RMSE.
+    pub mitsuba: Vec<(usize, f64, f64)>,
+    /// Mitsuba's seconds for our error (see [`seconds_at_error`]), and whether extrapolated.
+    pub mitsuba_s_at_our_error: Option<(f64, bool)>,
+    pub ours_large_s: f64,
+    pub large: (usize, usize),
+    /// Mitsuba's seconds per sample per pixel at the large size (a 16 spp render).
+    pub mitsuba_large_s_per_spp: f64,
+}
+
+const LARGE: (usize, usize) = (400, 400);
+const RACE_COUNTS: [usize; 3] = [64, 256, 1024];
+
+fn race(b: &SmokeBench, scene_path: &Path, sets: &[String]) -> Result<Race> {
+    let t = std::time::Instant::now();
+    let scene = Scene::load(scene_path, sets)?.with_limits(b.env.limits);
+    let node = scene.nodes().iter().position(|n| n.kind == NodeKind::Particles).context("the race scene needs a particle node")?;
+    let particles = scene.particles(node)?.len();
+    let view = (scene.file.image.width, scene.file.image.height);
+    let defaults = Settings { cache: false, ..Default::default() };
+    let ours = render(&scene, node, &defaults, view)?;
+    let ours_s = t.elapsed().as_secs_f64();
+    let reference = reference_of(b, scene_path)?;
+    let error = |rgb: &[[f32; 4]]| rgba_rel_rmse(rgb, &reference);
+    let ours_rel_rmse = error(&ours.rgba.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect::<Vec<_>>());
+    let t = std::time::Instant::now();
+    let scene = Scene::load(scene_path, sets)?.with_limits(b.env.limits);
+    render(&scene, node, &defaults, LARGE)?;
+    let ours_large_s = t.elapsed().as_secs_f64();
+    let mitsuba: Vec<(usize, f64, f64)> =
+        mitsuba_runs(b, scene_path, &RACE_COUNTS, view, None)?.into_iter().map(|r| (r.spp, r.seconds, error(&r.rgb))).collect();
+    let rows: Vec<(f64, f64)> = mitsuba.iter().map(|r| (r.1, r.2)).collect();
+    let large = mitsuba_runs(b, scene_path, &[16], LARGE, Some(LARGE))?;
+    Ok(Race {
+        plume: scene_path.file_stem().unwrap_or_default().to_string_lossy().to_string(),
+        particles,
+        view,
+        ours_s,
+        ours_rel_rmse,
+        mitsuba_s_at_our_error: seconds_at_error(&rows, ours_rel_rmse),
+        mitsuba,
+        ours_large_s,
+        large: LARGE,
+        mitsuba_large_s_per_spp: large[0].seconds / 16.0,
+    })
+}
+
+/// The committed Mitsuba reference (8192 spp) of a bench scene: ../data/mitsuba_NAME.exr
+/// beside its folder, as RGB.
+fn reference_of(b: &SmokeBench, scene: &Path) -> Result<Vec<[f32; 4]>> {
+    let path = scene
+        .parent()
+        .and_then(|d| d.parent())
+        .map(|d| d.join("data").join(format!("mitsuba_{}.exr", scene.file_stem().unwrap_or_default().to_string_lossy())));
+    let Some(p) = path.filter(|p| p.exists()) else {
+        bail!("no Mitsuba reference beside {} (expected ../data/mitsuba_NAME.exr)", scene.display())
+    };
+    let img = volterra_formats::exr_io::read_exr(&p, &b.env.limits)?;
+    Ok(rgba_pixels(&img).iter().map(|p| [p[0], p[1], p[2], 0.0]).collect())
+}
+
+fn print_races(races: &[Race]) {
+    println!();
+    println!("first view at the defaults (photons traced, no cache; load included) against Mitsuba volpath (its render alone)");
+    for r in races {
+        println!(
+            "{} ({} particles), {}×{}: ours {:.2} s at {:.2}%; Mitsuba {}",
+            r.plume,
+            r.particles,
+            r.view.0,
+            r.view.1,
+            r.ours_s,
+            100.0 * r.ours_rel_rmse,
+            r.mitsuba.iter().map(|m| format!("{} spp {:.2} s {:.2}%", m.0, m.1, 100.0 * m.2)).collect::<Vec<_>>().join(", ")
+        );
+        match r.mitsuba_s_at_our_error {
+            Some((s, extrapolated)) => println!(
+                "  Mitsuba at our error: {:.2} s ({}) — ours {:.1}× faster",
+                s,
+                if extrapolated { "extrapolated past its last row" } else { "interpolated between its rows" },
+                s / r.ours_s
+            ),
+            None => println!("  Mitsuba at our error: not found from its rows"),
         }
-        // "mitsuba WxH at N spp in T s" on stderr: the render alone, without the resampling.
-        let stderr = String::from_utf8_lossy(&out.stderr);
+        // At the large size Mitsuba needs at least the view's sample count for the same
+        // per-pixel noise (a smaller pixel averages less): its time there is estimated as
+        // that count times its measured seconds per sample.
+        if let Some((s, _)) = r.mitsuba_s_at_our_error {
+            let spp = interpolated_spp(&r.mitsuba, s);
+            let mitsuba_large = spp * r.mitsuba_large_s_per_spp;
+            println!(
+                "  {}×{}: ours {:.2} s; Mitsuba {:.3} s per spp, ≈ {:.0} s at the view's {:.0} spp (estimate) — ours {:.1}× faster",
+                r.large.0,
+                r.large.1,
+                r.ours_large_s,
+                r.mitsuba_large_s_per_spp,
+                mitsuba_large,
+                spp,
+                mitsuba_large / r.ours_large_s
+            );
+        }
+    }
+}
+
+/// The sample count at which Mitsuba's rows take `seconds` (linear in time between rows).
+fn interpolated_spp(rows: &[(usize, f64, f64)], seconds: f64) -> f64 {
+    let per_spp = rows.last().map(|r| r.1 / r.0 as f64).unwrap_or(f64::NAN);
+    seconds / per_spp
+}
+
+/// One Mitsuba render of a bench scene: sample count, seconds (the render alone, without
+/// resampling the density), and RGB.
+struct MitsubaRun {
+    spp: usize,
+    seconds: f64,
+    rgb: Vec<[f32; 4]>,
+}
+
+/// Mitsuba at the given sample counts on `scene`'s view, in one run of mitsuba_smoke.py
+/// (the density grid resampled once), with a sampler seed other than the committed
+/// reference's so that each run's noise is independent of the reference's.
+fn mitsuba_runs(
+    b: &SmokeBench,
+    scene: &Path,
+    counts: &[usize],
+    size: (usize, usize),
+    image: Option<(usize, usize)>,
+) -> Result<Vec<MitsubaRun>> {
+    let stem = scene.file_stem().unwrap_or_default().to_string_lossy().to_string();
+    let out_dir = b.env.work_dir.join(format!("mitsuba_{stem}_{}x{}", size.0, size.1));
+    let list = counts.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",");
+    let out = std::process::Command::new(&b.env.python)
+        .arg(b.env.scripts.join("mitsuba_smoke.py"))
+        .arg(&out_dir)
+        .arg(&list)
+        .args(["--seed", "1"])
+        .args(image.map(|(w, h)| vec!["--image".to_string(), format!("{w}x{h}")]).unwrap_or_default())
+        .arg(scene)
+        .output()
+        .with_context(|| format!("cannot run {}", b.env.python.display()))?;
+    if !out.status.success() {
+        bail!("mitsuba_smoke.py failed: {}", crate::child::last_line(&out.stderr));
+    }
+    // "mitsuba WxH at N spp in T s" on stderr, one line per sample count.
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let mut runs = Vec::new();
+    for &spp in counts {
         let seconds = stderr
             .lines()
             .find_map(|l| {
-                l.strip_prefix("mitsuba ")
-                    .and_then(|r| r.rsplit_once(" in "))
-                    .and_then(|(_, t)| t.trim_end_matches(" s").parse::<f64>().ok())
+                let rest = l.strip_prefix("mitsuba ")?;
+                let (head, t) = rest.rsplit_once(" in ")?;
+                head.ends_with(&format!(" at {spp} spp")).then(|| t.trim_end_matches(" s").parse::<f64>().ok()).flatten()
             })
-            .context("no timing from mitsuba_smoke.py")?;
-        let stem = b.scene.file_stem().unwrap_or_default().to_string_lossy().to_string();
-        let img = volterra_formats::exr_io::read_exr(&out_dir.join(format!("mitsuba_{stem}.exr")), &b.env.limits)?;
+            .with_context(|| format!("no timing for {spp} spp from mitsuba_smoke.py"))?;
+        // One sample count keeps the script's plain name.
+        let name = if counts.len() == 1 { format!("mitsuba_{stem}.exr") } else { format!("mitsuba_{stem}_{spp}.exr") };
+        let img = volterra_formats::exr_io::read_exr(&out_dir.join(name), &b.env.limits)?;
         let rgb: Vec<[f32; 4]> = rgba_pixels(&img).iter().map(|p| [p[0], p[1], p[2], 0.0]).collect();
         if rgb.len() != size.0 * size.1 {
             bail!("Mitsuba image size differs");
         }
-        rows.push(Row {
-            config: format!("mitsuba volpath {spp} spp ({}×{})", size.0, size.1),
-            total_s: seconds,
+        runs.push(MitsubaRun { spp, seconds, rgb });
+    }
+    Ok(runs)
+}
+
+/// Mitsuba at rising sample counts on the comparison view: render time against error.
+fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) -> Result<Vec<Row>> {
+    Ok(mitsuba_runs(b, &b.scene, &[16, 64, 256, 1024], size, None)?
+        .into_iter()
+        .map(|r| Row {
+            config: format!("mitsuba volpath {} spp ({}×{})", r.spp, size.0, size.1),
+            total_s: r.seconds,
             trace_s: 0.0,
             store_s: 0.0,
-            march_s: seconds,
-            rel_rmse: rgba_rel_rmse(&rgb, reference),
+            march_s: r.seconds,
+            rel_rmse: rgba_rel_rmse(&r.rgb, reference),
             memory_mb: 0.0,
-            view_s: seconds,
-        });
+            view_s: r.seconds,
+        })
+        .collect())
+}
+
+/// Mitsuba's seconds to reach `error`, from (seconds, error) rows at rising sample counts:
+/// interpolated linearly in log error against log time between the two rows around it
+/// (extrapolated from the last two when `error` is below every row's), and whether it was
+/// extrapolated.
+pub fn seconds_at_error(rows: &[(f64, f64)], error: f64) -> Option<(f64, bool)> {
+    if rows.len() < 2 || error <= 0.0 {
+        return None;
     }
-    Ok(rows)
+    let k = rows.windows(2).position(|w| w[0].1 >= error && error >= w[1].1);
+    let (i, extrapolated) = match k {
+        Some(i) => (i, false),
+        None if error < rows[rows.len() - 1].1 => (rows.len() - 2, true),
+        None => return Some((rows[0].0, false)),
+    };
+    let ((t0, e0), (t1, e1)) = (rows[i], rows[i + 1]);
+    if !(e0 > e1 && t1 > t0) {
+        return None;
+    }
+    let s = (error.ln() - e0.ln()) / (e1.ln() - e0.ln());
+    Some(((t0.ln() + s * (t1.ln() - t0.ln())).exp(), extrapolated))
 }

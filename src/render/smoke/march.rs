@@ -18,8 +18,9 @@ use volterra_formats::rng::Rng;
 pub enum LightTransmittance<'a> {
     /// A shadow ray marched at the given step for every sample.
     Marched { step: f64 },
-    /// Looked up in a lazily filled grid per light (trilinear).
-    Grid(&'a [super::grid::LazyGrid]),
+    /// Looked up in a lazily filled grid per light (trilinear), whose points march their
+    /// shadow rays through `medium` (the camera's, or its resampled density grid).
+    Grid { grids: &'a [super::grid::LazyGrid], medium: &'a dyn Medium },
 }
 
 pub struct MarchView<'a> {
@@ -45,10 +46,10 @@ impl MarchView<'_> {
             // The grid holds optical depth, not transmittance: τ changes nearly linearly
             // across a cell where e^−τ, in dense smoke, is far from linear (interpolating
             // T overestimated single scattering twofold in a dense cloud).
-            LightTransmittance::Grid(grids) => {
+            LightTransmittance::Grid { grids, medium } => {
                 let tau = grids[k].sample(x, &|p| {
                     let t = match self.emitters[k].incident(p) {
-                        Some((d, r, _)) => marched_transmittance(self.medium, self.c_ext, p, -d, r, self.step),
+                        Some((d, r, _)) => marched_transmittance(*medium, self.c_ext, p, -d, r, self.step),
                         None => 0.0,
                     };
                     [-t.max(1e-30).ln(), 0.0, 0.0]

@@ -55,7 +55,8 @@ impl Kernel {
         }
     }
 
-    fn norm(self, h: f64) -> f64 {
+    /// The normalisation at h: 1/(πh³) (cubic spline), 315/(64π(2h)⁹) (poly6).
+    pub fn norm(self, h: f64) -> f64 {
         match self {
             Kernel::CubicSpline => 1.0 / (std::f64::consts::PI * h * h * h),
             Kernel::Poly6 => 315.0 / (64.0 * std::f64::consts::PI * (2.0 * h).powi(9)),
