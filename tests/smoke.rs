@@ -514,29 +514,41 @@ fn majorant_walks_cover_the_ray_and_bound_the_density() {
     assert!(coarse_stretches > 0);
 }
 
+/// Rays through the `cloud` of the tracking tests: along an axis, and two oblique ones.
+fn crossing_rays() -> [(DVec3, DVec3); 3] {
+    [
+        (DVec3::new(-0.1, 0.25, 0.15), DVec3::X),
+        (DVec3::new(0.5, -0.1, 0.15), DVec3::new(0.1, 1.0, 0.05).normalize()),
+        (DVec3::new(0.2, 0.1, -0.1), DVec3::new(0.6, 0.3, 0.4).normalize()),
+    ]
+}
+
+/// Delta tracking through `medium` along each of [`crossing_rays`]: the fraction of
+/// photons crossing without a collision equals the transmittance e^(−∫σ_t) marched finely
+/// along it (c_ext = 1). Returns the transmittances.
+fn assert_delta_tracking_escapes_at_the_transmittance(medium: &dyn Medium, seed: u64) -> Vec<f64> {
+    let mut rng = Rng::new(seed);
+    let n = 40_000;
+    let mut out = Vec::new();
+    for (o, d) in crossing_rays() {
+        let exact = marched_transmittance(medium, 1.0, o, d, 2.0, 1e-4);
+        let escaped = (0..n).filter(|_| delta_track(medium, 1.0, o, d, 2.0, &mut rng).is_none()).count() as f64 / n as f64;
+        let se = (exact * (1.0 - exact) / n as f64).sqrt();
+        assert!((escaped - exact).abs() < 4.0 * se + 1e-3, "ray {d}: delta tracking {escaped} vs marched {exact} (σ {se})");
+        out.push(exact);
+    }
+    let partial = out.iter().filter(|&&t| t > 0.05 && t < 0.95).count();
+    assert!(partial >= 2, "the rays should cross the cloud with partial transmittance: {out:?}");
+    out
+}
+
 /// Delta tracking through heterogeneous SPH smoke (thin bricks walked whole, the rest cell
-/// by cell): the fraction of photons crossing a stretch without a collision equals the
-/// transmittance e^(−∫σ_t) marched finely along it.
+/// by cell) escapes at the marched transmittance.
 #[test]
 fn delta_tracking_through_sph_smoke_escapes_at_the_marched_transmittance() {
     let (positions, mass, h) = cloud(2000, 31);
     let medium = SphMedium::new(positions, mass.iter().map(|m| m * 1e-4).collect(), h, Kernel::CubicSpline).unwrap();
-    let c_ext = 1.0;
-    let mut rng = Rng::new(32);
-    let n = 40_000;
-    let mut checked = 0;
-    for (o, d) in [
-        (DVec3::new(-0.1, 0.25, 0.15), DVec3::X),
-        (DVec3::new(0.5, -0.1, 0.15), DVec3::new(0.1, 1.0, 0.05).normalize()),
-        (DVec3::new(0.2, 0.1, -0.1), DVec3::new(0.6, 0.3, 0.4).normalize()),
-    ] {
-        let exact = marched_transmittance(&medium, c_ext, o, d, 2.0, 1e-4);
-        let escaped = (0..n).filter(|_| delta_track(&medium, c_ext, o, d, 2.0, &mut rng).is_none()).count() as f64 / n as f64;
-        let se = (exact * (1.0 - exact) / n as f64).sqrt();
-        assert!((escaped - exact).abs() < 4.0 * se + 1e-3, "ray {d}: delta tracking {escaped} vs marched {exact} (σ {se})");
-        checked += (exact > 0.05 && exact < 0.95) as usize;
-    }
-    assert!(checked >= 2, "the rays should cross the cloud with partial transmittance");
+    assert_delta_tracking_escapes_at_the_transmittance(&medium, 32);
 }
 
 /// Photons flying through the density grid (`light_density = "grid"`) escape a stretch of
@@ -548,24 +560,11 @@ fn delta_tracking_through_the_density_grid_escapes_at_its_transmittance() {
     let (positions, mass, h) = cloud(2000, 41);
     let medium = SphMedium::new(positions, mass.iter().map(|m| m * 1e-4).collect(), h, Kernel::CubicSpline).unwrap();
     let grid = volterra::render::smoke::density_grid::DensityGrid::new(&medium, 0.005);
-    let c_ext = 1.0;
-    let mut rng = Rng::new(42);
-    let n = 40_000;
-    let mut checked = 0;
-    for (o, d) in [
-        (DVec3::new(-0.1, 0.25, 0.15), DVec3::X),
-        (DVec3::new(0.5, -0.1, 0.15), DVec3::new(0.1, 1.0, 0.05).normalize()),
-        (DVec3::new(0.2, 0.1, -0.1), DVec3::new(0.6, 0.3, 0.4).normalize()),
-    ] {
-        let on_grid = marched_transmittance(&grid, c_ext, o, d, 2.0, 1e-4);
-        let exact = marched_transmittance(&medium, c_ext, o, d, 2.0, 1e-4);
-        assert!((on_grid - exact).abs() < 0.02, "ray {d}: grid transmittance {on_grid}, SPH {exact}");
-        let escaped = (0..n).filter(|_| delta_track(&grid, c_ext, o, d, 2.0, &mut rng).is_none()).count() as f64 / n as f64;
-        let se = (on_grid * (1.0 - on_grid) / n as f64).sqrt();
-        assert!((escaped - on_grid).abs() < 4.0 * se + 1e-3, "ray {d}: delta tracking {escaped} vs marched {on_grid} (σ {se})");
-        checked += (on_grid > 0.05 && on_grid < 0.95) as usize;
+    let on_grid = assert_delta_tracking_escapes_at_the_transmittance(&grid, 42);
+    for ((o, d), t) in crossing_rays().into_iter().zip(on_grid) {
+        let exact = marched_transmittance(&medium, 1.0, o, d, 2.0, 1e-4);
+        assert!((t - exact).abs() < 0.02, "ray {d}: grid transmittance {t}, SPH {exact}");
     }
-    assert!(checked >= 2, "the rays should cross the cloud with partial transmittance");
 }
 
 /// The paper's local free path is exact where σ_t is constant: photons from outside a
