@@ -230,6 +230,8 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
             return Ok(&medium);
         }
         if density_grid.get().is_none() {
+            // Over a second for the 400k plume: shown as a phase of its own.
+            let phase = crate::render::driver::Task::begin("smoke: the light's density grid", 1);
             let t = Instant::now();
             let spacing = density_grid::DensityGrid::spacing(&medium, 0.5 * h);
             let dims = density_grid::DensityGrid::dims_for(&medium, spacing);
@@ -249,6 +251,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
                 t.elapsed().as_secs_f64()
             ));
             let _ = density_grid.set(grid);
+            phase.advance(1);
         }
         Ok(density_grid.get().expect("built above") as &dyn medium::Medium)
     };
