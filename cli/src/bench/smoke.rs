@@ -70,7 +70,7 @@ fn render(scene: &Scene, node: usize, sets: &Settings, size: (usize, usize)) -> 
 }
 
 pub fn run(b: &SmokeBench) -> Result<()> {
-    let rows = if b.race_only { Vec::new() } else { table(b)? };
+    let table = if b.race_only { None } else { Some(table(b)?) };
     // The race: the bench scene's plume and the large built-in one, written where its
     // scene (tests/reference/bench_scenes/plume400k.toml) reads it.
     let large_scene = b.env.scripts.join("bench_scenes/plume400k.toml");
@@ -81,36 +81,27 @@ pub fn run(b: &SmokeBench) -> Result<()> {
     }
     let mut races = Vec::new();
     for scene in [b.scene.clone(), large_scene] {
-        races.push(race(b, &scene, &[])?);
+        races.push(race(b, &scene)?);
     }
     if b.json {
+        let rows = table.map(|t| t.0).unwrap_or_default();
         println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "table": rows, "races": races }))?);
         return Ok(());
     }
-    if !rows.is_empty() {
-        let scene = Scene::load(&b.scene, &[])?;
-        print_table(b, &rows, (scene.file.image.width, scene.file.image.height));
+    if let Some((rows, view)) = &table {
+        print_table(b, rows, *view);
     }
     print_races(&races);
     Ok(())
 }
 
 /// The paper's Table 1 and its two variants, then Mitsuba's rows, on the bench scene.
-fn table(b: &SmokeBench) -> Result<Vec<Row>> {
+fn table(b: &SmokeBench) -> Result<(Vec<Row>, (usize, usize))> {
     let scene = Scene::load(&b.scene, &[])?.with_limits(b.env.limits);
     let node = scene.nodes().iter().position(|n| n.kind == NodeKind::Particles).context("the bench scene needs a particle node")?;
-    let reference_path = b
-        .scene
-        .parent()
-        .and_then(|d| d.parent())
-        .map(|d| d.join("data").join(format!("mitsuba_{}.exr", b.scene.file_stem().unwrap_or_default().to_string_lossy())));
-    let reference = match reference_path.as_ref().filter(|p| p.exists()) {
-        Some(p) => volterra_formats::exr_io::read_exr(p, &b.env.limits)?,
-        None => bail!("no Mitsuba reference beside {} (expected ../data/mitsuba_NAME.exr)", b.scene.display()),
-    };
-    let reference = rgba_pixels(&reference).iter().map(|p| [p[0], p[1], p[2], 0.0]).collect::<Vec<_>>();
+    let reference = reference_of(b, &b.scene)?;
     let ref_size = (scene.file.image.width, scene.file.image.height);
-    let err_of = |f: &Frame| rgba_rel_rmse(&f.rgba.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect::<Vec<_>>(), &reference);
+    let err_of = |f: &Frame| rgba_rel_rmse(&rgb_only(&f.rgba), &reference);
 
     let mut rows = Vec::new();
     // The four combinations of the paper's Table 1, then the default's two alternatives:
@@ -163,7 +154,7 @@ fn table(b: &SmokeBench) -> Result<Vec<Row>> {
         Ok(r) => rows.extend(r),
         Err(e) => eprintln!("Mitsuba rows skipped: {e:#}"),
     }
-    Ok(rows)
+    Ok((rows, ref_size))
 }
 
 fn print_table(b: &SmokeBench, rows: &[Row], ref_size: (usize, usize)) {
@@ -219,9 +210,9 @@ pub struct Race {
 const LARGE: (usize, usize) = (400, 400);
 const RACE_COUNTS: [usize; 3] = [64, 256, 1024];
 
-fn race(b: &SmokeBench, scene_path: &Path, sets: &[String]) -> Result<Race> {
+fn race(b: &SmokeBench, scene_path: &Path) -> Result<Race> {
     let t = std::time::Instant::now();
-    let scene = Scene::load(scene_path, sets)?.with_limits(b.env.limits);
+    let scene = Scene::load(scene_path, &[])?.with_limits(b.env.limits);
     let node = scene.nodes().iter().position(|n| n.kind == NodeKind::Particles).context("the race scene needs a particle node")?;
     let particles = scene.particles(node)?.len();
     let view = (scene.file.image.width, scene.file.image.height);
@@ -230,9 +221,10 @@ fn race(b: &SmokeBench, scene_path: &Path, sets: &[String]) -> Result<Race> {
     let ours_s = t.elapsed().as_secs_f64();
     let reference = reference_of(b, scene_path)?;
     let error = |rgb: &[[f32; 4]]| rgba_rel_rmse(rgb, &reference);
-    let ours_rel_rmse = error(&ours.rgba.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect::<Vec<_>>());
+    let ours_rel_rmse = error(&rgb_only(&ours.rgba));
+    // Loaded again: the large view is a first view too, its load included.
     let t = std::time::Instant::now();
-    let scene = Scene::load(scene_path, sets)?.with_limits(b.env.limits);
+    let scene = Scene::load(scene_path, &[])?.with_limits(b.env.limits);
     render(&scene, node, &defaults, LARGE)?;
     let ours_large_s = t.elapsed().as_secs_f64();
     let mitsuba: Vec<(usize, f64, f64)> =
@@ -253,6 +245,11 @@ fn race(b: &SmokeBench, scene_path: &Path, sets: &[String]) -> Result<Race> {
     })
 }
 
+/// Colour without alpha: Mitsuba's images have none, and the errors compare colour only.
+fn rgb_only(rgba: &[[f32; 4]]) -> Vec<[f32; 4]> {
+    rgba.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect()
+}
+
 /// The committed Mitsuba reference (8192 spp) of a bench scene: ../data/mitsuba_NAME.exr
 /// beside its folder, as RGB.
 fn reference_of(b: &SmokeBench, scene: &Path) -> Result<Vec<[f32; 4]>> {
@@ -264,7 +261,7 @@ fn reference_of(b: &SmokeBench, scene: &Path) -> Result<Vec<[f32; 4]>> {
         bail!("no Mitsuba reference beside {} (expected ../data/mitsuba_NAME.exr)", scene.display())
     };
     let img = volterra_formats::exr_io::read_exr(&p, &b.env.limits)?;
-    Ok(rgba_pixels(&img).iter().map(|p| [p[0], p[1], p[2], 0.0]).collect())
+    Ok(rgb_only(&rgba_pixels(&img)))
 }
 
 fn print_races(races: &[Race]) {
@@ -294,7 +291,7 @@ fn print_races(races: &[Race]) {
         // per-pixel noise (a smaller pixel averages less): its time there is estimated as
         // that count times its measured seconds per sample.
         if let Some((s, _)) = r.mitsuba_s_at_our_error {
-            let spp = interpolated_spp(&r.mitsuba, s);
+            let spp = spp_for_seconds(&r.mitsuba, s);
             let mitsuba_large = spp * r.mitsuba_large_s_per_spp;
             println!(
                 "  {}×{}: ours {:.2} s; Mitsuba {:.3} s per spp, ≈ {:.0} s at the view's {:.0} spp (estimate) — ours {:.1}× faster",
@@ -310,8 +307,9 @@ fn print_races(races: &[Race]) {
     }
 }
 
-/// The sample count at which Mitsuba's rows take `seconds` (linear in time between rows).
-fn interpolated_spp(rows: &[(usize, f64, f64)], seconds: f64) -> f64 {
+/// The sample count at which Mitsuba takes `seconds`, at its largest row's seconds per
+/// sample (the smaller rows carry more of its fixed start-up).
+fn spp_for_seconds(rows: &[(usize, f64, f64)], seconds: f64) -> f64 {
     let per_spp = rows.last().map(|r| r.1 / r.0 as f64).unwrap_or(f64::NAN);
     seconds / per_spp
 }
@@ -364,7 +362,7 @@ fn mitsuba_runs(
         // One sample count keeps the script's plain name.
         let name = if counts.len() == 1 { format!("mitsuba_{stem}.exr") } else { format!("mitsuba_{stem}_{spp}.exr") };
         let img = volterra_formats::exr_io::read_exr(&out_dir.join(name), &b.env.limits)?;
-        let rgb: Vec<[f32; 4]> = rgba_pixels(&img).iter().map(|p| [p[0], p[1], p[2], 0.0]).collect();
+        let rgb = rgb_only(&rgba_pixels(&img));
         if rgb.len() != size.0 * size.1 {
             bail!("Mitsuba image size differs");
         }
@@ -391,18 +389,17 @@ fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) ->
 }
 
 /// Mitsuba's seconds to reach `error`, from (seconds, error) rows at rising sample counts:
-/// interpolated linearly in log error against log time between the two rows around it
-/// (extrapolated from the last two when `error` is below every row's), and whether it was
-/// extrapolated.
+/// interpolated linearly in log error against log time between the two rows around it, or
+/// extrapolated from the nearest two when `error` lies outside the rows' (then the flag
+/// is true).
 pub fn seconds_at_error(rows: &[(f64, f64)], error: f64) -> Option<(f64, bool)> {
     if rows.len() < 2 || error <= 0.0 {
         return None;
     }
-    let k = rows.windows(2).position(|w| w[0].1 >= error && error >= w[1].1);
-    let (i, extrapolated) = match k {
+    let (i, extrapolated) = match rows.windows(2).position(|w| w[0].1 >= error && error >= w[1].1) {
         Some(i) => (i, false),
         None if error < rows[rows.len() - 1].1 => (rows.len() - 2, true),
-        None => return Some((rows[0].0, false)),
+        None => (0, true),
     };
     let ((t0, e0), (t1, e1)) = (rows[i], rows[i + 1]);
     if !(e0 > e1 && t1 > t0) {
@@ -410,4 +407,24 @@ pub fn seconds_at_error(rows: &[(f64, f64)], error: f64) -> Option<(f64, bool)> 
     }
     let s = (error.ln() - e0.ln()) / (e1.ln() - e0.ln());
     Some(((t0.ln() + s * (t1.ln() - t0.ln())).exp(), extrapolated))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::seconds_at_error;
+
+    /// Rows on error ∝ time^(−1/2), as Monte-Carlo noise: every error is found at the
+    /// time that law gives, inside the rows, past the last and before the first.
+    #[test]
+    fn mitsubas_time_at_an_error_follows_its_rows() {
+        let rows: Vec<(f64, f64)> = [1.0, 4.0, 16.0].iter().map(|&t| (t, 0.2 / f64::sqrt(t))).collect();
+        for (error, extrapolated) in [(0.2 / 2.5, false), (0.2 / 3.0, false), (0.2 / 8.0, true), (0.2 / 0.5, true)] {
+            let (t, flag) = seconds_at_error(&rows, error).unwrap();
+            let expected = (0.2 / error) * (0.2 / error);
+            assert!((t / expected - 1.0).abs() < 1e-12, "error {error}: {t} s, expected {expected}");
+            assert_eq!(flag, extrapolated, "error {error}");
+        }
+        assert_eq!(seconds_at_error(&rows[..1], 0.1), None);
+        assert_eq!(seconds_at_error(&[(1.0, 0.1), (2.0, 0.2)], 0.15), None, "rows whose error rises with time");
+    }
 }

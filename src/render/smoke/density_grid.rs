@@ -65,15 +65,16 @@ impl DensityGrid {
         // so the grid is the same bit for bit for any thread count.
         let slab = (dims[2] / (8 * rayon::current_num_threads().max(1))).clamp(1, 16);
         let slabs = dims[2].div_ceil(slab);
-        let z_range = |i: usize| {
-            let (p, h) = (medium.position(i), medium.smoothing_length(i));
-            let a = ((p.z - 2.0 * h - lo.z) / cell).ceil().max(0.0) as usize;
-            let b = (((p.z + 2.0 * h - lo.z) / cell).floor().max(0.0) as usize).min(dims[2] - 1);
+        // Along axis k, the samples within the support 2h of a particle at p: (first, last),
+        // empty when first > last.
+        let span = |k: usize, p: DVec3, h: f64| {
+            let a = ((p[k] - 2.0 * h - lo[k]) / cell).ceil().max(0.0) as usize;
+            let b = (((p[k] + 2.0 * h - lo[k]) / cell).floor().max(0.0) as usize).min(dims[k] - 1);
             (a, b)
         };
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); slabs];
         for i in 0..medium.len() {
-            let (a, b) = z_range(i);
+            let (a, b) = span(2, medium.position(i), medium.smoothing_length(i));
             if a > b {
                 continue;
             }
@@ -90,12 +91,7 @@ impl DensityGrid {
                 let i = i as usize;
                 let (p, h, m) = (medium.position(i), medium.smoothing_length(i), medium.mass(i));
                 let support2 = 4.0 * h * h;
-                let range = |k: usize| {
-                    let a = ((p[k] - 2.0 * h - lo[k]) / cell).ceil().max(0.0) as usize;
-                    let b = (((p[k] + 2.0 * h - lo[k]) / cell).floor().max(0.0) as usize).min(dims[k] - 1);
-                    (a, b)
-                };
-                let ((x0, x1), (y0, y1), (z0, z1)) = (range(0), range(1), range(2));
+                let ((x0, x1), (y0, y1), (z0, z1)) = (span(0, p, h), span(1, p, h), span(2, p, h));
                 let (z0, z1) = (z0.max(z_first), z1.min(z_last));
                 if x0 > x1 || y0 > y1 || z0 > z1 {
                     continue;

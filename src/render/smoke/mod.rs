@@ -240,7 +240,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
                 "the light's density grid",
                 &[dims[0] as u64, dims[1] as u64, dims[2] as u64, 4],
             )?;
-            let grid = density_grid::DensityGrid::new(&medium, 0.5 * h);
+            let grid = density_grid::DensityGrid::new(&medium, spacing);
             notes.push(format!(
                 "light meets a {}×{}×{} density grid ({:.1} MB, spacing {:.3e}, built in {:.2} s)",
                 dims[0],
