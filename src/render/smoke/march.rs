@@ -6,9 +6,9 @@
 //! (single scattering) + S(x, ω) (multiple scattering, from a photon store).
 
 use super::lights::Emitter;
-use super::medium::Medium;
+use super::medium::{Medium, RaySamples, MAX_BUNDLE};
 use super::phase::hg;
-use super::tracking::{marched_transmittance, StepBatch};
+use super::tracking::{marched_transmittance, STEP_BATCH};
 use crate::render::{Frame, FrameStats};
 use crate::scene::camera::RayGenerator;
 use glam::DVec3;
@@ -78,16 +78,82 @@ impl MarchView<'_> {
 
     /// Radiance and transmittance along one ray (d unit), the march starting `jitter`·Δ in.
     pub fn trace(&self, o: DVec3, d: DVec3, jitter: f64) -> ([f64; 3], f64) {
+        let mut out = [([0.0; 3], 1.0)];
+        self.trace_rays(&[(o, d, jitter)], &mut Scratch::default(), &mut out);
+        out[0]
+    }
+
+    /// Radiance and transmittance along nearby rays (o, d unit, jitter; at most
+    /// [`MAX_BUNDLE`]: a pixel's rays), marched in lockstep: per stretch of
+    /// [`STEP_BATCH`] steps the particles near all of them are gathered once, and a ray
+    /// whose transmittance is negligible drops out (the rest of it cannot show).
+    pub fn trace_rays(&self, rays: &[(DVec3, DVec3, f64)], scratch: &mut Scratch, out: &mut [([f64; 3], f64)]) {
+        let n = rays.len();
+        scratch.resize(n);
+        let mut state = [(); MAX_BUNDLE].map(|_| Along { radiance: [0.0; 3], tr: 1.0 });
+        for (r, &(o, d, jitter)) in rays.iter().enumerate() {
+            self.steps(o, d, jitter, &mut scratch.middles[r], &mut scratch.lengths[r]);
+        }
+        // Where each ray's next stretch starts, or None once it is done.
+        let mut next: [Option<usize>; MAX_BUNDLE] = [None; MAX_BUNDLE];
+        for r in 0..n {
+            next[r] = (!scratch.middles[r].is_empty()).then_some(0);
+        }
+        let stretch = STEP_BATCH as f64 * self.step;
+        // The stretch [t, t + STEP_BATCH·Δ) from the nearest unmarched step on.
+        while let Some(t) = (0..n).filter_map(|r| next[r].map(|i| scratch.middles[r][i])).min_by(f64::total_cmp) {
+            let mut range = [(0usize, 0usize); MAX_BUNDLE];
+            for r in 0..n {
+                if let Some(i) = next[r] {
+                    let mids = &scratch.middles[r];
+                    let j = i + mids[i..].partition_point(|&m| m < t + stretch);
+                    range[r] = (i, j);
+                }
+            }
+            {
+                let Scratch { middles, densities, .. } = scratch;
+                let mut samples: Vec<RaySamples> = Vec::with_capacity(n);
+                for (r, (mids, rho)) in middles.iter().zip(densities.iter_mut()).enumerate().take(n) {
+                    let (i, j) = range[r];
+                    if j > i {
+                        rho.resize(j - i, 0.0);
+                        samples.push(RaySamples { o: rays[r].0, d: rays[r].1, t: &mids[i..j], out: &mut rho[..] });
+                    }
+                }
+                self.medium.densities_along_rays(&mut samples);
+            }
+            for r in 0..n {
+                let (i, j) = range[r];
+                if j == i {
+                    continue;
+                }
+                let (o, d, _) = rays[r];
+                let alive = self.composite(
+                    o,
+                    d,
+                    &scratch.middles[r][i..j],
+                    &scratch.lengths[r][i..j],
+                    &scratch.densities[r][..j - i],
+                    &mut state[r],
+                );
+                next[r] = (alive && j < scratch.middles[r].len()).then_some(j);
+            }
+        }
+        for r in 0..n {
+            out[r] = (state[r].radiance, state[r].tr);
+        }
+    }
+
+    /// The steps of one ray, their middles and lengths: [base + kΔ, base + (k+1)Δ]
+    /// (k ≥ −1) clipped to the box, base `jitter`·Δ past the entry, so that the samples
+    /// of neighbouring pixels do not line up (no banding). A step whose middle lies in a
+    /// cell of zero majorant has zero density there and is left out.
+    fn steps(&self, o: DVec3, d: DVec3, jitter: f64, middles: &mut Vec<f64>, lengths: &mut Vec<f64>) {
+        middles.clear();
+        lengths.clear();
         let (lo, hi) = self.medium.bounds();
-        let Some((t0, t1)) = crate::render::geometry::clip_box(o, d, lo, hi) else { return ([0.0; 3], 1.0) };
-        let mut state = Along { radiance: [0.0; 3], tr: 1.0 };
-        // Steps [base + kΔ, base + (k+1)Δ] (k ≥ −1) clipped to [t0, t1], so that the
-        // samples of neighbouring pixels do not line up (no banding). A step whose middle
-        // lies in a cell of zero majorant has zero density there and is skipped; the
-        // others are marched in batches whose densities are gathered at once.
+        let Some((t0, t1)) = crate::render::geometry::clip_box(o, d, lo, hi) else { return };
         let base = t0 + jitter * self.step;
-        let mut batch = StepBatch::default();
-        let mut alive = true;
         self.medium.majorants().walk(o, d, t0, t1, 0.0, |ca, cb, maj| {
             if maj <= 0.0 {
                 return true;
@@ -107,28 +173,18 @@ impl MarchView<'_> {
                 if mid >= cb {
                     return true;
                 }
-                if batch.push(mid, b - a) {
-                    alive = self.composite(o, d, &batch, &mut state);
-                    batch.clear();
-                    if !alive {
-                        return false;
-                    }
-                }
+                middles.push(mid);
+                lengths.push(b - a);
             }
         });
-        if alive && !batch.is_empty() {
-            self.composite(o, d, &batch, &mut state);
-        }
-        (state.radiance, state.tr)
     }
 
-    /// Adds a batch of steps to the ray's radiance and transmittance; false once the
-    /// transmittance is negligible (the rest of the ray cannot show).
-    fn composite(&self, o: DVec3, d: DVec3, batch: &StepBatch, state: &mut Along) -> bool {
-        let density = batch.densities(self.medium, o, d);
+    /// Adds a stretch of steps (middles, lengths, densities) to the ray's radiance and
+    /// transmittance; false once the transmittance is negligible.
+    fn composite(&self, o: DVec3, d: DVec3, middles: &[f64], lengths: &[f64], density: &[f64], state: &mut Along) -> bool {
         let out = -d;
-        for (k, (&t, &dt)) in batch.middles().iter().zip(batch.lengths()).enumerate() {
-            let sigma_t = self.c_ext * density[k];
+        for ((&t, &dt), &rho) in middles.iter().zip(lengths).zip(density) {
+            let sigma_t = self.c_ext * rho;
             if sigma_t <= 0.0 {
                 continue;
             }
@@ -150,6 +206,25 @@ impl MarchView<'_> {
     }
 }
 
+/// Per-ray buffers a march reuses from pixel to pixel.
+#[derive(Default)]
+pub struct Scratch {
+    middles: Vec<Vec<f64>>,
+    lengths: Vec<Vec<f64>>,
+    densities: Vec<Vec<f64>>,
+}
+
+impl Scratch {
+    fn resize(&mut self, rays: usize) {
+        assert!(rays <= MAX_BUNDLE, "{rays} rays marched at once, at most {MAX_BUNDLE}");
+        for v in [&mut self.middles, &mut self.lengths, &mut self.densities] {
+            if v.len() < rays {
+                v.resize_with(rays, Vec::new);
+            }
+        }
+    }
+}
+
 /// What a ray has gathered so far.
 struct Along {
     radiance: [f64; 3],
@@ -159,8 +234,8 @@ struct Along {
 /// Renders the smoke: premultiplied RGBA (colour = in-scattered radiance, alpha = 1 − T),
 /// `Z` where transmittance passes 0.5 is left at +∞ (smoke has no surface; the
 /// compositing depth is the entry into the medium's box).
-pub fn render(view: &MarchView, rays: &RayGenerator) -> Result<Frame, crate::render::driver::Cancelled> {
-    let (w, h) = rays.size();
+pub fn render(view: &MarchView, rays_of: &RayGenerator) -> Result<Frame, crate::render::driver::Cancelled> {
+    let (w, h) = rays_of.size();
     let mut frame = Frame::empty(w, h);
     let spp = view.samples.max(1);
     let (lo, hi) = view.medium.bounds();
@@ -171,25 +246,35 @@ pub fn render(view: &MarchView, rays: &RayGenerator) -> Result<Frame, crate::ren
     let down = spp / across;
     crate::render::driver::render_bands("ray marching", w, 1, &mut frame.rgba, &mut frame.depth, &mut [], |band| {
         let (y, row, depth) = (band.y0, band.rgba, band.depth);
+        let mut scratch = Scratch::default();
+        let mut rays = Vec::with_capacity(MAX_BUNDLE);
+        let mut traced = [([0.0; 3], 1.0); MAX_BUNDLE];
         for x in 0..w {
             let mut rng = Rng::stream(view.seed ^ 0x005E_EDCA_3E7A, (y * w + x) as u64);
             let mut acc = [0.0; 4];
-            for s in 0..spp {
-                // One ray: through the pixel centre; more: one per stratum.
-                let (jx, jy) = if spp == 1 {
-                    (0.5, 0.5)
-                } else {
-                    (((s % across) as f64 + rng.uniform()) / across as f64, ((s / across) as f64 + rng.uniform()) / down as f64)
-                };
-                let ray = rays.ray(x as f64 + jx, y as f64 + jy);
-                let (l, t) = view.trace(ray.origin, ray.dir, rng.uniform());
-                for c in 0..3 {
-                    acc[c] += l[c];
+            // The pixel's rays marched together, MAX_BUNDLE at a time.
+            for first in (0..spp).step_by(MAX_BUNDLE) {
+                rays.clear();
+                for s in first..spp.min(first + MAX_BUNDLE) {
+                    // One ray: through the pixel centre; more: one per stratum.
+                    let (jx, jy) = if spp == 1 {
+                        (0.5, 0.5)
+                    } else {
+                        (((s % across) as f64 + rng.uniform()) / across as f64, ((s / across) as f64 + rng.uniform()) / down as f64)
+                    };
+                    let ray = rays_of.ray(x as f64 + jx, y as f64 + jy);
+                    rays.push((ray.origin, ray.dir, rng.uniform()));
                 }
-                acc[3] += 1.0 - t;
+                view.trace_rays(&rays, &mut scratch, &mut traced[..rays.len()]);
+                for (l, t) in &traced[..rays.len()] {
+                    for c in 0..3 {
+                        acc[c] += l[c];
+                    }
+                    acc[3] += 1.0 - t;
+                }
             }
             row[x] = acc.map(|v| (v / spp as f64) as f32);
-            let centre = rays.ray(x as f64 + 0.5, y as f64 + 0.5);
+            let centre = rays_of.ray(x as f64 + 0.5, y as f64 + 0.5);
             if let Some((t0, _)) = crate::render::geometry::clip_box(centre.origin, centre.dir, lo, hi) {
                 if row[x][3] > 0.0 {
                     depth[x] = t0 as f32;

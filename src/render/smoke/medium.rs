@@ -94,7 +94,27 @@ pub trait Medium: Sync {
             *v = self.density(o + tk * d);
         }
     }
+    /// [`Medium::densities_along`] for several nearby rays at once (at most
+    /// [`MAX_BUNDLE`]: a pixel's rays), so that a medium can gather what lies near all of
+    /// them once.
+    fn densities_along_rays(&self, rays: &mut [RaySamples<'_>]) {
+        for r in rays {
+            self.densities_along(r.o, r.d, r.t, r.out);
+        }
+    }
 }
+
+/// One ray's share of [`Medium::densities_along_rays`]: o + t_k·d (d unit, `t` rising),
+/// the densities into `out`.
+pub struct RaySamples<'a> {
+    pub o: DVec3,
+    pub d: DVec3,
+    pub t: &'a [f64],
+    pub out: &'a mut [f64],
+}
+
+/// Rays gathered together at most.
+pub const MAX_BUNDLE: usize = 8;
 
 /// A regular grid over a box with, per cell, an upper bound of the density inside it, and
 /// the same bound per brick of 4×4×4 cells, so that a walk crosses an empty brick (62 % of
@@ -398,21 +418,51 @@ impl Medium for SphMedium {
         self.for_each_coef(p, |q, w| rho += q.mass as f64 * w);
         rho
     }
-    /// The particles near the stretch of ray are gathered once (a slanted band of grid
-    /// cells) and each is added to just the samples its support's chord covers: per sample
-    /// this reads ~4× fewer candidates than a density query per point, with the same sum.
     fn densities_along(&self, o: DVec3, d: DVec3, t: &[f64], out: &mut [f64]) {
-        out.fill(0.0);
-        let (Some(&first), Some(&last)) = (t.first(), t.last()) else { return };
-        let a = o + first * d;
-        let b = o + last * d;
-        // The first sample at or past a value: guessed from the mean spacing (the steps are
-        // nearly even) and corrected by a step or two — a binary search per candidate was
-        // a tenth of the time.
-        let n = t.len();
-        let per_unit = if last > first { (n - 1) as f64 / (last - first) } else { 0.0 };
-        let first_past = |v: f64| {
-            let mut k = (((v - first) * per_unit).max(0.0) as usize).min(n);
+        self.densities_along_rays(&mut [RaySamples { o, d, t, out }]);
+    }
+    /// The particles near the stretch of rays are gathered once (a slanted band of grid
+    /// cells round the rays' mean, widened by how far they spread from it) and each is
+    /// added to just the samples its support's chord on each ray covers: per sample this
+    /// reads ~4× fewer candidates than a density query per point, and a pixel's rays share
+    /// one band's reads instead of four; the sums are those of point queries.
+    fn densities_along_rays(&self, rays: &mut [RaySamples<'_>]) {
+        assert!(rays.len() <= MAX_BUNDLE, "{} rays gathered at once, at most {MAX_BUNDLE}", rays.len());
+        // The rays with samples, their first and last points.
+        let mut live = [0usize; MAX_BUNDLE];
+        let mut ends = [(DVec3::ZERO, DVec3::ZERO); MAX_BUNDLE];
+        let mut n_live = 0;
+        for (i, r) in rays.iter_mut().enumerate() {
+            r.out.fill(0.0);
+            if let (Some(&first), Some(&last)) = (r.t.first(), r.t.last()) {
+                live[n_live] = i;
+                ends[n_live] = (r.o + first * r.d, r.o + last * r.d);
+                n_live += 1;
+            }
+        }
+        if n_live == 0 {
+            return;
+        }
+        // The band: the mean segment, wide enough that every ray's segment lies within
+        // `spread` of it (a segment is within the larger of its ends' distances).
+        let (mut a, mut b) = (DVec3::ZERO, DVec3::ZERO);
+        for &(ea, eb) in &ends[..n_live] {
+            a += ea / n_live as f64;
+            b += eb / n_live as f64;
+        }
+        let spread = ends[..n_live].iter().map(|&(ea, eb)| (ea - a).length().max((eb - b).length())).fold(0.0, f64::max);
+        // Per ray: the mean spacing of its samples, to guess the first sample at or past a
+        // value, corrected by a step or two (a binary search per candidate was a tenth of
+        // the time).
+        let mut per_unit = [0.0; MAX_BUNDLE];
+        for k in 0..n_live {
+            let t = rays[live[k]].t;
+            let (first, last) = (t[0], t[t.len() - 1]);
+            per_unit[k] = if last > first { (t.len() - 1) as f64 / (last - first) } else { 0.0 };
+        }
+        let first_past = |t: &[f64], per_unit: f64, v: f64| {
+            let n = t.len();
+            let mut k = (((v - t[0]) * per_unit).max(0.0) as usize).min(n);
             while k > 0 && t[k - 1] > v {
                 k -= 1;
             }
@@ -421,32 +471,50 @@ impl Medium for SphMedium {
             }
             k
         };
-        let df = d.as_vec3();
+        let mut start = [glam::Vec3::ZERO; MAX_BUNDLE];
+        let mut dir = [glam::Vec3::ZERO; MAX_BUNDLE];
+        let axis = (b - a).normalize_or(rays[live[0]].d).as_vec3();
         for class in &self.classes {
-            let af = glam::Vec3::from(class.relative(a));
-            class.grid.for_each_run_along(a.to_array(), b.to_array(), class.support, |ra, rb| {
-                for (k, s) in class.scan[ra..rb].iter().enumerate() {
-                    // The distance from the ray's line by the cross product (no
-                    // cancellation), and how far along it the particle lies.
-                    let v = glam::Vec3::new(s[0], s[1], s[2]) - af;
-                    let perp2 = v.cross(df).length_squared();
-                    if perp2 >= s[3] {
+            for k in 0..n_live {
+                start[k] = glam::Vec3::from(class.relative(ends[k].0));
+                dir[k] = rays[live[k]].d.as_vec3();
+            }
+            // A particle whose support reaches a ray lies within its support + `spread` of
+            // the mean line: (√s + spread)² ≤ s + 2·spread·support + spread². One test
+            // there spares the rays' own tests for most of the band's corners.
+            let centre_a = glam::Vec3::from(class.relative(a));
+            let widen = (2.0 * spread * class.support + spread * spread) as f32 * 1.0001;
+            let bundle = n_live > 1;
+            class.grid.for_each_run_along(a.to_array(), b.to_array(), class.support + spread, |ra, rb| {
+                for (j, s) in class.scan[ra..rb].iter().enumerate() {
+                    let p = glam::Vec3::new(s[0], s[1], s[2]);
+                    if bundle && (p - centre_a).cross(axis).length_squared() >= s[3] + widen {
                         continue;
                     }
-                    let q = &class.coef[ra + k];
-                    let (support2, perp2) = (s[3] as f64, perp2 as f64);
-                    // The chord of the support on the ray: |t − first − along| < half.
-                    let half = (support2 - perp2).sqrt();
-                    let centre = first + v.dot(df) as f64;
-                    let k0 = first_past(centre - half);
-                    for (k, &tk) in t.iter().enumerate().skip(k0) {
-                        let dt = tk - centre;
-                        if dt >= half {
-                            break;
+                    for k in 0..n_live {
+                        // The distance from the ray's line by the cross product (no
+                        // cancellation), and how far along it the particle lies.
+                        let v = p - start[k];
+                        let perp2 = v.cross(dir[k]).length_squared();
+                        if perp2 >= s[3] {
+                            continue;
                         }
-                        let r2 = perp2 + dt * dt;
-                        if r2 < support2 {
-                            out[k] += q.mass as f64 * self.kernel.eval_coef(r2, support2, q);
+                        let q = &class.coef[ra + j];
+                        let ray = &mut rays[live[k]];
+                        let (support2, perp2) = (s[3] as f64, perp2 as f64);
+                        // The chord of the support on the ray: |t − first − along| < half.
+                        let half = (support2 - perp2).sqrt();
+                        let centre = ray.t[0] + v.dot(dir[k]) as f64;
+                        let k0 = first_past(ray.t, per_unit[k], centre - half);
+                        for (i, &ti) in ray.t.iter().enumerate().skip(k0) {
+                            let dt = ti - centre;
+                            if dt >= half {
+                                break;
+                            }
+                            let r2 = perp2 + dt * dt;
+                            if r2 < support2 {
+                                ray.out[i] += q.mass as f64 * self.kernel.eval_coef(r2, support2, q);
+                            }
                         }
                     }
                 }
