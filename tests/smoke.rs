@@ -74,7 +74,7 @@ fn single_scattering_in_a_homogeneous_slab_matches_its_closed_form() {
         albedo,
         g,
         multiple: None,
-        transmittance: LightTransmittance::Marched { step: 0.01 },
+        transmittance: LightTransmittance::Marched { step: 0.01, medium: &slab },
         step: 0.005,
         samples: 1,
         seed: 1,
@@ -325,7 +325,7 @@ fn particle_map_and_photon_map_estimate_the_same_multiple_scattering() {
     let cam = camera_looking_at([0.0; 3], [0.0, -3.0, 0.0], 0.3);
     let lights = [sun([0.0, 0.0, -1.0], 1.0)];
     let medium = MediumParams { c_ext: Some(20.0), albedo: 0.95, g: 0.0 };
-    // The exact SPH density for the light too: in this cloud the optical depth rises by
+    // The exact SPH density for the light and the camera: in this cloud the optical depth rises by
     // ~60 within a kernel's width of its surface, and the density grid's trilinear fringe
     // (the kernel's convex tail, interpolated linearly) thickens that surface — single
     // scattering 12 % lower (measured) where the plumes' differs by 0.01 %.
@@ -333,7 +333,8 @@ fn particle_map_and_photon_map_estimate_the_same_multiple_scattering() {
         photons: 200_000,
         samples: 1,
         irradiance_map: false,
-        light_density: smoke::LightDensity::Particles,
+        light_density: smoke::Density::Particles,
+        camera_density: smoke::Density::Particles,
         ..Default::default()
     };
     let single = render(&set, &lights, medium.clone(), &cam, &Settings { store: Store::None, ..base.clone() }).unwrap();

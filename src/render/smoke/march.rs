@@ -16,8 +16,8 @@ use volterra_formats::rng::Rng;
 
 /// How light reaching a point from a light is attenuated.
 pub enum LightTransmittance<'a> {
-    /// A shadow ray marched at the given step for every sample.
-    Marched { step: f64 },
+    /// A shadow ray marched at the given step through `medium` for every sample.
+    Marched { step: f64, medium: &'a dyn Medium },
     /// Looked up in a lazily filled grid per light (trilinear), whose points march their
     /// shadow rays through `medium` (the camera's, or its resampled density grid).
     Grid { grids: &'a [super::grid::LazyGrid], medium: &'a dyn Medium },
@@ -42,7 +42,7 @@ impl MarchView<'_> {
     pub fn light_transmittance(&self, k: usize, x: DVec3) -> f64 {
         let Some((dir, dist, _)) = self.emitters[k].incident(x) else { return 0.0 };
         match &self.transmittance {
-            LightTransmittance::Marched { step } => marched_transmittance(self.medium, self.c_ext, x, -dir, dist, *step),
+            LightTransmittance::Marched { step, medium } => marched_transmittance(*medium, self.c_ext, x, -dir, dist, *step),
             // The grid holds optical depth, not transmittance: τ changes nearly linearly
             // across a cell where e^−τ, in dense smoke, is far from linear (interpolating
             // T overestimated single scattering twofold in a dense cloud).
@@ -182,29 +182,54 @@ impl MarchView<'_> {
     /// Adds a stretch of steps (middles, lengths, densities) to the ray's radiance and
     /// transmittance; false once the transmittance is negligible.
     fn composite(&self, o: DVec3, d: DVec3, middles: &[f64], lengths: &[f64], density: &[f64], state: &mut Along) -> bool {
-        let out = -d;
         for ((&t, &dt), &rho) in middles.iter().zip(lengths).zip(density) {
-            let sigma_t = self.c_ext * rho;
-            if sigma_t <= 0.0 {
-                continue;
-            }
-            let x = o + t * d;
-            let ss = self.single(x, out);
-            let ms = self.multiple.map(|f| f(x, out)).unwrap_or([0.0; 3]);
-            let sigma_s = self.albedo * sigma_t;
-            // ∫ over the step of T e^{−σ_t s} ds = T (1 − e^{−σ_t Δ}) / σ_t.
-            let weight = state.tr * -(-sigma_t * dt).exp_m1() / sigma_t;
-            for c in 0..3 {
-                state.radiance[c] += weight * (sigma_s * ss[c] + ms[c]);
-            }
-            state.tr *= (-sigma_t * dt).exp();
-            if state.tr < 1e-5 {
+            let tau = self.c_ext * rho * dt;
+            if tau > MAX_STEP_DEPTH {
+                // Dense smoke: light scattered toward the eye comes from the step's front,
+                // but its middle, where the source is taken, lies optically deep behind it
+                // (a dark pixel among bright ones at a cloud's surface). Sub-steps of
+                // optical depth about MAX_STEP_DEPTH, each with its own density.
+                let n = ((tau / MAX_STEP_DEPTH).ceil() as usize).min(MAX_SUBSTEPS);
+                let sub = dt / n as f64;
+                for j in 0..n {
+                    let tj = t - 0.5 * dt + (j as f64 + 0.5) * sub;
+                    if !self.add_step(o, d, tj, sub, self.medium.density(o + tj * d), state) {
+                        return false;
+                    }
+                }
+            } else if !self.add_step(o, d, t, dt, rho, state) {
                 return false;
             }
         }
         true
     }
+
+    /// One step of constant medium: the exact integral of the source it holds, and its
+    /// transmittance; false once the ray's transmittance is negligible.
+    fn add_step(&self, o: DVec3, d: DVec3, t: f64, dt: f64, rho: f64, state: &mut Along) -> bool {
+        let sigma_t = self.c_ext * rho;
+        if sigma_t <= 0.0 {
+            return true;
+        }
+        let out = -d;
+        let x = o + t * d;
+        let ss = self.single(x, out);
+        let ms = self.multiple.map(|f| f(x, out)).unwrap_or([0.0; 3]);
+        let sigma_s = self.albedo * sigma_t;
+        // ∫ over the step of T e^{−σ_t s} ds = T (1 − e^{−σ_t Δ}) / σ_t.
+        let weight = state.tr * -(-sigma_t * dt).exp_m1() / sigma_t;
+        for c in 0..3 {
+            state.radiance[c] += weight * (sigma_s * ss[c] + ms[c]);
+        }
+        state.tr *= (-sigma_t * dt).exp();
+        state.tr >= 1e-5
+    }
 }
+
+/// Optical depth of a step above which it is marched in sub-steps.
+const MAX_STEP_DEPTH: f64 = 1.0;
+/// Sub-steps of one step at most.
+const MAX_SUBSTEPS: usize = 16;
 
 /// Per-ray buffers a march reuses from pixel to pixel.
 #[derive(Default)]

@@ -60,17 +60,16 @@ crate::setting_choice! {
 }
 
 crate::setting_choice! {
-    /// The density light from the sources meets: photon flights and the transmittance
-    /// grid's shadow rays.
-    pub enum LightDensity {
+    /// Which density a part of the renderer meets: the resampled grid or the particles.
+    pub enum Density {
         /// The SPH density resampled every half median h and interpolated trilinearly
         /// (`smoke::density_grid`): a density query is eight loads instead of a sum over
-        /// the particles near the point. The camera's march keeps the exact sum. Single
-        /// scattering of the 110k plume moves by 0.01 %; smoke with a hard surface (optical
-        /// depth ≫ 1 within a kernel's width) comes out up to 12 % darker, as the
-        /// kernel's convex tail interpolated linearly thickens the surface: use `particles`.
+        /// the particles near the point. The 110k and 400k plumes' images move by 0.1 %
+        /// of their error against Mitsuba; smoke with a hard surface (optical depth ≫ 1
+        /// within a kernel's width) comes out up to 12 % darker, as the kernel's convex
+        /// tail interpolated linearly thickens the surface: use `particles` there.
         Grid = "grid",
-        /// The exact SPH sum everywhere.
+        /// The exact SPH sum.
         Particles = "particles",
     }
 }
@@ -110,8 +109,8 @@ crate::declare_settings! {
         /// photons, steps of h, 2h and 3h: the 110k plume 3.17, 3.18, 3.19 %, the 400k
         /// plume 3.91, 3.89, 3.87 % (4h: 3.97 %); at the defaults (4 rays per pixel) 4.27,
         /// 4.31, 4.46 % and 5.20, 5.20, 5.48 %. Half the samples per kernel's chord and
-        /// half the light and irradiance look-ups: the 400k plume's march at 400² took
-        /// 13 % less time (3.4 → 3.0 s, 2 cores).
+        /// half the light and irradiance look-ups: the 400k plume's march through the
+        /// particles at 400² took 13 % less time (3.4 → 3.0 s, 2 cores).
         pub step: f64 = 2.0, unit = "h", range = Bounds::above(0.0), quality = true;
         /// Camera rays per pixel, stratified over the pixel.
         pub samples: usize = 4, range = Bounds::at_least(1.0), quality = true, preview = Preview::AtMost(1.0);
@@ -121,8 +120,15 @@ crate::declare_settings! {
         pub free_flight: FreeFlight = FreeFlight::Delta;
         /// The density light from the sources meets (photon flights, the transmittance
         /// grid's shadow rays): the SPH density on a grid of half the median h (trilinear),
-        /// or the particles' exact sum. The camera's march always takes the exact sum.
-        pub light_density: LightDensity = LightDensity::Grid, quality = true;
+        /// or the particles' exact sum.
+        pub light_density: Density = Density::Grid, quality = true;
+        /// The density the camera's rays march through. The grid by default: against
+        /// Mitsuba (8192 spp, its density gridded at the same spacing) at 32 rays per pixel
+        /// the 110k and 400k plumes come within 3.19 % and 3.90 % on the grid, 3.18 % and
+        /// 3.89 % with the exact sum (at the defaults 4.31 / 5.19 % and 4.31 / 5.20 %),
+        /// and the 400k plume's march at 400² takes 0.9 s instead of 2.5 s (2 cores): the
+        /// sum gathers ~140 particles per ray. `particles` for smoke with a hard surface.
+        pub camera_density: Density = Density::Grid, quality = true;
         /// How light from a source is attenuated on its way to a sample.
         pub shadows: ShadowMode = ShadowMode::Grid, quality = true;
         /// The SPH smoothing kernel.
@@ -227,11 +233,11 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     phase.advance(1);
     drop(phase);
 
-    // The density light meets, resampled on a grid the first time photons or the
-    // transmittance grid need it.
+    // The density resampled on a grid the first time photons, the transmittance grid or
+    // the camera need it (see `Density`).
     let density_grid = std::cell::OnceCell::new();
-    let light_medium = |notes: &mut Vec<String>| -> Result<&dyn medium::Medium> {
-        if s.light_density == LightDensity::Particles {
+    let medium_of = |density: Density, notes: &mut Vec<String>| -> Result<&dyn medium::Medium> {
+        if density == Density::Particles {
             return Ok(&medium);
         }
         if density_grid.get().is_none() {
@@ -246,6 +252,13 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
                 &[dims[0] as u64, dims[1] as u64, dims[2] as u64, 4],
             )?;
             let grid = density_grid::DensityGrid::new(&medium, spacing);
+            if spacing > 0.5 * h * 1.0001 {
+                notes.push(format!(
+                    "the density grid is coarser than half the median h ({spacing:.3e} m) to stay within its {} samples: \
+                     light_density / camera_density = \"particles\" for the exact sum",
+                    density_grid::MAX_SAMPLES
+                ));
+            }
             notes.push(format!(
                 "light meets a {}×{}×{} density grid ({:.1} MB, spacing {:.3e}, built in {:.2} s)",
                 dims[0],
@@ -292,7 +305,7 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
                 step,
                 max_bounces: s.max_bounces,
             };
-            let traced = photons::trace(light_medium(&mut notes)?, &emitters, &ts)?;
+            let traced = photons::trace(medium_of(s.light_density, &mut notes)?, &emitters, &ts)?;
             if s.cache {
                 if let Err(e) = cache::store(key, &traced) {
                     notes.push(format!("photon cache not written: {e}"));
@@ -360,24 +373,20 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     if traced.as_ref().is_some_and(|t| t.photons.is_empty()) {
         notes.push("no photon scattered twice in the smoke: single scattering only".into());
     }
-    let shadow_medium = match s.shadows {
-        ShadowMode::Grid => Some(light_medium(&mut notes)?),
-        ShadowMode::Marched => None,
-    };
+    let shadow_medium = medium_of(s.light_density, &mut notes)?;
     let direct: &(dyn Fn(DVec3, DVec3) -> [f64; 3] + Sync) = &source;
     let gridded: &(dyn Fn(DVec3, DVec3) -> [f64; 3] + Sync) = &mapped;
+    let camera_medium = medium_of(s.camera_density, &mut notes)?;
     let view = march::MarchView {
-        medium: &medium,
+        medium: camera_medium,
         emitters: &emitters,
         c_ext,
         albedo,
         g,
         multiple: has_ms.then_some(if s.irradiance_map { gridded } else { direct }),
         transmittance: match s.shadows {
-            ShadowMode::Marched => march::LightTransmittance::Marched { step },
-            ShadowMode::Grid => {
-                march::LightTransmittance::Grid { grids: &shadow_grids, medium: shadow_medium.expect("built with the grids") }
-            }
+            ShadowMode::Marched => march::LightTransmittance::Marched { step, medium: shadow_medium },
+            ShadowMode::Grid => march::LightTransmittance::Grid { grids: &shadow_grids, medium: shadow_medium },
         },
         step,
         samples: s.samples,
