@@ -389,16 +389,24 @@ fn traced_photons_are_cached_and_reused_for_another_view() {
     assert_eq!(hit(&render(&set, &lights, other, &front, &s).unwrap()), 0.0);
 }
 
+/// 3000 particles in a 1 × 0.5 × 0.3 box, masses 0.5–1.5, smoothing lengths 0.01–0.08
+/// (mostly small: several size classes): positions, masses, h.
+fn scattered_particles(rng: &mut Rng) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
+    let n = 3000;
+    let positions = (0..n).map(|_| [rng.uniform(), 0.5 * rng.uniform(), 0.3 * rng.uniform()]).collect();
+    let mass = (0..n).map(|_| 0.5 + rng.uniform()).collect();
+    let h = (0..n).map(|_| 0.01 * (1.0 + 7.0 * rng.uniform().powi(3))).collect();
+    (positions, mass, h)
+}
+
 /// A stretch of ray gathers the same densities as one query per point: smoothing lengths
 /// spread over several size classes (one grid each), rays along an axis, oblique and
 /// grazing, samples unevenly spaced, both kernels.
 #[test]
 fn densities_gathered_along_a_ray_equal_point_queries() {
     let mut rng = Rng::new(3);
-    let n = 3000;
-    let positions: Vec<[f64; 3]> = (0..n).map(|_| [rng.uniform(), 0.5 * rng.uniform(), 0.3 * rng.uniform()]).collect();
-    let mass: Vec<f64> = (0..n).map(|_| 0.5 + rng.uniform()).collect();
-    let h: Vec<f64> = (0..n).map(|_| 0.01 * (1.0 + 7.0 * rng.uniform().powi(3))).collect();
+    let (positions, mass, h) = scattered_particles(&mut rng);
+    let n = positions.len();
     for kernel in [Kernel::CubicSpline, Kernel::Poly6] {
         let medium = SphMedium::new(positions.clone(), mass.clone(), h.clone(), kernel).unwrap();
         let peak = (0..n).map(|i| mass[i] * kernel.eval(0.0, h[i])).fold(0.0, f64::max);
@@ -442,10 +450,8 @@ fn densities_gathered_along_a_ray_equal_point_queries() {
 fn densities_gathered_along_a_bundle_of_rays_equal_point_queries() {
     use volterra::render::smoke::medium::{RaySamples, MAX_BUNDLE};
     let mut rng = Rng::new(5);
-    let n = 3000;
-    let positions: Vec<[f64; 3]> = (0..n).map(|_| [rng.uniform(), 0.5 * rng.uniform(), 0.3 * rng.uniform()]).collect();
-    let mass: Vec<f64> = (0..n).map(|_| 0.5 + rng.uniform()).collect();
-    let h: Vec<f64> = (0..n).map(|_| 0.01 * (1.0 + 7.0 * rng.uniform().powi(3))).collect();
+    let (positions, mass, h) = scattered_particles(&mut rng);
+    let n = positions.len();
     let medium = SphMedium::new(positions, mass.clone(), h.clone(), Kernel::CubicSpline).unwrap();
     let peak = (0..n).map(|i| mass[i] * Kernel::CubicSpline.eval(0.0, h[i])).fold(0.0, f64::max);
     let mut nonzero = 0;
