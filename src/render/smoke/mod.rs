@@ -122,7 +122,9 @@ crate::declare_settings! {
         /// grid's shadow rays): the SPH density on a grid of half the median h (trilinear),
         /// or the particles' exact sum.
         pub light_density: Density = Density::Grid, quality = true;
-        /// The density the camera's rays march through. The grid by default: against
+        /// The density the camera's rays march through. The grid by default: with the same
+        /// photons and rays (32 per pixel) the 110k and 400k plumes' images differ from the
+        /// exact sum's by 0.12 % and 0.18 % (relative RMSE; alpha 0.23 % and 0.30 %); against
         /// Mitsuba (8192 spp, its density gridded at the same spacing) at 32 rays per pixel
         /// the 110k and 400k plumes come within 3.19 % and 3.90 % on the grid, 3.18 % and
         /// 3.89 % with the exact sum (at the defaults 4.31 / 5.19 % and 4.31 / 5.20 %),
