@@ -712,3 +712,31 @@ fn automatic_extinction_gives_the_densest_column_an_optical_depth_of_2_in_any_un
     assert!(worst < 1e-3, "the picture in mm and g differs by {worst}");
     assert!(a.stats.notes.iter().any(|n| n.contains("c_ext chosen from the data")));
 }
+
+/// `camera_density = "auto"` (the default) marches the camera through the density grid
+/// where its spacing resolves the smallest tenth of the particles, and through the
+/// particles, with a note saying why, where smoothing lengths spread over a decade; either
+/// way the image is the explicit choice's.
+#[test]
+fn automatic_camera_density_keeps_the_particles_where_the_grid_would_blur_them() {
+    let plume = volterra::samples::smoke_plume(6000, 3);
+    let mut spread = plume.clone();
+    // A fifth of the particles with a tenth of their h.
+    for v in spread.smoothing_length.as_mut().unwrap().iter_mut().step_by(5) {
+        *v *= 0.1;
+    }
+    let lights = [sun([-1.0, 0.6, -0.5], 3.0)];
+    let medium = MediumParams { c_ext: Some(10.0), albedo: 0.9, g: 0.3 };
+    let cam = camera_looking_at([0.5, 0.5, 0.48], [0.5, -2.5, 0.48], 0.55);
+    let base = Settings { store: Store::None, ..quick() };
+    for (name, set, resolved) in [("plume", &plume, smoke::Density::Grid), ("a decade of h", &spread, smoke::Density::Particles)] {
+        let auto = render(set, &lights, medium.clone(), &cam, &base).unwrap();
+        let explicit = render(set, &lights, medium.clone(), &cam, &Settings { camera_density: resolved, ..base.clone() }).unwrap();
+        assert!(auto.rgba == explicit.rgba, "{name}: auto is not the {resolved:?} image");
+        let other = if resolved == smoke::Density::Grid { smoke::Density::Particles } else { smoke::Density::Grid };
+        let different = render(set, &lights, medium.clone(), &cam, &Settings { camera_density: other, ..base.clone() }).unwrap();
+        assert!(auto.rgba != different.rgba, "{name}: grid and particles gave the same image");
+        let fell_back = auto.stats.notes.iter().any(|n| n.contains("the camera's march through the particles"));
+        assert_eq!(fell_back, resolved == smoke::Density::Particles, "{name}: notes {:?}", auto.stats.notes);
+    }
+}
