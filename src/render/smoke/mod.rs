@@ -202,6 +202,9 @@ pub fn build_medium(input: &SmokeInput, kernel: Kernel) -> Result<SphMedium> {
 /// The smoothing length below which a fraction `q` of the particles' lie.
 fn h_quantile(medium: &SphMedium, q: f64) -> f64 {
     let mut h: Vec<f64> = (0..medium.len()).map(|i| medium.smoothing_length(i)).collect();
+    if h.is_empty() {
+        return 0.0;
+    }
     let k = ((h.len() as f64 * q) as usize).min(h.len() - 1);
     *h.select_nth_unstable_by(k, f64::total_cmp).1
 }
