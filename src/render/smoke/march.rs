@@ -16,10 +16,11 @@ use volterra_formats::rng::Rng;
 
 /// How light reaching a point from a light is attenuated.
 pub enum LightTransmittance<'a> {
-    /// A shadow ray marched at the given step through `medium` for every sample.
+    /// A shadow ray marched at the given step through `medium` (the light's density) for
+    /// every sample.
     Marched { step: f64, medium: &'a dyn Medium },
     /// Looked up in a lazily filled grid per light (trilinear), whose points march their
-    /// shadow rays through `medium` (the camera's, or its resampled density grid).
+    /// shadow rays through `medium` (the light's density: `light_density`).
     Grid { grids: &'a [super::grid::LazyGrid], medium: &'a dyn Medium },
 }
 
