@@ -249,10 +249,11 @@ pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<F
     // the camera need it (see `Density`).
     let density_grid = std::cell::OnceCell::new();
     let grid_spacing = density_grid::DensityGrid::spacing(&medium, 0.5 * h);
+    // What `Density::Auto` compares the spacing with (once, not per part that asks).
+    let small = h_quantile(&medium, 0.1);
     let medium_of = |density: Density, what: &str, notes: &mut Vec<String>| -> Result<&dyn medium::Medium> {
         let density = match density {
             Density::Auto => {
-                let small = h_quantile(&medium, 0.1);
                 if grid_spacing <= small {
                     Density::Grid
                 } else {
