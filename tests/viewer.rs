@@ -581,6 +581,17 @@ fn files_open_from_the_dialog_and_by_drag_and_drop_without_blocking() {
     let e = h.state().last_error().expect("an error for the broken file").to_string();
     assert!(e.contains("broken.nii") && !e.contains('\n'), "{e}");
     assert_eq!(h.state().scene().unwrap().nodes()[0].renderer.as_deref(), Some("terrain"));
+    // The old scene's frames still arrive (on a loaded machine after the error, which a
+    // frame used to wipe): the error stays until the next action.
+    for _ in 0..400 {
+        if h.state().frames_shown(Quality::Full) > 0 {
+            break;
+        }
+        h.run_steps(1);
+        std::thread::sleep(Duration::from_millis(25));
+    }
+    assert!(h.state().frames_shown(Quality::Full) > 0, "the terrain's frame never came");
+    assert_eq!(h.state().last_error(), Some(e.as_str()), "a frame of the old scene cleared the error");
 }
 
 /// `volterra view SCENE --screenshot W.png` hung for ever when the first frame failed: it

@@ -107,6 +107,19 @@ fn measurement_stats(scene: &Scene, m: &Measurement) -> Option<RoiStats> {
     super::measure::roi_stats(&source, plane, m)
 }
 
+struct StatusError {
+    text: String,
+    from_render: bool,
+}
+
+impl StatusError {
+    /// An error of an action (open, save, an edit the scene refused): it stays until the
+    /// next action succeeds, whatever frames arrive meanwhile.
+    fn action(text: impl Into<String>) -> Self {
+        Self { text: text.into(), from_render: false }
+    }
+}
+
 struct Shown {
     version: u64,
     quality: Quality,
@@ -156,7 +169,10 @@ pub struct Viewer {
     error_vs_reference: Option<(u64, Result<f64, String>)>,
     reference_pending: bool,
     changed_at: Option<Instant>,
-    render_error: Option<String>,
+    /// The error the status bar shows, and whether a render reported it: a frame that
+    /// arrives clears only a render's error — a late frame of the old scene once wiped the
+    /// error of a file dropped just after it.
+    error: Option<StatusError>,
     message: Option<String>,
     selected: usize,
     tf_editor: TfEditor,
@@ -243,7 +259,7 @@ impl Viewer {
             error_vs_reference: None,
             reference_pending: false,
             changed_at: None,
-            render_error: None,
+            error: None,
             message: None,
             selected: 0,
             tf_editor: TfEditor::default(),
@@ -341,12 +357,12 @@ impl Viewer {
             }
             Ok(Err(e)) => {
                 self.opening = None;
-                self.render_error = Some(format!("{e:#}"));
+                self.error = Some(StatusError::action(format!("{e:#}")));
             }
             Err(std::sync::mpsc::TryRecvError::Empty) => {}
             Err(std::sync::mpsc::TryRecvError::Disconnected) => {
                 self.opening = None;
-                self.render_error = Some("reading the file stopped unexpectedly".into());
+                self.error = Some(StatusError::action("reading the file stopped unexpectedly"));
             }
         }
     }
@@ -376,7 +392,7 @@ impl Viewer {
         self.shown = None;
         self.last_full = None;
         self.error_vs_reference = None;
-        self.render_error = None;
+        self.error = None;
         // A preview first, as after a camera move: something to look at within a moment.
         self.bump(true);
     }
@@ -460,7 +476,7 @@ impl Viewer {
 
     /// The last error a render or an action reported.
     pub fn last_error(&self) -> Option<&str> {
-        self.render_error.as_deref()
+        self.error.as_ref().map(|e| e.text.as_str())
     }
 
     /// Messages of the status bar (tests read what an action said).
@@ -494,7 +510,7 @@ impl Viewer {
                 doc.scene = Arc::new(s);
                 self.bump(moving);
             }
-            Err(e) => self.render_error = Some(format!("{e:#}")),
+            Err(e) => self.error = Some(StatusError::action(format!("{e:#}"))),
         }
     }
 
@@ -571,9 +587,9 @@ impl Viewer {
         match r {
             Ok(()) => {
                 self.message = Some(format!("saved {}", path.display()));
-                self.render_error = None;
+                self.error = None;
             }
-            Err(e) => self.render_error = Some(format!("{e:#}")),
+            Err(e) => self.error = Some(StatusError::action(format!("{e:#}"))),
         }
     }
 
@@ -635,7 +651,7 @@ impl Viewer {
                     self.reference_pending = false;
                     self.error_vs_reference = Some((done.version, Err(e)));
                 } else {
-                    self.render_error = Some(e);
+                    self.error = Some(StatusError { text: e, from_render: true });
                 }
                 return;
             }
@@ -655,7 +671,9 @@ impl Viewer {
                 return;
             }
         }
-        self.render_error = None;
+        if self.error.as_ref().is_some_and(|e| e.from_render) {
+            self.error = None;
+        }
         if frame.stats.notes.iter().any(|n| n == super::worker::EYE_INSIDE_NOTE) {
             self.message = Some(super::worker::EYE_INSIDE_NOTE.into());
         }
@@ -955,8 +973,8 @@ impl Viewer {
             {
                 self.measure_error();
             }
-            if let Some(e) = &self.render_error {
-                ui.colored_label(Color32::from_rgb(230, 90, 80), e);
+            if let Some(e) = &self.error {
+                ui.colored_label(Color32::from_rgb(230, 90, 80), &e.text);
             } else if let Some(m) = &self.message {
                 ui.label(egui::RichText::new(m).weak());
             }
@@ -1821,8 +1839,8 @@ impl Viewer {
             }
             // No frame will come (the renderer refused the scene, the file did not open): end
             // with the error instead of waiting for ever.
-            ScreenshotState::Waiting if self.render_error.is_some() => {
-                let e = self.render_error.clone().unwrap_or_default();
+            ScreenshotState::Waiting if self.error.is_some() => {
+                let e = self.error.as_ref().map(|e| e.text.clone()).unwrap_or_default();
                 *st = ScreenshotState::Saved(Err(format!("no frame to save: {e}")));
                 ctx.request_repaint();
             }
