@@ -740,3 +740,89 @@ fn automatic_camera_density_keeps_the_particles_where_the_grid_would_blur_them()
         assert_eq!(fell_back, resolved == smoke::Density::Particles, "{name}: notes {:?}", auto.stats.notes);
     }
 }
+
+/// Views of the same particles share their preparation (medium, density grid, photons,
+/// transmittance grids; the irradiance map where g = 0): each view is the same bit for bit
+/// as the view rendered alone, whatever views came before — the grid points are functions
+/// of the point — and a view after the first computes no irradiance point twice (g = 0)
+/// and only its own (g ≠ 0, where the map holds S toward that view's eye).
+#[test]
+fn a_preparation_kept_across_views_renders_each_view_as_alone() {
+    let plume = volterra::samples::smoke_plume(6000, 3);
+    let lights = [sun([-1.0, 0.6, -0.5], 3.0)];
+    let front = camera_looking_at([0.5, 0.5, 0.48], [0.5, -2.5, 0.48], 0.55);
+    let mut side = front.clone();
+    side.position = [3.5, 0.5, 0.48];
+    let mut near = side.clone();
+    (near.parallel_projection, near.position) = (false, [1.9, -0.6, 0.7]);
+    let s = Settings { photons: 20_000, samples: 2, cache: false, ..Default::default() };
+    for g in [0.0, 0.3] {
+        let medium = MediumParams { c_ext: Some(10.0), albedo: 0.9, g };
+        let input =
+            SmokeInput { particles: &plume, node_to_world: DMat4::IDENTITY, medium: &medium, lights: &lights, limits: Default::default() };
+        let prepared = smoke::prepare::Prepared::new(&input, &s).unwrap();
+        let counter = |f: &volterra::render::Frame, k: &str| f.stats.counters.iter().find(|c| c.0 == k).unwrap().1;
+        let mut alone_points = Vec::new();
+        for (i, cam) in [&front, &side, &near, &front].into_iter().enumerate() {
+            let kept = prepared.render(&cam.rays(32, 32), &s).unwrap();
+            let alone = smoke::render(&input, &cam.rays(32, 32), &s).unwrap();
+            assert!(kept.rgba == alone.rgba && kept.depth == alone.depth, "g = {g}, view {i}: the kept preparation changed the image");
+            assert_eq!(counter(&kept, "earlier views of this preparation"), i as f64);
+            assert_eq!(counter(&kept, "photon tracing s"), if i == 0 { counter(&kept, "photon tracing s") } else { 0.0 });
+            let (points, points_alone) = (counter(&kept, "irradiance points computed"), counter(&alone, "irradiance points computed"));
+            assert!(points_alone > 0.0);
+            alone_points.push(points_alone);
+            if i == 0 {
+                assert_eq!(points, points_alone);
+            } else if g == 0.0 {
+                // The map serves every view: the front view again computes nothing, the
+                // others only the points the earlier views did not reach.
+                assert!(points < points_alone, "g = 0, view {i}: {points} of {points_alone} points computed again");
+                if i == 3 {
+                    assert_eq!(points, 0.0);
+                }
+            } else {
+                assert_eq!(points, points_alone, "g = {g}, view {i}: each view has its own map");
+            }
+        }
+        assert!(alone_points[0] == alone_points[3], "{alone_points:?}");
+    }
+}
+
+/// The render cache keeps a particle node's preparation for the next frame of the same
+/// scene, and prepares again when the medium changes.
+#[test]
+fn the_render_cache_keeps_the_smoke_preparation_between_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra::samples::write_samples(dir.path()).unwrap();
+    let load = |sets: &[&str]| {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        volterra::scene::Scene::load(&dir.path().join("smoke.toml"), &sets).unwrap()
+    };
+    let base = ["node.plume.settings.photons=20000", "node.plume.settings.cache=false"];
+    let scene = load(&base);
+    let cache = volterra::render::RenderCache::default();
+    let cam = scene.camera(None).unwrap();
+    let views = |f: &volterra::render::Frame| f.stats.counters.iter().find(|c| c.0 == "earlier views of this preparation").unwrap().1;
+    let first = volterra::render::render_view(&scene, &cam, (40, 40), &cache).unwrap();
+    let second = volterra::render::render_view(&scene, &cam, (40, 40), &cache).unwrap();
+    assert_eq!((views(&first), views(&second)), (0.0, 1.0));
+    assert!(first.rgba == second.rgba);
+    assert!(second.stats.nodes[0].prepare < 0.01, "{:?}", second.stats.nodes[0]);
+    // Fewer rays per pixel (the viewer's previews) is the view's own: the preparation
+    // stays; another albedo prepares again, and replaces it.
+    let edit = |f: &dyn Fn(&mut volterra::scene::SceneFile)| {
+        let mut file = scene.file.clone();
+        f(&mut file);
+        scene.edited(file).unwrap()
+    };
+    let fewer = edit(&|f| {
+        f.nodes[0].settings.insert("samples".into(), toml::Value::Integer(1));
+    });
+    assert_eq!(views(&volterra::render::render_view(&fewer, &cam, (40, 40), &cache).unwrap()), 2.0);
+    let edited = edit(&|f| f.nodes[0].medium.as_mut().unwrap().albedo = 0.5);
+    let other = volterra::render::render_view(&edited, &cam, (40, 40), &cache).unwrap();
+    assert_eq!(views(&other), 0.0);
+    assert_eq!(views(&volterra::render::render_view(&scene, &cam, (40, 40), &cache).unwrap()), 0.0, "one preparation per particle set");
+    assert!(other.rgba != first.rgba);
+}

@@ -490,11 +490,10 @@ enum BenchCommand {
         #[command(flatten)]
         common: BenchCommon,
     },
-    /// Photon map and particle map, with and without the irradiance map, against their
-    /// error from Mitsuba.
     /// An animation's throughput: the built-in plume series (24 steps) at 500×500 rendered
     /// serially and as 2 shards side by side (frames per minute, frames compared bit for
-    /// bit); for smoke, a second view of one step (photons cached) against the first.
+    /// bit); for smoke, a second view of one step against the first: in a new process
+    /// (photons from the disk cache) and in the same one (the preparation kept).
     Frames {
         /// Timesteps (frames).
         #[arg(long, default_value_t = 24)]
@@ -512,6 +511,8 @@ enum BenchCommand {
         #[command(flatten)]
         common: BenchCommon,
     },
+    /// Photon map and particle map, with and without the irradiance map, against their
+    /// error from Mitsuba.
     Smoke {
         /// One particle node with a Mitsuba reference in ../data.
         #[arg(long, default_value = "tests/reference/smoke_scenes/plume110k.toml")]

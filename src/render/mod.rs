@@ -30,8 +30,9 @@ use volterra_formats::{Heightfield, Limits, Volume};
 
 /// What renderers may keep between frames of one scene: the shear-warp preparation of each
 /// volume (quantised copy, permuted axes, min-max maps), which depends only on the volume,
-/// and each placed heightfield's terrain grid and GPU pyramid — not on the camera or the
-/// transfer function. The viewer keeps one for its scene, `render --frames` one for all
+/// each placed heightfield's terrain grid and GPU pyramid — not on the camera or the
+/// transfer function — and each particle node's smoke preparation (medium, density grid,
+/// photons, transmittance grids; the irradiance map where g = 0). The viewer keeps one for its scene, `render --frames` one for all
 /// its frames; a one-off render uses a fresh one.
 #[derive(Default)]
 pub struct RenderCache {
@@ -43,7 +44,14 @@ pub struct RenderCache {
     /// The second volume of each fused pair resampled onto the first's grid and prepared,
     /// keyed by both volumes' addresses and the second's placement relative to the first.
     fused: Mutex<HashMap<FusedKey, PreparedSecond>>,
+    /// Keyed by the particles' address; one preparation each (other settings, a medium or
+    /// lights edited in the viewer, replace the entry instead of adding one).
+    smoke: Mutex<HashMap<usize, PreparedSmoke>>,
 }
+
+/// The particles (held so their address stays taken), the preparation's key
+/// (`smoke::prepare::Prepared::key`) and the preparation.
+type PreparedSmoke = (Arc<volterra_formats::ParticleSet>, u64, Arc<smoke::prepare::Prepared>);
 
 type FusedKey = (usize, usize, [u64; 16]);
 /// Both volumes (held so their addresses stay taken) and the second's preparation on the
@@ -74,6 +82,28 @@ impl RenderCache {
         self.prepared.lock().unwrap().retain(|k, _| held.contains(k));
         self.fused.lock().unwrap().retain(|k, _| held.contains(&k.0) && held.contains(&k.1));
         self.terrain.lock().unwrap().retain(|k, _| held.contains(&k.0));
+        self.smoke.lock().unwrap().retain(|k, _| held.contains(k));
+    }
+
+    /// The smoke preparation of `particles` for `input` and `s`, kept while the
+    /// particles, their placement, the medium, the lights and the settings stay. Prepared
+    /// outside the lock: a render of another node need not wait for it.
+    fn smoke(
+        &self,
+        particles: &Arc<volterra_formats::ParticleSet>,
+        input: &smoke::SmokeInput,
+        s: &smoke::Settings,
+    ) -> Result<Arc<smoke::prepare::Prepared>> {
+        let addr = Arc::as_ptr(particles) as usize;
+        let key = smoke::prepare::Prepared::key(input, s);
+        if let Some((_, k, p)) = self.smoke.lock().unwrap().get(&addr) {
+            if *k == key {
+                return Ok(p.clone());
+            }
+        }
+        let p = Arc::new(smoke::prepare::Prepared::new(input, s)?);
+        self.smoke.lock().unwrap().insert(addr, (particles.clone(), key, p.clone()));
+        Ok(p)
     }
 
     fn shear_warp(&self, volume: &Arc<Volume>, limits: &Limits) -> Result<Arc<shear_warp::Prepared>> {
@@ -221,7 +251,8 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 lights: &scene.file.lights,
                 limits: *scene.limits(),
             };
-            smoke::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
+            let prepared = timed(&mut prepare, || cache.smoke(&particles, &input, s)).with_context(|| format!("node '{}'", desc.name))?;
+            prepared.render(&rays, s).with_context(|| format!("node '{}'", desc.name))?
         }
         (NodeSettings::Points(s), NodeData::Particles(particles)) => {
             let input =

@@ -10,7 +10,8 @@
 //! - `phase`, `lights`: Henyey–Greenstein, photon emission (random numbers:
 //!   `volterra_formats::rng`);
 //! - `photons`: photon tracing; `store`: particle map and photon map;
-//! - `grid`: lazily filled grids (irradiance map, transmittance grid); `march`: the camera.
+//! - `grid`: lazily filled grids (irradiance map, transmittance grid); `march`: the camera;
+//! - `prepare`: what a render keeps across views of the same particles (`RenderCache`).
 
 pub mod cache;
 pub mod density_grid;
@@ -22,6 +23,7 @@ pub mod medium;
 pub mod phase;
 pub mod photons;
 pub mod point_grid;
+pub mod prepare;
 pub mod store;
 pub mod tracking;
 
@@ -34,7 +36,6 @@ use crate::scene::{Light, Medium as MediumParams};
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3};
 use medium::{Kernel, SphMedium};
-use std::time::Instant;
 use volterra_formats::{Limits, ParticleSet};
 
 crate::setting_choice! {
@@ -199,258 +200,8 @@ pub fn build_medium(input: &SmokeInput, kernel: Kernel) -> Result<SphMedium> {
     SphMedium::new(positions, mass.iter().map(|&v| v as f64).collect(), h.iter().map(|&v| v as f64 * scale).collect(), kernel)
 }
 
-/// The smoothing length below which a fraction `q` of the particles' lie.
-fn h_quantile(medium: &SphMedium, q: f64) -> f64 {
-    let mut h: Vec<f64> = (0..medium.len()).map(|i| medium.smoothing_length(i)).collect();
-    if h.is_empty() {
-        return 0.0;
-    }
-    let k = ((h.len() as f64 * q) as usize).min(h.len() - 1);
-    *h.select_nth_unstable_by(k, f64::total_cmp).1
-}
-
+/// One view: the view-independent part prepared (`prepare::Prepared`), then the march.
+/// Views of the same particles keep the preparation through `render::RenderCache`.
 pub fn render(input: &SmokeInput, rays: &RayGenerator, s: &Settings) -> Result<Frame> {
-    check_medium(input.medium)?;
-    s.validate().map_err(|e| anyhow::anyhow!("{}: {e}", RENDERER.name))?;
-    let start = Instant::now();
-    // Each phase reported as it runs (photon tracing and ray marching count their own).
-    let phase = crate::render::driver::Task::begin("smoke: the SPH medium", 1);
-    let medium = build_medium(input, s.kernel)?;
-    let (lo, hi) = medium::Medium::bounds(&medium);
-    let mut emitters = lights::Emitter::from_scene(input.lights, lo, hi)?;
-    for e in &mut emitters {
-        e.fit_to(medium::Medium::majorants(&medium));
-    }
-    let h = h_quantile(&medium, 0.5);
-    let step = s.step * h;
-    let cell = if s.irradiance_cell > 0.0 { s.irradiance_cell } else { h };
-    let mut notes = Vec::new();
-    // No c_ext given: the one that gives the densest column an optical depth of 2.
-    let c_ext = match input.medium.c_ext {
-        Some(c) => c,
-        None => {
-            let auto = extinction::auto_extinction(&medium)
-                .ok_or_else(|| anyhow::anyhow!("the particles have no mass: there is no smoke to render"))?;
-            notes.push(format!(
-                "c_ext chosen from the data: {:.6e} (optical depth {} through the densest column, {:.6e} mass per area)",
-                auto.c_ext,
-                extinction::TARGET_DEPTH,
-                auto.column
-            ));
-            auto.c_ext
-        }
-    };
-    let (albedo, g) = (input.medium.albedo, input.medium.g);
-    let setup = start.elapsed().as_secs_f64();
-    phase.advance(1);
-    drop(phase);
-
-    // The density resampled on a grid the first time photons, the transmittance grid or
-    // the camera need it (see `Density`).
-    let density_grid = std::cell::OnceCell::new();
-    let grid_spacing = density_grid::DensityGrid::spacing(&medium, 0.5 * h);
-    // What `Density::Auto` compares the spacing with (once, not per part that asks).
-    let small = h_quantile(&medium, 0.1);
-    let medium_of = |density: Density, what: &str, notes: &mut Vec<String>| -> Result<&dyn medium::Medium> {
-        let density = match density {
-            Density::Auto => {
-                if grid_spacing <= small {
-                    Density::Grid
-                } else {
-                    let note = format!(
-                        "{what} through the particles: the density grid's spacing {grid_spacing:.3e} is larger than the \
-                         h of the smallest tenth of them ({small:.3e}), which it would blur"
-                    );
-                    if !notes.contains(&note) {
-                        notes.push(note);
-                    }
-                    Density::Particles
-                }
-            }
-            d => d,
-        };
-        if density == Density::Particles {
-            return Ok(&medium);
-        }
-        if density_grid.get().is_none() {
-            // Over a second for the 400k plume: shown as a phase of its own.
-            let phase = crate::render::driver::Task::begin("smoke: the density grid", 1);
-            let t = Instant::now();
-            let spacing = grid_spacing;
-            let dims = density_grid::DensityGrid::dims_for(&medium, spacing);
-            input.limits.check(std::path::Path::new("smoke"), "the density grid", &[dims[0] as u64, dims[1] as u64, dims[2] as u64, 4])?;
-            let grid = density_grid::DensityGrid::new(&medium, spacing);
-            if spacing > 0.5 * h * 1.0001 {
-                notes.push(format!(
-                    "the density grid is coarser than half the median h ({spacing:.3e} m) to stay within its {} samples: \
-                     light_density / camera_density = \"particles\" for the exact sum",
-                    density_grid::MAX_SAMPLES
-                ));
-            }
-            notes.push(format!(
-                "a {}×{}×{} density grid ({:.1} MB, spacing {:.3e}, built in {:.2} s)",
-                dims[0],
-                dims[1],
-                dims[2],
-                grid.memory() as f64 / 1e6,
-                grid.spacing_m(),
-                t.elapsed().as_secs_f64()
-            ));
-            let _ = density_grid.set(grid);
-            phase.advance(1);
-        }
-        Ok(density_grid.get().expect("built above") as &dyn medium::Medium)
-    };
-    // Photons: view-independent, traced once per render here (cached across views later).
-    let t = Instant::now();
-    let mut cache_hit = false;
-    let traced = if s.store == Store::None || albedo == 0.0 {
-        None
-    } else {
-        let mut key = cache::Key::new();
-        for i in 0..medium.len() {
-            let p = medium.position(i);
-            key.f64(p.x).f64(p.y).f64(p.z).f64(medium.mass(i)).f64(medium.smoothing_length(i));
-        }
-        key.str(&format!("{:?} {emitters:?} {:?} {:?}", s.kernel, s.free_flight, s.light_density));
-        key.f64(c_ext).f64(albedo).f64(g).f64(step).u64(s.photons as u64).u64(s.seed).u64(s.max_bounces as u64);
-        let key = key.finish();
-        // At least one 72-byte record per traced photon (more where a photon collides often).
-        input.limits.check(std::path::Path::new("smoke"), "the photon records", &[s.photons as u64, 72])?;
-        let cached = if s.cache { cache::load(key) } else { None };
-        if let Some(traced) = cached {
-            cache_hit = true;
-            notes.push(format!("photons from the cache ({} stored)", traced.photons.len()));
-            Some(traced)
-        } else {
-            let ts = photons::TraceSettings {
-                count: s.photons,
-                seed: s.seed,
-                c_ext,
-                albedo,
-                g,
-                free_flight: s.free_flight,
-                step,
-                max_bounces: s.max_bounces,
-            };
-            let traced = photons::trace(medium_of(s.light_density, "photons and shadow rays", &mut notes)?, &emitters, &ts)?;
-            if s.cache {
-                if let Err(e) = cache::store(key, &traced) {
-                    notes.push(format!("photon cache not written: {e}"));
-                }
-            }
-            Some(traced)
-        }
-    };
-    let trace_s = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let phase = crate::render::driver::Task::begin("smoke: storing photons", 1);
-    let particle_map = match (&traced, s.store) {
-        (Some(tr), Store::ParticleMap) => Some(store::ParticleMap::build(&medium, &tr.photons)),
-        _ => None,
-    };
-    let photon_map = match (&traced, s.store) {
-        (Some(tr), Store::PhotonMap) => {
-            let radius = if s.gather_radius > 0.0 { s.gather_radius } else { 4.0 * h };
-            Some(store::PhotonMap::build(tr.photons.clone(), s.gather, radius))
-        }
-        _ => None,
-    };
-    let store_s = t.elapsed().as_secs_f64();
-    phase.advance(1);
-    drop(phase);
-
-    let source = |x: DVec3, out: DVec3| -> [f64; 3] {
-        if let Some(pm) = &particle_map {
-            pm.source(&medium, x, out, g)
-        } else if let Some(pm) = &photon_map {
-            pm.source(x, out, g)
-        } else {
-            [0.0; 3]
-        }
-    };
-    // The irradiance map holds S toward the eye (perspective) or against the view
-    // direction (parallel) at each grid point: the direction a camera ray leaves it in.
-    let (eye, _, _) = rays.basis();
-    let parallel = rays.is_parallel();
-    let forward = rays.forward();
-    let irradiance = grid::LazyGrid::new(lo, hi, cell);
-    let mapped = |x: DVec3, _out: DVec3| -> [f64; 3] {
-        irradiance.sample(x, &|p| {
-            let out = if parallel { -forward } else { (eye - p).normalize_or(-forward) };
-            source(p, out)
-        })
-    };
-    let shadow_grids: Vec<grid::LazyGrid> = match s.shadows {
-        // Optical depth varies more slowly than the scattered source — twice the cell —
-        // but in dense smoke light dies within a mean free path, and the grid must resolve
-        // that: no coarser than 1/σ_t at the median majorant.
-        ShadowMode::Grid => {
-            let maj = medium::Medium::majorants(&medium);
-            let mut nonzero: Vec<f64> = maj.max.iter().cloned().filter(|&m| m > 0.0).collect();
-            nonzero.sort_by(f64::total_cmp);
-            let sigma = c_ext * nonzero.get(nonzero.len() / 2).copied().unwrap_or(0.0);
-            let tcell = if sigma > 0.0 { (2.0 * cell).min(1.0 / sigma) } else { 2.0 * cell };
-            emitters.iter().map(|_| grid::LazyGrid::new(lo, hi, tcell)).collect()
-        }
-        ShadowMode::Marched => Vec::new(),
-    };
-    // No photon stored (thin smoke, or none reached it): multiple scattering is zero, and
-    // neither the irradiance map nor the store is consulted.
-    let has_ms = traced.as_ref().is_some_and(|t| !t.photons.is_empty());
-    if traced.as_ref().is_some_and(|t| t.photons.is_empty()) {
-        notes.push("no photon scattered twice in the smoke: single scattering only".into());
-    }
-    let shadow_medium = medium_of(s.light_density, "photons and shadow rays", &mut notes)?;
-    let direct: &(dyn Fn(DVec3, DVec3) -> [f64; 3] + Sync) = &source;
-    let gridded: &(dyn Fn(DVec3, DVec3) -> [f64; 3] + Sync) = &mapped;
-    let camera_medium = medium_of(s.camera_density, "the camera's march", &mut notes)?;
-    let view = march::MarchView {
-        medium: camera_medium,
-        emitters: &emitters,
-        c_ext,
-        albedo,
-        g,
-        multiple: has_ms.then_some(if s.irradiance_map { gridded } else { direct }),
-        transmittance: match s.shadows {
-            ShadowMode::Marched => march::LightTransmittance::Marched { step, medium: shadow_medium },
-            ShadowMode::Grid => march::LightTransmittance::Grid { grids: &shadow_grids, medium: shadow_medium },
-        },
-        step,
-        samples: s.samples,
-        seed: s.seed,
-    };
-    let t = Instant::now();
-    let mut frame = march::render(&view, rays)?;
-    let march_s = t.elapsed().as_secs_f64();
-
-    let mut counters = vec![
-        ("particles".to_string(), medium.len() as f64),
-        ("median h".into(), h),
-        ("c_ext".into(), c_ext),
-        ("setup s".into(), setup),
-        ("photon tracing s".into(), trace_s),
-        ("photon store s".into(), store_s),
-        ("ray marching s".into(), march_s),
-    ];
-    if let Some(tr) = &traced {
-        counters.push(("photons stored".into(), tr.photons.len() as f64));
-        counters.push(("photon paths at the bounce cap".into(), tr.capped as f64));
-    }
-    if let Some(pm) = &particle_map {
-        counters.push(("particle map MB".into(), pm.memory() as f64 / 1e6));
-    }
-    if let Some(pm) = &photon_map {
-        counters.push(("photon map MB".into(), pm.memory() as f64 / 1e6));
-    }
-    if s.irradiance_map && has_ms {
-        counters.push(("irradiance points computed".into(), irradiance.computed_points() as f64));
-        counters.push(("irradiance map MB".into(), irradiance.memory() as f64 / 1e6));
-    }
-    counters.push(("photon cache hit".into(), cache_hit as u8 as f64));
-    frame.stats.counters = counters;
-    frame.stats.notes.extend(notes);
-    frame.stats.seconds = start.elapsed().as_secs_f64();
-    frame.stats.notes.push(format!("{:?} + {}", s.store, if s.irradiance_map { "irradiance map" } else { "direct estimates" }));
-    Ok(frame)
+    prepare::Prepared::new(input, s)?.render(rays, s)
 }
