@@ -42,7 +42,9 @@ pub struct Prepared {
     /// The density resampled on a grid, built the first time photons, the transmittance
     /// grids or a camera need it, with its notes.
     density_grid: OnceLock<Result<(density_grid::DensityGrid, Vec<String>), String>>,
-    traced: Option<photons::Traced>,
+    /// Photons stored and photon paths cut at the bounce cap (None: none traced). The
+    /// photons themselves live on in their store only.
+    traced: Option<TracedCounts>,
     photon_cache_hit: bool,
     particle_map: Option<store::ParticleMap>,
     photon_map: Option<store::PhotonMap>,
@@ -141,6 +143,7 @@ impl Prepared {
 
         // Photons: traced once (and kept on disk for other processes: `smoke::cache`).
         let t = Instant::now();
+        let mut traced_photons = None;
         if s.store != Store::None && albedo != 0.0 {
             let mut key = cache::Key::new();
             let m = &p.medium;
@@ -179,16 +182,17 @@ impl Prepared {
                 }
                 traced
             };
-            p.traced = Some(traced);
+            p.traced = Some(TracedCounts { stored: traced.photons.len(), capped: traced.capped });
+            traced_photons = Some(traced.photons);
         }
         p.seconds[1] = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let phase = crate::render::driver::Task::begin("smoke: storing photons", 1);
-        match (&p.traced, s.store) {
-            (Some(tr), Store::ParticleMap) => p.particle_map = Some(store::ParticleMap::build(&p.medium, &tr.photons)),
-            (Some(tr), Store::PhotonMap) => {
+        match (traced_photons, s.store) {
+            (Some(photons), Store::ParticleMap) => p.particle_map = Some(store::ParticleMap::build(&p.medium, &photons)),
+            (Some(photons), Store::PhotonMap) => {
                 let radius = if s.gather_radius > 0.0 { s.gather_radius } else { 4.0 * h };
-                p.photon_map = Some(store::PhotonMap::build(tr.photons.clone(), s.gather, radius));
+                p.photon_map = Some(store::PhotonMap::build(photons, s.gather, radius));
             }
             _ => {}
         }
@@ -321,8 +325,8 @@ impl Prepared {
         };
         // No photon stored (thin smoke, or none reached it): multiple scattering is zero,
         // and neither the irradiance map nor the store is consulted.
-        let has_ms = self.traced.as_ref().is_some_and(|t| !t.photons.is_empty());
-        if self.traced.as_ref().is_some_and(|t| t.photons.is_empty()) {
+        let has_ms = self.traced.as_ref().is_some_and(|t| t.stored > 0);
+        if self.traced.as_ref().is_some_and(|t| t.stored == 0) {
             notes.push("no photon scattered twice in the smoke: single scattering only".into());
         }
         let prep = &self.settings;
@@ -359,7 +363,7 @@ impl Prepared {
             ("ray marching s".into(), march_s),
         ];
         if let Some(tr) = &self.traced {
-            counters.push(("photons stored".into(), tr.photons.len() as f64));
+            counters.push(("photons stored".into(), tr.stored as f64));
             counters.push(("photon paths at the bounce cap".into(), tr.capped as f64));
         }
         if let Some(pm) = &self.particle_map {
@@ -381,6 +385,11 @@ impl Prepared {
         frame.stats.notes.push(format!("{:?} + {}", prep.store, if prep.irradiance_map { "irradiance map" } else { "direct estimates" }));
         Ok(frame)
     }
+}
+
+struct TracedCounts {
+    stored: usize,
+    capped: usize,
 }
 
 /// The smoothing length below which a fraction `q` of the particles' lie.
