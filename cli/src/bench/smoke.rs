@@ -14,9 +14,11 @@
 //! reference committed; `volterra::samples::write_large_plume` writes the particles) on
 //! the comparison view and at 400², against Mitsuba at 64, 256 and 1024 spp in the same
 //! run: Mitsuba's time for our error, interpolated between its rows. At 400² there is no
-//! 8192 spp reference (half an hour of Mitsuba on 2 cores): Mitsuba's time there is
-//! estimated as the view's sample count for our error times its measured seconds per
-//! sample at 400².
+//! 8192 spp reference (half an hour of Mitsuba on 2 cores): two Mitsuba renders with
+//! independent seeds stand in for it (`two_render_errors`): their difference measures
+//! Mitsuba's noise, and our distance from their mean, less that noise, our error — checked
+//! on the comparison view against the 8192 spp reference in the same run. Mitsuba's time
+//! for our error there follows from its noise falling as 1/√spp.
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
@@ -203,12 +205,24 @@ pub struct Race {
     pub mitsuba_s_at_our_error: Option<(f64, bool)>,
     pub ours_large_s: f64,
     pub large: (usize, usize),
-    /// Mitsuba's seconds per sample per pixel at the large size (a 16 spp render).
+    /// Mitsuba's seconds per sample per pixel at the large size.
     pub mitsuba_large_s_per_spp: f64,
+    /// On the view: our error and Mitsuba's at its largest row as two renders with
+    /// independent seeds estimate them, without the reference (checks the estimator).
+    pub view_two_render: (f64, f64),
+    /// At the large size, from two Mitsuba renders of `LARGE_SPP` (independent seeds): our
+    /// error, Mitsuba's error at that count, and its sample count and seconds for our error.
+    pub large_ours_rel_rmse: f64,
+    pub large_mitsuba_rel_rmse: f64,
+    pub large_mitsuba_spp_at_our_error: f64,
+    pub large_mitsuba_s_at_our_error: f64,
 }
 
 const LARGE: (usize, usize) = (400, 400);
 const RACE_COUNTS: [usize; 3] = [64, 256, 1024];
+/// Samples per pixel of the two Mitsuba renders at the large size: their noise near our
+/// error (the 110k plume's needs ≈ 600), so that removing it leaves ours precise.
+const LARGE_SPP: usize = 256;
 
 fn race(b: &SmokeBench, scene_path: &Path) -> Result<Race> {
     let t = std::time::Instant::now();
@@ -225,12 +239,26 @@ fn race(b: &SmokeBench, scene_path: &Path) -> Result<Race> {
     // Loaded again: the large view is a first view too, its load included.
     let t = std::time::Instant::now();
     let scene = Scene::load(scene_path, &[])?.with_limits(b.env.limits);
-    render(&scene, node, &defaults, LARGE)?;
+    let ours_large = render(&scene, node, &defaults, LARGE)?;
     let ours_large_s = t.elapsed().as_secs_f64();
-    let mitsuba: Vec<(usize, f64, f64)> =
-        mitsuba_runs(b, scene_path, &RACE_COUNTS, view, None)?.into_iter().map(|r| (r.spp, r.seconds, error(&r.rgb))).collect();
+    let runs = mitsuba_runs(b, scene_path, &RACE_COUNTS, view, None, 1)?;
+    let mitsuba: Vec<(usize, f64, f64)> = runs.iter().map(|r| (r.spp, r.seconds, error(&r.rgb))).collect();
     let rows: Vec<(f64, f64)> = mitsuba.iter().map(|r| (r.1, r.2)).collect();
-    let large = mitsuba_runs(b, scene_path, &[16], LARGE, Some(LARGE))?;
+    // The estimator checked where the reference exists: the largest row again, another seed.
+    let last = runs.last().context("no Mitsuba rows")?;
+    let again = mitsuba_runs(b, scene_path, &[last.spp], view, None, 2)?;
+    let view_two_render = two_render_errors(&rgb_only(&ours.rgba), &last.rgb, &again[0].rgb);
+    let large: Vec<MitsubaRun> = [1, 2]
+        .into_iter()
+        .map(|seed| mitsuba_runs(b, scene_path, &[LARGE_SPP], LARGE, Some(LARGE), seed))
+        .collect::<Result<Vec<_>>>()?
+        .into_iter()
+        .flatten()
+        .collect();
+    let (large_ours, large_mitsuba) = two_render_errors(&rgb_only(&ours_large.rgba), &large[0].rgb, &large[1].rgb);
+    let large_s_per_spp = 0.5 * (large[0].seconds + large[1].seconds) / LARGE_SPP as f64;
+    // Monte-Carlo noise falls as 1/√spp: the count whose noise is our error.
+    let large_spp = LARGE_SPP as f64 * (large_mitsuba / large_ours).powi(2);
     Ok(Race {
         plume: scene_path.file_stem().unwrap_or_default().to_string_lossy().to_string(),
         particles,
@@ -241,7 +269,12 @@ fn race(b: &SmokeBench, scene_path: &Path) -> Result<Race> {
         mitsuba,
         ours_large_s,
         large: LARGE,
-        mitsuba_large_s_per_spp: large[0].seconds / 16.0,
+        mitsuba_large_s_per_spp: large_s_per_spp,
+        view_two_render,
+        large_ours_rel_rmse: large_ours,
+        large_mitsuba_rel_rmse: large_mitsuba,
+        large_mitsuba_spp_at_our_error: large_spp,
+        large_mitsuba_s_at_our_error: large_spp * large_s_per_spp,
     })
 }
 
@@ -287,31 +320,48 @@ fn print_races(races: &[Race]) {
             ),
             None => println!("  Mitsuba at our error: not found from its rows"),
         }
-        // At the large size Mitsuba needs at least the view's sample count for the same
-        // per-pixel noise (a smaller pixel averages less): its time there is estimated as
-        // that count times its measured seconds per sample.
-        if let Some((s, _)) = r.mitsuba_s_at_our_error {
-            let spp = spp_for_seconds(&r.mitsuba, s);
-            let mitsuba_large = spp * r.mitsuba_large_s_per_spp;
-            println!(
-                "  {}×{}: ours {:.2} s; Mitsuba {:.3} s per spp, ≈ {:.0} s at the view's {:.0} spp (estimate) — ours {:.1}× faster",
-                r.large.0,
-                r.large.1,
-                r.ours_large_s,
-                r.mitsuba_large_s_per_spp,
-                mitsuba_large,
-                spp,
-                mitsuba_large / r.ours_large_s
-            );
-        }
+        let (e, m) = r.view_two_render;
+        println!(
+            "  the two-render estimate on this view (Mitsuba {} spp, seeds 1 and 2, no reference): ours {:.2}% (against the reference {:.2}%), Mitsuba {:.2}% (against the reference {:.2}%)",
+            r.mitsuba.last().map_or(0, |m| m.0),
+            100.0 * e,
+            100.0 * r.ours_rel_rmse,
+            100.0 * m,
+            100.0 * r.mitsuba.last().map_or(f64::NAN, |m| m.2)
+        );
+        println!(
+            "  {}×{}: ours {:.2} s at {:.2}% (two Mitsuba renders of {LARGE_SPP} spp: {:.2}% each, {:.3} s per spp); Mitsuba at our error: {:.0} spp, {:.0} s — ours {:.1}× faster",
+            r.large.0,
+            r.large.1,
+            r.ours_large_s,
+            100.0 * r.large_ours_rel_rmse,
+            100.0 * r.large_mitsuba_rel_rmse,
+            r.mitsuba_large_s_per_spp,
+            r.large_mitsuba_spp_at_our_error,
+            r.large_mitsuba_s_at_our_error,
+            r.large_mitsuba_s_at_our_error / r.ours_large_s
+        );
     }
 }
 
-/// The sample count at which Mitsuba takes `seconds`, at its largest row's seconds per
-/// sample (the smaller rows carry more of its fixed start-up).
-fn spp_for_seconds(rows: &[(usize, f64, f64)], seconds: f64) -> f64 {
-    let per_spp = rows.last().map(|r| r.1 / r.0 as f64).unwrap_or(f64::NAN);
-    seconds / per_spp
+/// Relative RMSE of `ours` and of one Mitsuba render against the truth, estimated from two
+/// Mitsuba renders `a` and `b` with independent seeds and no reference: Mitsuba is
+/// unbiased, so |a − b|² is twice its noise, and our squared distance from their mean is
+/// our squared error plus half that noise (the cross terms vanish in expectation). Both
+/// relative to the mean image.
+pub fn two_render_errors(ours: &[[f32; 4]], a: &[[f32; 4]], b: &[[f32; 4]]) -> (f64, f64) {
+    let (mut diff, mut from_mean, mut norm) = (0.0f64, 0.0f64, 0.0f64);
+    for ((o, p), q) in ours.iter().zip(a).zip(b) {
+        for k in 0..4 {
+            let (p, q, o) = (p[k] as f64, q[k] as f64, o[k] as f64);
+            let m = 0.5 * (p + q);
+            diff += (p - q).powi(2);
+            from_mean += (o - m).powi(2);
+            norm += m * m;
+        }
+    }
+    let noise = diff / 2.0;
+    (((from_mean - noise / 2.0).max(0.0) / norm).sqrt(), (noise / norm).sqrt())
 }
 
 /// One Mitsuba render of a bench scene: sample count, seconds (the render alone, without
@@ -323,23 +373,24 @@ struct MitsubaRun {
 }
 
 /// Mitsuba at the given sample counts on `scene`'s view, in one run of mitsuba_smoke.py
-/// (the density grid resampled once), with a sampler seed other than the committed
-/// reference's so that each run's noise is independent of the reference's.
+/// (the density grid resampled once), with sampler seed `seed`: not the committed
+/// reference's (0), so that each run's noise is independent of the reference's.
 fn mitsuba_runs(
     b: &SmokeBench,
     scene: &Path,
     counts: &[usize],
     size: (usize, usize),
     image: Option<(usize, usize)>,
+    seed: u64,
 ) -> Result<Vec<MitsubaRun>> {
     let stem = scene.file_stem().unwrap_or_default().to_string_lossy().to_string();
-    let out_dir = b.env.work_dir.join(format!("mitsuba_{stem}_{}x{}", size.0, size.1));
+    let out_dir = b.env.work_dir.join(format!("mitsuba_{stem}_{}x{}_seed{seed}", size.0, size.1));
     let list = counts.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",");
     let out = std::process::Command::new(&b.env.python)
         .arg(b.env.scripts.join("mitsuba_smoke.py"))
         .arg(&out_dir)
         .arg(&list)
-        .args(["--seed", "1"])
+        .args(["--seed", &seed.to_string()])
         .args(image.map(|(w, h)| vec!["--image".to_string(), format!("{w}x{h}")]).unwrap_or_default())
         .arg(scene)
         .output()
@@ -373,7 +424,7 @@ fn mitsuba_runs(
 
 /// Mitsuba at rising sample counts on the comparison view: render time against error.
 fn mitsuba_rows(b: &SmokeBench, size: (usize, usize), reference: &[[f32; 4]]) -> Result<Vec<Row>> {
-    Ok(mitsuba_runs(b, &b.scene, &[16, 64, 256, 1024], size, None)?
+    Ok(mitsuba_runs(b, &b.scene, &[16, 64, 256, 1024], size, None, 1)?
         .into_iter()
         .map(|r| Row {
             config: format!("mitsuba volpath {} spp ({}×{})", r.spp, size.0, size.1),
@@ -411,7 +462,43 @@ pub fn seconds_at_error(rows: &[(f64, f64)], error: f64) -> Option<(f64, bool)> 
 
 #[cfg(test)]
 mod tests {
-    use super::seconds_at_error;
+    use super::{seconds_at_error, two_render_errors};
+
+    /// A known truth, ours off it by a known error, two noisy renders of it: the estimate
+    /// without the truth finds both errors, including when the renders' noise is larger
+    /// than our error (heavy-tailed noise, as a path tracer's fireflies).
+    #[test]
+    fn two_renders_with_independent_seeds_estimate_both_errors() {
+        let mut rng = volterra_formats::rng::Rng::new(7);
+        let n = 200_000;
+        let truth: Vec<[f32; 4]> =
+            (0..n).map(|i| [0.2 + 0.6 * (i % 97) as f32 / 97.0, 0.3, 0.1 + 0.2 * (i % 13) as f32 / 13.0, 0.0]).collect();
+        let norm = truth.iter().map(|p| p.iter().map(|&v| (v as f64).powi(2)).sum::<f64>()).sum::<f64>().sqrt();
+        let rms = |img: &[[f32; 4]]| {
+            img.iter().zip(&truth).map(|(p, q)| (0..4).map(|k| ((p[k] - q[k]) as f64).powi(2)).sum::<f64>()).sum::<f64>().sqrt() / norm
+        };
+        // Ours: a smooth bias of a few per cent.
+        let ours: Vec<[f32; 4]> = truth.iter().enumerate().map(|(i, p)| p.map(|v| v * (1.0 + 0.05 * ((i as f32) * 0.001).sin()))).collect();
+        for scale in [0.5f64, 1.0, 2.0] {
+            let mut noisy = || -> Vec<[f32; 4]> {
+                truth
+                    .iter()
+                    .map(|p| {
+                        p.map(|v| {
+                            // Zero-mean, heavy-tailed: mostly small, now and then ten times larger.
+                            let big = if rng.uniform() < 0.01 { 10.0 } else { 1.0 };
+                            v + (scale * 0.03 * big * (rng.uniform() - 0.5)) as f32 * v
+                        })
+                    })
+                    .collect()
+            };
+            let (a, b) = (noisy(), noisy());
+            let (e, m) = two_render_errors(&ours, &a, &b);
+            let (e_true, m_true) = (rms(&ours), 0.5 * (rms(&a) + rms(&b)));
+            assert!((e / e_true - 1.0).abs() < 0.05, "noise ×{scale}: ours {e} against {e_true}");
+            assert!((m / m_true - 1.0).abs() < 0.05, "noise ×{scale}: the renders' {m} against {m_true}");
+        }
+    }
 
     /// Rows on error ∝ time^(−1/2), as Monte-Carlo noise: every error is found at the
     /// time that law gives, inside the rows, past the last and before the first.
