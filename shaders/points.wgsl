@@ -1,5 +1,5 @@
-// The points renderer: every particle a sphere, drawn as a screen-space quad that covers
-// its projection, and each fragment intersected exactly with the sphere along the pixel's
+// The points renderer: every particle a sphere, drawn as a screen-space triangle round
+// its projection (an ellipse, found exactly), and each fragment intersected exactly with the sphere along the pixel's
 // ray (the same rays as every other renderer: pixel centres, row 0 at the top). Writes the
 // colour shaded by a headlight, the distance along the ray (Z) and a depth for the depth
 // test (the distance, mapped linearly between the near and far planes). Positions are
@@ -26,18 +26,15 @@ struct View {
 // Each sphere's colour (linear RGB, from the colour map).
 @group(0) @binding(2) var<storage, read> colours: array<vec4<f32>>;
 
+// The sphere and its colour travel with each vertex (flat): a fragment reads no buffer.
 struct VOut {
     @builtin(position) pos: vec4<f32>,
-    @location(0) @interpolate(flat) id: u32,
+    @location(0) @interpolate(flat) sphere: vec4<f32>,
+    @location(1) @interpolate(flat) colour: vec4<f32>,
 };
 
-// Normalised device coordinates of a point in camera coordinates (right, up, forward).
-fn ndc(c: vec3<f32>) -> vec2<f32> {
-    if (view.parallel != 0u) {
-        return vec2<f32>(c.x / view.half_w, c.y / view.half_h);
-    }
-    return vec2<f32>(c.x / (c.z * view.half_w), c.y / (c.z * view.half_h));
-}
+// The triangle round a unit circle (its incircle): three vertices twice the radius out.
+const TRIANGLE = array<vec2<f32>, 3>(vec2<f32>(0.0, 2.0), vec2<f32>(-1.7320508, -1.0), vec2<f32>(1.7320508, -1.0));
 
 @vertex
 fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut {
@@ -45,61 +42,51 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
     let r = s.w;
     let cam = vec3<f32>(dot(s.xyz, view.right.xyz), dot(s.xyz, view.up.xyz), dot(s.xyz, view.forward.xyz));
     var out: VOut;
-    out.id = ii;
-    // A sphere reaching the eye plane is not drawn (a degenerate quad): its projection is
-    // unbounded. The near plane lies just in front of every other sphere.
+    out.sphere = s;
+    out.colour = colours[ii];
+    // A sphere reaching the eye plane is not drawn (a degenerate triangle): its projection
+    // is unbounded. The near plane lies just in front of every other sphere.
     if (cam.z - r <= 0.0 && view.parallel == 0u) {
         out.pos = vec4<f32>(-2.0, -2.0, 0.5, 1.0);
         return out;
     }
-    // The sphere's projection, bounded exactly along each image axis by the tangent lines
-    // from the eye in that axis's plane (lo = tan(θ − δ), hi = tan(θ + δ), sin δ = r over
-    // the centre's distance in the plane): a quad about a
-    // third of the size of one round the sphere's bounding cube, and fragments are what a
-    // software rasteriser pays for. Parallel: centre ± r.
-    var lo: vec2<f32>;
-    var hi: vec2<f32>;
-    if (view.parallel != 0u) {
-        lo = (cam.xy - vec2<f32>(r)) / vec2<f32>(view.half_w, view.half_h);
-        hi = (cam.xy + vec2<f32>(r)) / vec2<f32>(view.half_w, view.half_h);
-    } else {
-        // Per axis, the tangents in that axis's plane through the eye (x with the depth,
-        // y with the depth): the sphere's shadow there is a circle about (c_x, c_z) or
-        // (c_y, c_z), so t is the tangent length in that plane, not in 3-D.
-        let t = sqrt(max(cam.xy * cam.xy + vec2<f32>(cam.z * cam.z - r * r), vec2<f32>(0.0)));
-        let den_lo = cam.z * t + r * cam.xy;
-        let den_hi = cam.z * t - r * cam.xy;
-        if (all(den_lo > vec2<f32>(0.0)) && all(den_hi > vec2<f32>(0.0))) {
-            lo = (cam.xy * t - r * cam.z) / den_lo / vec2<f32>(view.half_w, view.half_h);
-            hi = (cam.xy * t + r * cam.z) / den_hi / vec2<f32>(view.half_w, view.half_h);
-        } else {
-            // More than 90° across (beside the eye): the bounding cube's projection.
-            lo = vec2<f32>(1e30, 1e30);
-            hi = vec2<f32>(-1e30, -1e30);
-            for (var k = 0u; k < 8u; k = k + 1u) {
-                let o = vec3<f32>(select(-r, r, (k & 1u) != 0u), select(-r, r, (k & 2u) != 0u), select(-r, r, (k & 4u) != 0u));
-                let q = ndc(cam + o);
-                lo = min(lo, q);
-                hi = max(hi, q);
-            }
+    // The sphere's projection on the image plane (x / z, y / z; parallel: x, y), exactly:
+    // an ellipse with centre p0, semi-axis a along u (toward the centre's foot, radially)
+    // and b across it. In perspective, from the cone of rays tangent to the sphere,
+    // (p·c)² = (|c|² − r²)|p|² for p = (x, y, 1): with e = c_z² − r², the centre is
+    // c_xy·c_z / e, a = r·√(|c|² − r²) / e and b = r / √e. Parallel: the circle of radius r.
+    // One triangle round it, the ellipse its incircle's image (1.65 times the ellipse's
+    // area): a software rasteriser pays per triangle as much as per fragment, and two
+    // triangles of a quad round the bounds cost more than the third more fragments.
+    var p0 = cam.xy;
+    var u = vec2<f32>(1.0, 0.0);
+    var a = r;
+    var b = r;
+    if (view.parallel == 0u) {
+        let e = (cam.z - r) * (cam.z + r);
+        let rho = length(cam.xy);
+        if (rho > 0.0) {
+            u = cam.xy / rho;
         }
+        p0 = cam.xy * (cam.z / e);
+        a = r * sqrt(max((cam.z - r) * (cam.z + r) + rho * rho, 0.0)) / e;
+        b = r / sqrt(e);
     }
-    var corners = array<vec2<f32>, 6>(
-        vec2<f32>(0.0, 0.0), vec2<f32>(1.0, 0.0), vec2<f32>(0.0, 1.0),
-        vec2<f32>(0.0, 1.0), vec2<f32>(1.0, 0.0), vec2<f32>(1.0, 1.0));
-    // A fiftieth of a pixel of margin, so a pixel centre just inside is never lost to
-    // rounding (f32 puts the bound within about 1e-4 pixel). Not more: at a few pixels
-    // across, a whole pixel each side would quadruple the fragments of a sphere.
-    let m = vec2<f32>(0.04 / view.width, 0.04 / view.height);
-    let xy = mix(lo - m, hi + m, corners[vi]);
-    // The quad's depth: the sphere's nearest distance from the eye (every fragment's ray
-    // meets the sphere no nearer), so the fragment depth is never nearer than the quad's.
+    // A fiftieth of a pixel of margin (in image-plane units along the finer axis), so a
+    // pixel centre just inside is never lost to rounding (f32 puts the bound within about
+    // 1e-4 pixel). Not more: at a few pixels across, a pixel each side would quadruple
+    // the fragments of a sphere.
+    let m = 0.04 * max(view.half_w / view.width, view.half_h / view.height);
+    let t = TRIANGLE[vi];
+    let xy = (p0 + (a + m) * t.x * u + (b + m) * t.y * vec2<f32>(-u.y, u.x)) / vec2<f32>(view.half_w, view.half_h);
+    // The triangle's depth: the sphere's nearest distance from the eye (every fragment's
+    // ray meets the sphere no nearer), so the fragment depth is never nearer than it.
     var nearest = length(cam) - r;
     if (view.parallel != 0u) {
         nearest = cam.z - r;
     }
     let z = clamp((nearest - view.near) / (view.far - view.near), 0.0, 1.0);
-    out.pos = vec4<f32>(clamp(xy, vec2<f32>(-4.0), vec2<f32>(4.0)), z, 1.0);
+    out.pos = vec4<f32>(xy, z, 1.0);
     return out;
 }
 
@@ -130,7 +117,7 @@ fn pixel_ray(px: vec2<f32>) -> Ray {
 
 @fragment
 fn fs(in: VOut) -> FOut {
-    let s = spheres[in.id];
+    let s = in.sphere;
     let ray = pixel_ray(in.pos.xy);
     let o = ray.o;
     let d = ray.d;
@@ -149,7 +136,7 @@ fn fs(in: VOut) -> FOut {
     }
     let n = normalize(o + t * d - s.xyz);
     var out: FOut;
-    out.colour = vec4<f32>(colours[in.id].rgb * (0.3 + 0.7 * max(dot(n, -d), 0.0)), 1.0);
+    out.colour = vec4<f32>(in.colour.rgb * (0.3 + 0.7 * max(dot(n, -d), 0.0)), 1.0);
     out.dist = t;
     out.depth = clamp((t - view.near) / (view.far - view.near), 0.0, 1.0);
     return out;
@@ -168,7 +155,7 @@ struct SplatOut {
 
 @fragment
 fn fs_splat(in: VOut) -> SplatOut {
-    let s = spheres[in.id];
+    let s = in.sphere;
     let ray = pixel_ray(in.pos.xy);
     let oc = ray.o - s.xyz;
     let b = dot(oc, ray.d);
@@ -179,7 +166,7 @@ fn fs_splat(in: VOut) -> SplatOut {
     }
     let a = view.opacity * exp(-4.5 * q2);
     var out: SplatOut;
-    out.colour = vec4<f32>(colours[in.id].rgb * a, a);
+    out.colour = vec4<f32>(in.colour.rgb * a, a);
     out.weight = a;
     out.dist = select(3.0e38, -b, q2 <= 1.0 / 9.0);
     return out;

@@ -262,3 +262,60 @@ fn opacity_is_refused_for_spheres() {
     assert!((decl.parse)(&table("style = \"splats\"\nopacity = 0.5")).is_ok());
     assert!((decl.parse)(&table("style = \"splats\"\nopacity = 0.0")).is_err(), "opacity in (0, 1]");
 }
+
+/// Each sphere's triangle is drawn round its exact projection, an ellipse stretched toward
+/// the image's edge: a wide view (110°) with spheres near the eye, off the axis, beside the
+/// eye (more than 90° across) and partly outside the image covers what the f64 reference
+/// covers, pixel for pixel, in spheres and in splats. (A triangle round a circle of the
+/// minor semi-axis leaves 826 pixels out; the depth range once taken along the view axis
+/// instead of along the rays put 327 pixels of spheres at the edges behind the far plane.)
+#[test]
+fn wide_views_of_spheres_near_the_eye_cover_what_the_reference_covers() {
+    if common::gpu().is_none() {
+        return;
+    }
+    let mut rng = SplitMix64(5);
+    let mut positions = vec![];
+    let mut h = vec![];
+    for _ in 0..150 {
+        // Camera at the origin looking along +y: spheres 0.3 to 4 ahead, spread far to the
+        // sides, some of them with their centre within a radius or two of the eye plane.
+        let y = rng.range(0.3, 4.0);
+        positions.push([rng.range(-1.6, 1.6) * y, y, rng.range(-1.2, 1.2) * y]);
+        h.push(rng.range(0.05, 0.25) as f32);
+    }
+    let n = positions.len();
+    let set = ParticleSet {
+        positions,
+        mass: Some(vec![1.0; n]),
+        density: None,
+        smoothing_length: Some(h),
+        arrays: vec![PointArray { name: "v".into(), components: 1, values: (0..n).map(|i| i as f64).collect() }],
+        notes: vec![],
+    };
+    let cam = Camera {
+        position: [0.0; 3],
+        focal_point: [0.0, 1.0, 0.0],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 110.0,
+        parallel_projection: false,
+        parallel_scale: 1.0,
+    };
+    let rays = cam.rays(160, 120);
+    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("v"), range: None };
+    for style in [points::PointStyle::Spheres, points::PointStyle::Splats] {
+        let s = Settings { style, ..Default::default() };
+        let (spheres, _) = points::spheres(&input, &s).unwrap();
+        let gpu = points::render(&input, &rays, &s).unwrap();
+        let cpu = if style == points::PointStyle::Spheres {
+            points::render_reference(&spheres, &rays)
+        } else {
+            points::render_splats_reference(&spheres, &rays, s.opacity)
+        };
+        let covered = cpu.rgba.iter().filter(|p| p[3] > 0.0).count();
+        let differ = gpu.rgba.iter().zip(&cpu.rgba).filter(|(g, c)| (g[3] > 0.0) != (c[3] > 0.0)).count();
+        eprintln!("{style:?}: {covered} pixels covered, {differ} differ");
+        assert!(covered > 4000, "{style:?}: the spheres cover much of the view: {covered}");
+        assert!(differ <= 3, "{style:?}: {differ} of {covered} pixels covered by one side only");
+    }
+}

@@ -270,7 +270,7 @@ fn pipelines(dev: &wgpu::Device) -> &'static Pipelines {
             label: Some("points"),
             entries: &[entry(0, wgpu::BufferBindingType::Uniform), entry(1, storage), entry(2, storage)],
         });
-        // The fragment's depth is never nearer than the quad's (the sphere's nearest
+        // The fragment's depth is never nearer than the triangle's (the sphere's nearest
         // point): with the adapter's early depth test, hidden fragments are never shaded.
         let source = include_str!("../../../shaders/points.wgsl");
         let source = if dev.features().contains(wgpu::Features::SHADER_EARLY_DEPTH_TEST) {
@@ -385,12 +385,17 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
     let (eye, right, up) = rays.basis();
     let forward = rays.forward();
     let (half_w, half_h) = rays.half_extent();
-    // Near and far from the spheres' extent along the view (a little room either side).
+    // Near and far bound the depth the shader writes, the distance along each pixel's ray
+    // (a little room either side): from the spheres' extent along the view, and in
+    // perspective far from their distance from the eye — off the axis a ray reaches a
+    // sphere further than its depth along the view, and a far bound by depth put the
+    // spheres at a wide view's edges behind the far plane, undrawn.
     let (mut near, mut far) = (f64::INFINITY, 0.0f64);
     for sp in &spheres {
         let z = (sp.centre - eye).dot(forward);
         near = near.min(z - sp.radius);
-        far = far.max(z + sp.radius);
+        let reach = if rays.is_parallel() { z } else { (sp.centre - eye).length() };
+        far = far.max(reach + sp.radius);
     }
     // Room either side, so the nearest and farthest spheres are not clipped; a sphere that
     // reaches the eye plane (perspective) is not drawn (the shader culls it).
@@ -553,7 +558,7 @@ fn draw(
         });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &bind, &[]);
-        pass.draw(0..6, 0..b.centres.len() as u32);
+        pass.draw(0..3, 0..b.centres.len() as u32);
     }
     // Rows padded to 256 bytes for the copies.
     let padded = |bytes_per_pixel: usize| (w * bytes_per_pixel).div_ceil(256) * 256;
