@@ -177,7 +177,7 @@ fn assert_leaping_changed_nothing(frames: &[Frame], view: &str) {
 }
 
 fn counter(f: &Frame, name: &str) -> f64 {
-    f.stats.counters.iter().find(|c| c.0 == name).unwrap().1
+    f.stats.counter(name).unwrap()
 }
 
 #[test]
@@ -204,7 +204,7 @@ fn an_all_transparent_transfer_function_leaps_everything() {
     let (sw, _) = render_both(&v, &tf, &camera([0.2, 1.0, 0.1], 20.0), 64, BlendMode::Composite, &Default::default());
     assert!(sw.rgba.iter().all(|p| *p == [0.0; 4]));
     assert!(sw.depth.iter().all(|z| z.is_infinite()));
-    assert_eq!(sw.stats.counters.iter().find(|c| c.0 == "samples").unwrap().1, 0.0, "nothing may be sampled");
+    assert_eq!(sw.stats.counter("samples").unwrap(), 0.0, "nothing may be sampled");
 }
 
 #[test]
@@ -409,7 +409,7 @@ fn perspective_principal_axis_switch_is_seamless() {
         .into_iter()
         .map(|dir| render_both(&v, &tf, &perspective(dir, 60.0, 40.0), 80, BlendMode::Composite, &Default::default()))
         .collect();
-    let axis = |f: &Frame| f.stats.counters.iter().find(|c| c.0 == "principal_axis").unwrap().1;
+    let axis = |f: &Frame| f.stats.counter("principal_axis").unwrap();
     assert_ne!(axis(&frames[0].0), axis(&frames[1].0), "the two views must use different principal axes");
     for (sw, rf) in &frames {
         let e = rel_rmse(sw, rf);
@@ -618,7 +618,7 @@ fn previews_draw_a_coarser_copy_where_pixels_span_several_voxels() {
     for (cam, name) in &views {
         for (size, want) in [(24, 4.0), (48, 2.0), (192, 0.0)] {
             let (coarse, fine) = (draw(cam, size, &preview).unwrap(), draw(cam, size, &full).unwrap());
-            let coarsening = coarse.stats.counters.iter().find(|c| c.0 == "coarsening").map_or(0.0, |c| c.1);
+            let coarsening = coarse.stats.counter("coarsening").unwrap_or(0.0);
             assert_eq!(coarsening, want, "{name} at {size}²");
             let reference = reference_volume::render(
                 &reference_volume::VolumeInput {

@@ -368,7 +368,7 @@ fn traced_photons_are_cached_and_reused_for_another_view() {
     // A seed no other run uses, so the first render cannot find a cache entry.
     let seed = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos() as u64;
     let s = Settings { photons: 20_000, samples: 1, seed, ..Default::default() };
-    let hit = |f: &volterra::render::Frame| f.stats.counters.iter().find(|c| c.0 == "photon cache hit").unwrap().1;
+    let hit = |f: &volterra::render::Frame| f.stats.counter("photon cache hit").unwrap();
     let front = camera_looking_at([0.1, 0.1, 0.1], [0.1, -3.0, 0.1], 0.3);
     let a = render(&set, &lights, medium.clone(), &front, &s).unwrap();
     if a.stats.notes.iter().any(|n| n.contains("not written")) {
@@ -706,7 +706,7 @@ fn automatic_extinction_gives_the_densest_column_an_optical_depth_of_2_in_any_un
         notes: vec![],
     };
     let (a, b) = (view(&plume, 0, 1.0), view(&mm, 0, 1000.0));
-    let c = |f: &volterra::render::Frame| f.stats.counters.iter().find(|(k, _)| k == "c_ext").unwrap().1;
+    let c = |f: &volterra::render::Frame| f.stats.counter("c_ext").unwrap();
     assert!((c(&b) / c(&a) - 1000.0).abs() < 1e-6 * 1000.0, "c_ext scales by length² / mass: {} vs {}", c(&a), c(&b));
     let worst = a.rgba.iter().zip(&b.rgba).map(|(p, q)| (0..4).map(|k| (p[k] - q[k]).abs()).fold(0.0f32, f32::max)).fold(0.0, f32::max);
     assert!(worst < 1e-3, "the picture in mm and g differs by {worst}");
@@ -761,7 +761,7 @@ fn a_preparation_kept_across_views_renders_each_view_as_alone() {
         let input =
             SmokeInput { particles: &plume, node_to_world: DMat4::IDENTITY, medium: &medium, lights: &lights, limits: Default::default() };
         let prepared = smoke::prepare::Prepared::new(&input, &s).unwrap();
-        let counter = |f: &volterra::render::Frame, k: &str| f.stats.counters.iter().find(|c| c.0 == k).unwrap().1;
+        let counter = |f: &volterra::render::Frame, k: &str| f.stats.counter(k).unwrap();
         let mut alone_points = Vec::new();
         for (i, cam) in [&front, &side, &near, &front].into_iter().enumerate() {
             let kept = prepared.render(&cam.rays(32, 32), &s).unwrap();
@@ -803,7 +803,7 @@ fn the_render_cache_keeps_the_smoke_preparation_between_frames() {
     let scene = load(&base);
     let cache = volterra::render::RenderCache::default();
     let cam = scene.camera(None).unwrap();
-    let views = |f: &volterra::render::Frame| f.stats.counters.iter().find(|c| c.0 == "earlier views of this preparation").unwrap().1;
+    let views = |f: &volterra::render::Frame| f.stats.counter("earlier views of this preparation").unwrap();
     let first = volterra::render::render_view(&scene, &cam, (40, 40), &cache).unwrap();
     let second = volterra::render::render_view(&scene, &cam, (40, 40), &cache).unwrap();
     assert_eq!((views(&first), views(&second)), (0.0, 1.0));

@@ -46,7 +46,7 @@ fn parallel(position: [f64; 3], focal_point: [f64; 3], view_up: [f64; 3], scale:
 }
 
 fn counter(f: &Frame, name: &str) -> f64 {
-    f.stats.counters.iter().find(|c| c.0 == name).map(|c| c.1).unwrap_or_else(|| panic!("no counter '{name}'"))
+    f.stats.counter(name).unwrap_or_else(|| panic!("no counter '{name}'"))
 }
 
 /// GPU and reference renders of one view, or None where the GPU is missing (local runs).

@@ -383,7 +383,7 @@ fn shaded_shear_warp_does_not_depend_on_leaping() {
     let frames: Vec<Frame> = [shear_warp::Leaping::None, shear_warp::Leaping::MultiScanline, shear_warp::Leaping::Overlapped]
         .map(|leaping| shear_warp::render(&input, &rays, &shear_warp::Settings { leaping, ..Default::default() }).unwrap())
         .into();
-    let leapt = |f: &Frame| f.stats.counters.iter().find(|c| c.0 == "runs_leapt").unwrap().1;
+    let leapt = |f: &Frame| f.stats.counter("runs_leapt").unwrap();
     assert!(leapt(&frames[2]) > 0.0);
     for f in &frames[1..] {
         for (p, q) in f.rgba.iter().zip(&frames[0].rgba) {

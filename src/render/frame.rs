@@ -16,6 +16,13 @@ pub struct FrameStats {
     pub nodes: Vec<NodeTime>,
 }
 
+impl FrameStats {
+    /// The value of the counter `name`, if the renderer reported one.
+    pub fn counter(&self, name: &str) -> Option<f64> {
+        self.counters.iter().find(|c| c.0 == name).map(|c| c.1)
+    }
+}
+
 /// Where one node's time went, in seconds: reading its data (0 once the scene holds it),
 /// preparing what its renderer keeps across frames (0 when kept from an earlier frame),
 /// and rendering.

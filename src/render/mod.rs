@@ -32,8 +32,8 @@ use volterra_formats::{Heightfield, Limits, Volume};
 /// volume (quantised copy, permuted axes, min-max maps), which depends only on the volume,
 /// each placed heightfield's terrain grid and GPU pyramid — not on the camera or the
 /// transfer function — and each particle node's smoke preparation (medium, density grid,
-/// photons, transmittance grids; the irradiance map where g = 0). The viewer keeps one for its scene, `render --frames` one for all
-/// its frames; a one-off render uses a fresh one.
+/// photons, transmittance grids; the irradiance map where g = 0). The viewer keeps one for
+/// its scene, `render --frames` one for all its frames; a one-off render uses a fresh one.
 #[derive(Default)]
 pub struct RenderCache {
     /// Keyed by the volume's address: a node whose data is replaced gets a new entry.

@@ -214,12 +214,11 @@ fn views(scene_path: &Path, cache: &Path) -> Result<(Option<f64>, Option<f64>, O
     let t = Instant::now();
     let kept = volterra::render::render_view(&scene, &cam, (w, h), &cache_mem)?;
     let kept_s = t.elapsed().as_secs_f64();
-    let counter = |f: &volterra::render::Frame, k: &str| f.stats.counters.iter().find(|c| c.0 == k).map(|c| c.1);
-    let hit = |f: &volterra::render::Frame| counter(f, "photon cache hit") == Some(1.0);
+    let hit = |f: &volterra::render::Frame| f.stats.counter("photon cache hit") == Some(1.0);
     if hit(&first) || !hit(&second) {
         bail!("the photon cache did not behave: first view hit {}, second view hit {}", hit(&first), hit(&second));
     }
-    if counter(&kept, "earlier views of this preparation") != Some(1.0) {
+    if kept.stats.counter("earlier views of this preparation") != Some(1.0) {
         bail!("the render cache did not keep the smoke preparation for the second view");
     }
     if kept.rgba != second.rgba {

@@ -61,7 +61,7 @@ pub fn run(b: &PointsBench) -> Result<()> {
         let t = Instant::now();
         let f = points::render(&input, &camera(k).rays(b.width, b.height), &s)?;
         ours.push(1000.0 * t.elapsed().as_secs_f64());
-        draw.push(f.stats.counters.iter().find(|(k, _)| k == "GPU ms").map_or(f64::NAN, |c| c.1));
+        draw.push(f.stats.counter("GPU ms").unwrap_or(f64::NAN));
     }
     let draw_med = median(&mut draw.clone());
     let gpu_note = first.stats.notes.first().cloned().unwrap_or_default();

@@ -293,7 +293,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
 
 /// Intermediate image pixels of a frame, from its statistics.
 fn intermediate_pixels(f: &Frame) -> f64 {
-    f.stats.counters.iter().find(|c| c.0 == "intermediate_pixels").map(|c| c.1).unwrap_or(1.0)
+    f.stats.counter("intermediate_pixels").unwrap_or(1.0)
 }
 
 /// VTK's row, with `ShadeOn` and these coefficients when `shading` is given (shading off

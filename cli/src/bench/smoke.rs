@@ -54,7 +54,7 @@ pub struct Row {
 }
 
 fn counter(f: &Frame, name: &str) -> f64 {
-    f.stats.counters.iter().find(|c| c.0 == name).map(|c| c.1).unwrap_or(0.0)
+    f.stats.counter(name).unwrap_or(0.0)
 }
 
 fn render(scene: &Scene, node: usize, sets: &Settings, size: (usize, usize)) -> Result<Frame> {

@@ -183,7 +183,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
                 let frame = terrain.render(gpu, &view)?;
                 let steps: Vec<u32> = frame.extra[0].1.iter().map(|&s| s as u32).collect();
                 let st = StepStats::new(&steps);
-                let capped = frame.stats.counters.iter().find(|c| c.0 == "rays at the step cap").map(|c| c.1 as u64).unwrap_or(0);
+                let capped = frame.stats.counter("rays at the step cap").map_or(0, |c| c as u64);
                 let check = terrain.render(gpu, &View { rays: &small, ..view })?;
                 let agree = depth_agreement(&check, &truth);
                 if traversal == Traversal::Quadtree && size == *b.sizes.iter().max().unwrap() {
