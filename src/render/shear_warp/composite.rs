@@ -7,7 +7,7 @@ use super::factor::{Factorization, SliceMap};
 use super::preint::{PreintTable, Rgba};
 use super::prepare::Axis;
 use super::scanline::{next_live, rows, Gradients, SliceRows};
-use super::shading::{FrameShading, SliceGradient};
+use super::shading::{FrameShading, PointGradient, SliceGradient};
 use super::MAX_SLAB_SAMPLES;
 use crate::scene::HalfSpace;
 use glam::{DVec3, Vec3};
@@ -83,6 +83,9 @@ pub(super) struct Slab<'a> {
     /// Each pixel's ray length between slices relative to the table's (perspective; empty
     /// in a parallel view, where every ray has the table's).
     pub(super) lengths: &'a [f32],
+    /// Each pixel's unit direction toward the eye (lit perspective views; empty
+    /// otherwise, where the lighting finds it itself).
+    pub(super) to_eyes: &'a [Vec3],
     pub(super) x_range: (f64, f64),
     pub(super) y_range: (f64, f64),
     /// Compositing-order index of the back slice.
@@ -214,6 +217,14 @@ impl<'a> Slab<'a> {
         };
         let between = (K > 1).then(|| between_of(self.axis));
         let between2 = sec.filter(|_| K > 1).map(|s| between_of(s.axis));
+        // The gradient at those points (shading), each row set looked up on first use.
+        let between_grads: [OnceCell<PointGradient<'a>>; MAX_SLAB_SAMPLES - 1] = std::array::from_fn(|_| OnceCell::new());
+        let between_grad = |j: usize| {
+            between_grads[j - 1].get_or_init(|| {
+                let t = 1.0 - j as f64 / K as f64;
+                PointGradient::new(self.axis, self.z as f64 + (self.zp as f64 - self.z as f64) * t, self.y + self.dyo * t)
+            })
+        };
         let mut uu = u;
         while uu < run_end {
             let (xb, dxo) = (self.xb(uu), self.dxo(uu));
@@ -245,6 +256,7 @@ impl<'a> Slab<'a> {
                 // slices; stop once the pixel is opaque. The gradients at the slab's ends
                 // are computed at the first visible segment (shading only).
                 let mut g_front = None;
+                let mut g_between: [Option<Vec3>; MAX_SLAB_SAMPLES - 1] = [None; MAX_SLAB_SAMPLES - 1];
                 let (mut f, mut f2) = (front, front2);
                 for j in 0..K {
                     let (b, b2) = if j + 1 == K {
@@ -274,7 +286,7 @@ impl<'a> Slab<'a> {
                                 match &s.shading {
                                     Some(sh) if a2 > 0.0 => {
                                         let w = (j as f32 + 0.5) / K as f32;
-                                        self.shade(sh, c2, a2, s.gradient(sh, (xb, dxo), w), (xb, dxo), w as f64, length)
+                                        self.shade(sh, c2, a2, s.gradient(sh, (xb, dxo), w), (uu, (xb, dxo)), w as f64, length)
                                     }
                                     _ => (c2, a2),
                                 }
@@ -292,8 +304,17 @@ impl<'a> Slab<'a> {
                                         Some(front) => front.at(xb + dxo),
                                         None => gb,
                                     });
+                                    // The segment's gradient: the mean of its ends' (the
+                                    // slab's ends, or the samples between the slices).
+                                    let mut end = |i: usize| match i {
+                                        0 => gf,
+                                        _ if i == K => gb,
+                                        _ => *g_between[i - 1]
+                                            .get_or_insert_with(|| between_grad(i).at(xb + dxo * (1.0 - i as f64 / K as f64))),
+                                    };
+                                    let g = (end(j) + end(j + 1)) * 0.5;
                                     let w = (j as f32 + 0.5) / K as f32;
-                                    self.shade(sh, c, a, gf + (gb - gf) * w, (xb, dxo), w as f64, length)
+                                    self.shade(sh, c, a, g, (uu, (xb, dxo)), w as f64, length)
                                 }
                             };
                             let (c, a) = if FUSED { super::fusion::fuse(c, a, c2, a2) } else { (c, a) };
@@ -483,7 +504,7 @@ impl<'a> Slab<'a> {
                 let length = r * self.length(uu);
                 let (c, a) = if first { for_length(self.table.lookup(f.0, b.0), length) } else { ([0.0; 3], 0.0) };
                 let (c, a) = match (&self.shading, g) {
-                    (Some(sh), Some(g)) if a > 0.0 => self.shade(sh, c, a, g, ray, 0.5 * (sa + sb), length),
+                    (Some(sh), Some(g)) if a > 0.0 => self.shade(sh, c, a, g, (uu, ray), 0.5 * (sa + sb), length),
                     _ => (c, a),
                 };
                 let (c, a) = match second {
@@ -491,7 +512,7 @@ impl<'a> Slab<'a> {
                         let (c2, a2) = for_length(s.table.lookup(f.1, b.1), length);
                         let w = 0.5 * (sa + sb);
                         let (c2, a2) = match &s.shading {
-                            Some(sh) if a2 > 0.0 => self.shade(sh, c2, a2, s.gradient(sh, ray, w as f32), ray, w, length),
+                            Some(sh) if a2 > 0.0 => self.shade(sh, c2, a2, s.gradient(sh, ray, w as f32), (uu, ray), w, length),
                             _ => (c2, a2),
                         };
                         super::fusion::fuse(c, a, c2, a2)
@@ -509,14 +530,23 @@ impl<'a> Slab<'a> {
 
     /// The shaded colour and the opacity (gradient opacity applied) of a segment
     /// (premultiplied colour c, opacity a, gradient g, `length` times the table's) whose
-    /// middle lies at fraction w of the slab on the ray whose back sample is at xb (front
-    /// at xb + dxo).
+    /// middle lies at fraction w of the slab on pixel uu's ray, whose back sample is at
+    /// xb (front at xb + dxo).
     #[allow(clippy::too_many_arguments)]
     #[inline]
-    fn shade(&self, sh: &SlabShading, c: [f32; 3], a: f32, g: Vec3, (xb, dxo): (f64, f64), w: f64, length: f32) -> ([f32; 3], f32) {
+    fn shade(
+        &self,
+        sh: &SlabShading,
+        c: [f32; 3],
+        a: f32,
+        g: Vec3,
+        (uu, (xb, dxo)): (usize, (f64, f64)),
+        w: f64,
+        length: f32,
+    ) -> ([f32; 3], f32) {
         let t = 1.0 - w;
         let mid = DVec3::new(xb + dxo * t, self.y + self.dyo * t, self.z as f64 + (self.zp as f64 - self.z as f64) * t);
-        sh.frame.shade(c, a, g, mid, length)
+        sh.frame.shade(c, a, g, mid, length, self.to_eyes.get(uu).copied())
     }
 
     /// Composites one segment (premultiplied colour c, opacity a) spanning fractions

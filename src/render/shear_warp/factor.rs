@@ -20,7 +20,7 @@
 
 use crate::scene::RayGenerator;
 use anyhow::{bail, Result};
-use glam::{DMat3, DMat4, DVec3};
+use glam::{DMat3, DMat4, DVec3, Vec3};
 
 /// Where slice z's samples lie for each intermediate pixel: x = U·scale + x0,
 /// y = V·scale + y0 (voxels of the permuted slice).
@@ -385,6 +385,18 @@ impl Factorization {
                 self.to_world.transform_vector3(slope).length() / self.slab_length
             }
         }
+    }
+
+    /// The unit world direction from the samples of intermediate pixel (U, V)'s ray toward
+    /// the eye (perspective; the same for every point of the ray, which passes through
+    /// the eye): the shading's view vector, found once per pixel, not per sample.
+    pub fn to_eye(&self, u: f64, v: f64) -> Vec3 {
+        let (bu, bv) = (u / self.ratio + self.umin, v / self.ratio + self.vmin);
+        let z_base = match self.projection {
+            Projection::Perspective { z_base, .. } => z_base,
+            Projection::Parallel { .. } => return (-self.forward).as_vec3(),
+        };
+        (self.eye - self.to_world.transform_point3(DVec3::new(bu, bv, z_base))).normalize_or_zero().as_vec3()
     }
 
     /// Distance of the point on intermediate pixel (U, V)'s ray at (fractional) slice z:

@@ -329,6 +329,23 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         } else {
             vec![Vec::new(); band_rows]
         };
+        // And each ray's direction toward the eye, for the lighting's view vector (lit
+        // perspective views only): a world transform and a normalisation per pixel, where
+        // they were per shaded segment (a sixth of a shaded clinical frame's time).
+        let lit = shading.as_ref().is_some_and(|s| s.is_lit()) || shading2.as_ref().is_some_and(|s| s.is_lit());
+        let to_eyes: Vec<Vec<glam::Vec3>> = if perspective && lit {
+            (0..band_rows)
+                .map(|r| {
+                    let v = v_first + r;
+                    if !live(r) {
+                        return Vec::new();
+                    }
+                    (0..iw).map(|u| if footprint.read(u, v) { fac.to_eye(u as f64, v as f64) } else { glam::Vec3::ZERO }).collect()
+                })
+                .collect()
+        } else {
+            vec![Vec::new(); band_rows]
+        };
         let mut n_samples = 0u64;
         let mut n_leapt = 0u64;
         let x_of = |u: usize, m: &SliceMap| u as f64 * m.scale + m.x0;
@@ -357,10 +374,11 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                         max_level[u] = s;
                     } else {
                         let length = lengths[r].get(u).copied().unwrap_or(1.0);
+                        let to_eye = to_eyes[r].get(u).copied();
                         let (c, a) = composite::for_length(table.lookup(s, s), length);
                         let (c, a) = match &shading {
                             Some(sh) if a > 0.0 => {
-                                sh.shade(c, a, SliceGradient::new(axis, 0, y).at(x), glam::DVec3::new(x, y, 0.0), length)
+                                sh.shade(c, a, SliceGradient::new(axis, 0, y).at(x), glam::DVec3::new(x, y, 0.0), length, to_eye)
                             }
                             _ => (c, a),
                         };
@@ -526,6 +544,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     dxo0,
                     ddxo,
                     lengths: &lengths[r],
+                    to_eyes: &to_eyes[r],
                     x_range: (x_lo, x_hi),
                     y_range: (y_lo, y_hi),
                     zi: zi as u32,
@@ -756,7 +775,9 @@ fn auto_coarsening(input: &Input, rays: &RayGenerator) -> Result<usize> {
 
 /// `n` copies of `v`, written in parallel. `vec![0.0; n]` would map the zero page, and the
 /// first write to each of its pages then faults again and flushes every core's TLB: 13 %
-/// of a clinical-size frame's time went there (60 MB of intermediate image).
+/// of a clinical-size frame's time went there (60 MB of intermediate image). (Keeping the
+/// last frame's buffers for the next saved under 2 % of a clinical frame and added their
+/// 84 MB to the peak while the viewer's previews made their coarse copies.)
 fn filled<T: Copy + Send + Sync>(n: usize, v: T) -> Vec<T> {
     let mut out = Vec::with_capacity(n);
     out.par_extend(rayon::iter::repeat_n(v, n));

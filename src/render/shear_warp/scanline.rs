@@ -23,18 +23,34 @@ impl<'a> SliceRows<'a> {
         SliceRows { r0: &axis.data[base + y0 * nx..base + (y0 + 1) * nx], r1: &axis.data[base + y1 * nx..base + (y1 + 1) * nx], wy }
     }
 
+    /// Samples per row.
+    #[inline(always)]
+    pub(super) fn len(&self) -> usize {
+        self.r0.len()
+    }
+
     #[inline(always)]
     pub(super) fn at(&self, x: f64) -> f32 {
-        let nx = self.r0.len();
-        let xc = x.clamp(0.0, (nx - 1) as f64);
-        let x0 = (xc as usize).min(nx.saturating_sub(2));
-        let x1 = (x0 + 1).min(nx - 1);
-        let wx = (xc - x0 as f64) as f32;
+        self.at_column(column(x, self.r0.len()))
+    }
+
+    /// The bilinear sample at a column found by `column` (for rows of the same length).
+    #[inline(always)]
+    pub(super) fn at_column(&self, (x0, x1, wx): (usize, usize, f32)) -> f32 {
         let (r0, r1) = (self.r0, self.r1);
         let a = r0[x0] as f32 + wx * (r0[x1] as f32 - r0[x0] as f32);
         let b = r1[x0] as f32 + wx * (r1[x1] as f32 - r1[x0] as f32);
         a + self.wy * (b - a)
     }
+}
+
+/// The columns either side of continuous x (clamped into a row of nx) and the weight
+/// between them.
+#[inline(always)]
+pub(super) fn column(x: f64, nx: usize) -> (usize, usize, f32) {
+    let xc = x.clamp(0.0, (nx - 1) as f64);
+    let x0 = (xc as usize).min(nx.saturating_sub(2));
+    (x0, (x0 + 1).min(nx - 1), (xc - x0 as f64) as f32)
 }
 
 /// Rows and weight for continuous y in [ylo, yhi].
