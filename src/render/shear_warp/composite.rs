@@ -56,7 +56,9 @@ pub(super) struct SlabSecond<'a> {
 
 impl SlabSecond<'_> {
     /// Its gradient at fraction w of the slab on the ray whose back sample is at xb (front
-    /// at xb + dxo): linear between its back and front samples' gradients.
+    /// at xb + dxo): linear between its back and front samples' gradients (for a piece of
+    /// a slab where a ray enters or leaves the volume; whole segments take the mean of
+    /// their own ends').
     fn gradient(&self, sh: &SlabShading, (xb, dxo): (f64, f64), w: f32) -> Vec3 {
         let gb = sh.back().at(xb);
         let gf = sh.front().map_or(gb, |f| f.at(xb + dxo));
@@ -219,12 +221,13 @@ impl<'a> Slab<'a> {
         let between2 = sec.filter(|_| K > 1).map(|s| between_of(s.axis));
         // The gradient at those points (shading), each row set looked up on first use.
         let between_grads: [OnceCell<PointGradient<'a>>; MAX_SLAB_SAMPLES - 1] = std::array::from_fn(|_| OnceCell::new());
-        let between_grad = |j: usize| {
-            between_grads[j - 1].get_or_init(|| {
-                let t = 1.0 - j as f64 / K as f64;
-                PointGradient::new(self.axis, self.z as f64 + (self.zp as f64 - self.z as f64) * t, self.y + self.dyo * t)
-            })
+        let between_grads2: [OnceCell<PointGradient<'a>>; MAX_SLAB_SAMPLES - 1] = std::array::from_fn(|_| OnceCell::new());
+        let between_point = |axis: &'a Axis, j: usize| {
+            let t = 1.0 - j as f64 / K as f64;
+            PointGradient::new(axis, self.z as f64 + (self.zp as f64 - self.z as f64) * t, self.y + self.dyo * t)
         };
+        let between_grad = |j: usize| between_grads[j - 1].get_or_init(|| between_point(self.axis, j));
+        let between_grad2 = |s: &SlabSecond<'a>, j: usize| between_grads2[j - 1].get_or_init(|| between_point(s.axis, j));
         let mut uu = u;
         while uu < run_end {
             let (xb, dxo) = (self.xb(uu), self.dxo(uu));
@@ -257,6 +260,8 @@ impl<'a> Slab<'a> {
                 // are computed at the first visible segment (shading only).
                 let mut g_front = None;
                 let mut g_between: [Option<Vec3>; MAX_SLAB_SAMPLES - 1] = [None; MAX_SLAB_SAMPLES - 1];
+                // The second volume's gradients at the K + 1 points (fused pairs, shaded).
+                let mut g2: [Option<Vec3>; MAX_SLAB_SAMPLES + 1] = [None; MAX_SLAB_SAMPLES + 1];
                 let (mut f, mut f2) = (front, front2);
                 for j in 0..K {
                     let (b, b2) = if j + 1 == K {
@@ -285,8 +290,18 @@ impl<'a> Slab<'a> {
                                 let (c2, a2) = for_length(s.table.lookup(f2, b2), length);
                                 match &s.shading {
                                     Some(sh) if a2 > 0.0 => {
+                                        // As the first volume's: the mean of the segment's
+                                        // ends' gradients.
+                                        let mut end = |i: usize| {
+                                            *g2[i].get_or_insert_with(|| match i {
+                                                0 => sh.front().map_or_else(|| sh.back().at(xb), |f| f.at(xb + dxo)),
+                                                _ if i == K => sh.back().at(xb),
+                                                _ => between_grad2(s, i).at(xb + dxo * (1.0 - i as f64 / K as f64)),
+                                            })
+                                        };
+                                        let g = (end(j) + end(j + 1)) * 0.5;
                                         let w = (j as f32 + 0.5) / K as f32;
-                                        self.shade(sh, c2, a2, s.gradient(sh, (xb, dxo), w), (uu, (xb, dxo)), w as f64, length)
+                                        self.shade(sh, c2, a2, g, (uu, (xb, dxo)), w as f64, length)
                                     }
                                     _ => (c2, a2),
                                 }
