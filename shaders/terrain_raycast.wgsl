@@ -31,7 +31,8 @@ struct Params {
     // top level, step cap, traversal (0 quadtree, 1 quadtree without the raise, 2 linear),
     // flags (1 shadows, 2 texture, 4 smooth normals).
     control: vec4<u32>,
-    // number of lights; shadow lift (metres, as f32 bits); rays per pixel side; unused.
+    // number of lights; shadow lift (metres, as f32 bits); rays per pixel side; tiles per
+    // texture array (SPLIT).
     misc: vec4<u32>,
     // The eye (perspective) or the view plane's centre (parallel) in grid space, as a
     // two-float sum hi + lo per axis. The shader works relative to it: near the eye —
@@ -68,6 +69,74 @@ struct Params {
 // [0]: rays that hit the step cap.
 @group(0) @binding(8) var<storage, read_write> counters: array<atomic<u32>, 4>;
 @group(0) @binding(9) var pyramid_top: texture_2d<f32>;
+// Tiles beyond one texture array's bytes (gpu.rs, Tiling::layers_per_array, P.misc.w
+// layers each): the heights' and the pyramids' further arrays. SPLIT (a pipeline
+// constant) is false for every heightfield that fits one array, so their reads compile to
+// the single array's load, no branch.
+override SPLIT: bool = false;
+@group(0) @binding(10) var heights1: texture_2d_array<f32>;
+@group(0) @binding(11) var heights2: texture_2d_array<f32>;
+@group(0) @binding(12) var heights3: texture_2d_array<f32>;
+@group(0) @binding(13) var pyramid1: texture_2d_array<f32>;
+@group(0) @binding(14) var pyramid2: texture_2d_array<f32>;
+@group(0) @binding(15) var pyramid3: texture_2d_array<f32>;
+
+// Texel l of tile `tile`'s heights.
+fn load_height(l: vec2<i32>, tile: i32) -> f32 {
+    if !SPLIT {
+        return textureLoad(heights, l, tile, 0).r;
+    }
+    let per = i32(P.misc.w);
+    let a = tile / per;
+    let k = tile - a * per;
+    switch a {
+        case 0: { return textureLoad(heights, l, k, 0).r; }
+        case 1: { return textureLoad(heights1, l, k, 0).r; }
+        case 2: { return textureLoad(heights2, l, k, 0).r; }
+        default: { return textureLoad(heights3, l, k, 0).r; }
+    }
+}
+
+// The four corners l, l + (1, 0), l + (0, 1), l + (1, 1) of tile `tile`'s heights.
+fn load_corners(l: vec2<i32>, tile: i32) -> vec4<f32> {
+    if !SPLIT {
+        return corners_of(heights, l, tile);
+    }
+    let per = i32(P.misc.w);
+    let a = tile / per;
+    let k = tile - a * per;
+    switch a {
+        case 0: { return corners_of(heights, l, k); }
+        case 1: { return corners_of(heights1, l, k); }
+        case 2: { return corners_of(heights2, l, k); }
+        default: { return corners_of(heights3, l, k); }
+    }
+}
+
+fn corners_of(t: texture_2d_array<f32>, l: vec2<i32>, layer: i32) -> vec4<f32> {
+    return vec4<f32>(
+        textureLoad(t, l, layer, 0).r,
+        textureLoad(t, l + vec2<i32>(1, 0), layer, 0).r,
+        textureLoad(t, l + vec2<i32>(0, 1), layer, 0).r,
+        textureLoad(t, l + vec2<i32>(1, 1), layer, 0).r,
+    );
+}
+
+// Texel n of mip m of tile `tile`'s pyramid.
+fn load_lid(n: vec2<i32>, tile: i32, m: i32) -> f32 {
+    if !SPLIT {
+        return textureLoad(pyramid, n, tile, m).r;
+    }
+    let per = i32(P.misc.w);
+    let a = tile / per;
+    let k = tile - a * per;
+    switch a {
+        case 0: { return textureLoad(pyramid, n, k, m).r; }
+        case 1: { return textureLoad(pyramid1, n, k, m).r; }
+        case 2: { return textureLoad(pyramid2, n, k, m).r; }
+        default: { return textureLoad(pyramid3, n, k, m).r; }
+    }
+}
 
 // The stored height of sample c (grid space). Tiles hold 2^k patches and share their
 // border samples: the sample at a border is read from the tile east (north) of it, except
@@ -76,7 +145,7 @@ struct Params {
 fn height_at(c: vec2<i32>) -> f32 {
     let k = vec2<u32>(P.tiles.z);
     let tile = min(c >> k, vec2<i32>(i32(P.tiles.y), i32(P.tiles.w)) - 1);
-    return textureLoad(heights, c - (tile << k), tile.y * i32(P.tiles.y) + tile.x, 0).r;
+    return load_height(c - (tile << k), tile.y * i32(P.tiles.y) + tile.x);
 }
 
 // The lid of quadtree node `node` at `level` ≥ 1 (level 0, the lid map, is not stored:
@@ -90,7 +159,7 @@ fn lid(node: vec2<i32>, level: u32) -> f32 {
     }
     let shift = vec2<u32>(k - level);
     let tile = node >> shift;
-    return textureLoad(pyramid, node - (tile << shift), tile.y * i32(P.tiles.y) + tile.x, i32(level) - 1).r;
+    return load_lid(node - (tile << shift), tile.y * i32(P.tiles.y) + tile.x, i32(level) - 1);
 }
 
 struct Hit {
@@ -147,12 +216,8 @@ fn patch_heights(c: vec2<i32>) -> vec4<f32> {
     let tile = min(c >> k, vec2<i32>(i32(P.tiles.y), i32(P.tiles.w)) - 1);
     let l = c - (tile << k);
     let layer = tile.y * i32(P.tiles.y) + tile.x;
-    return vec4<f32>(
-        from_eye(textureLoad(heights, l, layer, 0).r),
-        from_eye(textureLoad(heights, l + vec2<i32>(1, 0), layer, 0).r),
-        from_eye(textureLoad(heights, l + vec2<i32>(0, 1), layer, 0).r),
-        from_eye(textureLoad(heights, l + vec2<i32>(1, 1), layer, 0).r),
-    );
+    let z = load_corners(l, layer);
+    return vec4<f32>(from_eye(z.x), from_eye(z.y), from_eye(z.z), from_eye(z.w));
 }
 
 // The height gradient (metres per metre, east and north) at sample c: central

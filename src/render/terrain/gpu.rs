@@ -35,6 +35,8 @@ struct Pipelines {
     level1: wgpu::ComputePipeline,
     reduce: wgpu::ComputePipeline,
     ray: wgpu::ComputePipeline,
+    ray_split: OnceLock<wgpu::ComputePipeline>,
+    raycast: wgpu::ShaderModule,
 }
 
 static GPU: OnceLock<Result<Gpu, SharedError>> = OnceLock::new();
@@ -124,6 +126,13 @@ impl Pipelines {
                 buffer_entry(7, storage),
                 buffer_entry(8, storage),
                 texture_entry(9, false),
+                // The heights' and the pyramids' further arrays (MAX_ARRAYS − 1 each).
+                texture_array_entry(10),
+                texture_array_entry(11),
+                texture_array_entry(12),
+                texture_array_entry(13),
+                texture_array_entry(14),
+                texture_array_entry(15),
             ],
         );
         let pyramid = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -135,29 +144,51 @@ impl Pipelines {
             source: wgpu::ShaderSource::Wgsl(include_str!("../../../shaders/terrain_raycast.wgsl").into()),
         });
         let pipeline = |layout: &wgpu::BindGroupLayout, module: &wgpu::ShaderModule, entry: &str| {
-            let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(entry),
-                bind_group_layouts: &[Some(layout)],
-                immediate_size: 0,
-            });
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&pl),
-                module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
+            compute_pipeline(device, layout, module, entry, false)
         };
         Pipelines {
             level1: pipeline(&lid_layout, &pyramid, "build_level1"),
             reduce: pipeline(&reduce_layout, &pyramid, "reduce"),
             ray: pipeline(&ray_layout, &raycast, "main"),
+            ray_split: OnceLock::new(),
+            raycast,
             lid_layout,
             reduce_layout,
             ray_layout,
         }
     }
+
+    /// The ray-caster for tiles split over several texture arrays (made on first use: most
+    /// heightfields fit one array, and a branch over the arrays on every height read
+    /// would cost software rasterisers every path).
+    fn ray_split(&self, device: &wgpu::Device) -> &wgpu::ComputePipeline {
+        self.ray_split.get_or_init(|| compute_pipeline(device, &self.ray_layout, &self.raycast, "main", true))
+    }
+}
+
+/// A compute pipeline of one bind group; `split`: the shader's SPLIT override (its tiles
+/// over several texture arrays).
+fn compute_pipeline(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    module: &wgpu::ShaderModule,
+    entry: &str,
+    split: bool,
+) -> wgpu::ComputePipeline {
+    let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(entry),
+        bind_group_layouts: &[Some(layout)],
+        immediate_size: 0,
+    });
+    let constants: &[(&str, f64)] = if split { &[("SPLIT", 1.0)] } else { &[] };
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout: Some(&pl),
+        module,
+        entry_point: Some(entry),
+        compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
+        cache: None,
+    })
 }
 
 /// The uniform block of terrain_raycast.wgsl, field for field (see `Params` there).
@@ -219,10 +250,42 @@ pub struct Tiling {
     /// Levels of each tile's pyramid, and of the texture over the tiles (0 when not tiled).
     pub tile_levels: u32,
     pub top_levels: u32,
+    /// Tiles per texture array: the heights and the pyramids are each split over up to
+    /// `MAX_ARRAYS` arrays of this many layers, so that no texture is larger than the
+    /// GPU allocates at once (lavapipe: 2 GiB, so a 40000² DEM's 25 tiles of 8192²
+    /// patches, 6.7 GB of heights, take four arrays).
+    pub layers_per_array: usize,
 }
 
+/// The most texture arrays the heights (and the pyramids) are split over: the ray-caster
+/// binds this many of each (WebGPU guarantees 16 sampled textures per stage; with the
+/// colour map and the texture over the tiles, 10 are bound).
+pub const MAX_ARRAYS: usize = 4;
+
 impl Tiling {
-    fn new(grid: &TerrainGrid, limit: usize, max_layers: usize) -> Result<Tiling> {
+    /// Tiles of at most `limit` texels a side, at most `max_layers` a texture array, each
+    /// texture at most `array_bytes`.
+    fn new(grid: &TerrainGrid, limit: usize, max_layers: usize, array_bytes: u64) -> Result<Tiling> {
+        let tiling = Tiling::tiles(grid, limit, max_layers)?;
+        // A layer's bytes: its heights, or its pyramid with every mip, whichever is more.
+        let (size, mips) = tiling.pyramid_texture();
+        let layer_bytes = (4 * tiling.heights_size[0] as u64 * tiling.heights_size[1] as u64).max(mip_bytes(size, mips));
+        let per_array = ((array_bytes / layer_bytes) as usize).clamp(1, max_layers);
+        let arrays = tiling.layers().div_ceil(per_array);
+        if arrays > MAX_ARRAYS {
+            bail!(
+                "the heightfield's {}×{} samples need {} tiles of {} MiB, {arrays} textures of at most {} MiB (the most the GPU allocates at once), more than the {MAX_ARRAYS} the ray-caster binds",
+                grid.nx,
+                grid.ny,
+                tiling.layers(),
+                layer_bytes >> 20,
+                array_bytes >> 20
+            );
+        }
+        Ok(Tiling { layers_per_array: per_array, ..tiling })
+    }
+
+    fn tiles(grid: &TerrainGrid, limit: usize, max_layers: usize) -> Result<Tiling> {
         let [cx, cy] = grid.cells();
         let (pw, ph) = (cx.next_power_of_two(), cy.next_power_of_two());
         let log2 = |n: usize| n.trailing_zeros();
@@ -234,6 +297,7 @@ impl Tiling {
                 pyramid_size: [pw as u32, ph as u32],
                 tile_levels: log2(pw.max(ph)) + 1,
                 top_levels: 0,
+                layers_per_array: 1,
             });
         }
         if limit < 3 {
@@ -255,9 +319,9 @@ impl Tiling {
             None => largest,
         };
         let tiles = [cx.div_ceil(s), cy.div_ceil(s)];
-        if tiles[0] * tiles[1] > max_layers {
+        if tiles[0] * tiles[1] > MAX_ARRAYS * max_layers {
             bail!(
-                "the heightfield's {}×{} samples need {} tiles of {s}² patches, more than the GPU's {max_layers} texture layers",
+                "the heightfield's {}×{} samples need {} tiles of {s}² patches, more than {MAX_ARRAYS} × the GPU's {max_layers} texture layers",
                 grid.nx,
                 grid.ny,
                 tiles[0] * tiles[1]
@@ -271,6 +335,7 @@ impl Tiling {
             pyramid_size: [s as u32; 2],
             tile_levels: log2(s) + 1,
             top_levels: log2(top) + 1,
+            layers_per_array: 1,
         })
     }
 
@@ -289,6 +354,21 @@ impl Tiling {
 
     fn layers(&self) -> usize {
         self.tiles[0] * self.tiles[1]
+    }
+
+    /// The texture arrays the tiles are split over.
+    pub fn arrays(&self) -> usize {
+        self.layers().div_ceil(self.layers_per_array)
+    }
+
+    /// Layers in array a.
+    fn layers_in(&self, a: usize) -> usize {
+        self.layers_per_array.min(self.layers() - a * self.layers_per_array)
+    }
+
+    /// The array and layer of tile `tile`.
+    fn place(&self, tile: usize) -> (usize, u32) {
+        (tile / self.layers_per_array, (tile % self.layers_per_array) as u32)
     }
 
     /// Levels of the whole quadtree: the tiles' below, the texture over them above.
@@ -320,10 +400,16 @@ impl Tiling {
     }
 }
 
+/// Bytes of an R32Float texture of `size` with `levels` mips.
+fn mip_bytes(size: [u32; 2], levels: u32) -> u64 {
+    (0..levels).map(|l| 4 * ((size[0] >> l).max(1) as u64) * ((size[1] >> l).max(1) as u64)).sum()
+}
+
 /// A heightfield resident on the GPU with its pyramid, ready to render any camera.
 pub struct GpuTerrain {
-    heights_view: wgpu::TextureView,
-    pyramid_view: wgpu::TextureView,
+    /// The heights' and the pyramids' texture arrays (`Tiling::arrays` of each).
+    heights_views: Vec<wgpu::TextureView>,
+    pyramid_views: Vec<wgpu::TextureView>,
     top_view: wgpu::TextureView,
     tiling: Tiling,
     colour_view: wgpu::TextureView,
@@ -362,17 +448,31 @@ impl GpuTerrain {
     /// As [`GpuTerrain::new`], with textures no larger than `limit` texels a side (at most
     /// the adapter's): a grid larger than that is tiled. Tests lower it to tile small grids.
     pub fn with_texture_limit(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>, limit: usize) -> Result<GpuTerrain> {
-        gpu.guarded("uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture, limit))
+        GpuTerrain::with_limits(gpu, grid, texture, limit, u64::MAX)
     }
 
-    fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>, limit: usize) -> Result<GpuTerrain> {
+    /// As [`GpuTerrain::with_texture_limit`], with no texture larger than `array_bytes`
+    /// (at most what the GPU allocates at once, its largest buffer): more tiles are split
+    /// over several texture arrays. Tests lower it to split small grids.
+    pub fn with_limits(
+        gpu: &Gpu,
+        grid: &TerrainGrid,
+        texture: Option<(&Drape, [f64; 4])>,
+        limit: usize,
+        array_bytes: u64,
+    ) -> Result<GpuTerrain> {
+        gpu.guarded("uploading the terrain to the GPU", || GpuTerrain::build(gpu, grid, texture, limit, array_bytes))
+    }
+
+    fn build(gpu: &Gpu, grid: &TerrainGrid, texture: Option<(&Drape, [f64; 4])>, limit: usize, array_bytes: u64) -> Result<GpuTerrain> {
         let device = &gpu.device;
         let max_dim = device.limits().max_texture_dimension_2d as usize;
-        let tiling = Tiling::new(grid, limit.min(max_dim), device.limits().max_texture_array_layers as usize)?;
+        let array_bytes = array_bytes.min(device.limits().max_buffer_size);
+        let tiling = Tiling::new(grid, limit.min(max_dim), device.limits().max_texture_array_layers as usize, array_bytes)?;
         let [cx, cy] = grid.cells();
         let layers = tiling.layers();
         let levels = tiling.levels();
-        let texture_2d_array = |label: &str, size: [u32; 2], mips: u32, usage: wgpu::TextureUsages| {
+        let texture_2d_array = |label: &str, size: [u32; 2], mips: u32, usage: wgpu::TextureUsages, layers: usize| {
             device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: layers as u32 },
@@ -384,13 +484,18 @@ impl GpuTerrain {
                 view_formats: &[],
             })
         };
-        let heights =
-            texture_2d_array("heights", tiling.heights_size, 1, wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST);
+        let heights: Vec<wgpu::Texture> = (0..tiling.arrays())
+            .map(|a| {
+                let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+                texture_2d_array("heights", tiling.heights_size, 1, usage, tiling.layers_in(a))
+            })
+            .collect();
         // Each tile's samples uploaded in bands of rows of about 16 MiB, each submitted and
         // finished before the next: a copy of the whole grid (and wgpu's staging of it)
         // would add twice the heights to the peak memory.
         for tile in 0..layers {
             let ([i0, j0], [w, h]) = tiling.samples_of(tile, grid);
+            let (array, layer) = tiling.place(tile);
             let band_rows = ((16usize << 20) / (4 * w)).clamp(1, h);
             for r0 in (0..h).step_by(band_rows) {
                 let rows = band_rows.min(h - r0);
@@ -401,9 +506,9 @@ impl GpuTerrain {
                 }
                 gpu.queue.write_texture(
                     wgpu::TexelCopyTextureInfo {
-                        texture: &heights,
+                        texture: &heights[array],
                         mip_level: 0,
-                        origin: wgpu::Origin3d { x: 0, y: r0 as u32, z: tile as u32 },
+                        origin: wgpu::Origin3d { x: 0, y: r0 as u32, z: layer },
                         aspect: wgpu::TextureAspect::All,
                     },
                     bytemuck::cast_slice(&band),
@@ -416,7 +521,9 @@ impl GpuTerrain {
         }
         let storage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
         let (pyramid_size, pyramid_mips) = tiling.pyramid_texture();
-        let pyramid = texture_2d_array("lid pyramid", pyramid_size, pyramid_mips, storage);
+        let pyramid: Vec<wgpu::Texture> = (0..tiling.arrays())
+            .map(|a| texture_2d_array("lid pyramid", pyramid_size, pyramid_mips, storage, tiling.layers_in(a)))
+            .collect();
         // Above the tiles: one texel per tile (the tile's top level), then its own levels.
         let top_size = [tiling.tiles[0].next_power_of_two() as u32, tiling.tiles[1].next_power_of_two() as u32];
         let top = device.create_texture(&wgpu::TextureDescriptor {
@@ -449,12 +556,12 @@ impl GpuTerrain {
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU upload failed: {e}"))?;
 
         let start = Instant::now();
-        let layer_view = |t: &wgpu::Texture, layer: usize, level: u32| {
+        let layer_view = |t: &wgpu::Texture, layer: u32, level: u32| {
             t.create_view(&wgpu::TextureViewDescriptor {
                 dimension: Some(wgpu::TextureViewDimension::D2),
                 base_mip_level: level,
                 mip_level_count: Some(1),
-                base_array_layer: layer as u32,
+                base_array_layer: layer,
                 array_layer_count: Some(1),
                 ..Default::default()
             })
@@ -479,8 +586,10 @@ impl GpuTerrain {
         let mut cell_buffers = Vec::new();
         for tile in 0..layers {
             let (_, [w, h]) = tiling.samples_of(tile, grid);
+            let (array, layer) = tiling.place(tile);
+            let (heights, pyramid) = (&heights[array], &pyramid[array]);
             let cells_buf = uniform_buffer(gpu, bytemuck::cast_slice(&[w as u32 - 1, h as u32 - 1, 0, 0]));
-            let (src, dst) = (layer_view(&heights, tile, 0), layer_view(&pyramid, tile, 0));
+            let (src, dst) = (layer_view(heights, layer, 0), layer_view(pyramid, layer, 0));
             let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("lid"),
                 layout: &gpu.pipelines.lid_layout,
@@ -501,16 +610,16 @@ impl GpuTerrain {
             // Quadtree level L is the pyramid texture's mip L − 1.
             for level in 2..tiling.tile_levels {
                 let size = tiling.pyramid_size.map(|s| (s >> level).max(1));
-                reduce(&mut enc, &layer_view(&pyramid, tile, level - 2), &layer_view(&pyramid, tile, level - 1), size);
+                reduce(&mut enc, &layer_view(pyramid, layer, level - 2), &layer_view(pyramid, layer, level - 1), size);
             }
             if tiling.tiled() {
                 // The tile's top level (one texel) into the texture over the tiles.
                 let [a, b] = [tile % tiling.tiles[0], tile / tiling.tiles[0]];
                 enc.copy_texture_to_texture(
                     wgpu::TexelCopyTextureInfo {
-                        texture: &pyramid,
+                        texture: pyramid,
                         mip_level: tiling.tile_levels - 2,
-                        origin: wgpu::Origin3d { x: 0, y: 0, z: tile as u32 },
+                        origin: wgpu::Origin3d { x: 0, y: 0, z: layer },
                         aspect: wgpu::TextureAspect::All,
                     },
                     wgpu::TexelCopyTextureInfo {
@@ -531,9 +640,6 @@ impl GpuTerrain {
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU pyramid build failed: {e}"))?;
         let build_seconds = start.elapsed().as_secs_f64();
 
-        let mip_bytes = |size: [u32; 2], levels: u32| -> u64 {
-            (0..levels).map(|l| 4 * ((size[0] >> l).max(1) as u64) * ((size[1] >> l).max(1) as u64)).sum()
-        };
         let gpu_bytes = 4 * (tiling.heights_size[0] as u64 * tiling.heights_size[1] as u64) * layers as u64
             + mip_bytes(pyramid_size, pyramid_mips) * layers as u64
             + mip_bytes(top_size, tiling.top_levels.max(1))
@@ -548,8 +654,8 @@ impl GpuTerrain {
             t.create_view(&wgpu::TextureViewDescriptor { dimension: Some(wgpu::TextureViewDimension::D2Array), ..Default::default() })
         };
         Ok(GpuTerrain {
-            heights_view: array_view(&heights),
-            pyramid_view: array_view(&pyramid),
+            heights_views: heights.iter().map(array_view).collect(),
+            pyramid_views: pyramid.iter().map(array_view).collect(),
             top_view: top.create_view(&Default::default()),
             tiling,
             colour_view: colour.create_view(&Default::default()),
@@ -566,6 +672,12 @@ impl GpuTerrain {
     /// Whether the heightfield is cut into tiles (larger than one GPU texture).
     pub fn tiled(&self) -> bool {
         self.tiling.tiled()
+    }
+
+    /// The texture arrays its tiles are split over (1 unless they exceed what the GPU
+    /// allocates at once).
+    pub fn texture_arrays(&self) -> usize {
+        self.tiling.arrays()
     }
 
     /// Quadtree levels, the lid map (level 0, read from the heights) included.
@@ -603,7 +715,12 @@ impl GpuTerrain {
         for (entry, c) in p.ramp.iter_mut().zip(super::shading::elevation_ramp(shading.colormap)) {
             *entry = [c[0], c[1], c[2], 0.0];
         }
-        p.misc = [shading.lights.len() as u32, (super::reference::shadow_lift(grid) as f32).to_bits(), shading.rays_per_side.max(1), 0];
+        p.misc = [
+            shading.lights.len() as u32,
+            (super::reference::shadow_lift(grid) as f32).to_bits(),
+            shading.rays_per_side.max(1),
+            self.tiling.layers_per_array as u32,
+        ];
         for (k, l) in shading.lights.iter().enumerate() {
             p.light_world[k] = v4(l.to_light, 0.0);
             p.light_grid[k] = v4(m.transform_vector3(l.to_light), 0.0);
@@ -612,7 +729,7 @@ impl GpuTerrain {
         p
     }
 
-    fn target(&self, gpu: &Gpu, params: &Params) -> Result<Target> {
+    fn target<'a>(&'a self, gpu: &Gpu, params: &Params) -> Result<Target> {
         let device = &gpu.device;
         let (width, height) = (params.size[0], params.size[1]);
         let pixels = width as u64 * height as u64;
@@ -633,13 +750,18 @@ impl GpuTerrain {
         let steps = buffer("steps", 4 * pixels);
         let counters = buffer("counters", 16);
         let uniform = uniform_buffer(gpu, bytemuck::bytes_of(params));
+        // Array a of the split textures, or (past the last) the first: bound, never read.
+        let further = |binding: u32, views: &'a [wgpu::TextureView], a: usize| wgpu::BindGroupEntry {
+            binding,
+            resource: wgpu::BindingResource::TextureView(views.get(a).unwrap_or(&views[0])),
+        };
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("raycast"),
             layout: &gpu.pipelines.ray_layout,
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&self.heights_view) },
-                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&self.pyramid_view) },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&self.heights_views[0]) },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&self.pyramid_views[0]) },
                 wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&self.colour_view) },
                 wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::Sampler(&self.sampler) },
                 wgpu::BindGroupEntry { binding: 5, resource: colour.as_entire_binding() },
@@ -647,6 +769,12 @@ impl GpuTerrain {
                 wgpu::BindGroupEntry { binding: 7, resource: steps.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 8, resource: counters.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 9, resource: wgpu::BindingResource::TextureView(&self.top_view) },
+                further(10, &self.heights_views, 1),
+                further(11, &self.heights_views, 2),
+                further(12, &self.heights_views, 3),
+                further(13, &self.pyramid_views, 1),
+                further(14, &self.pyramid_views, 2),
+                further(15, &self.pyramid_views, 3),
             ],
         });
         Ok(Target { width, height, colour, depth, steps, counters, bind_group })
@@ -658,7 +786,7 @@ impl GpuTerrain {
         enc.clear_buffer(&target.counters, 0, None);
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&gpu.pipelines.ray);
+            pass.set_pipeline(if self.tiling.arrays() > 1 { gpu.pipelines.ray_split(&gpu.device) } else { &gpu.pipelines.ray });
             pass.set_bind_group(0, &target.bind_group, &[]);
             pass.dispatch_workgroups(target.width.div_ceil(8), target.height.div_ceil(8), 1);
         }
