@@ -224,7 +224,7 @@ impl<'a> Slab<'a> {
         let between_grads2: [OnceCell<PointGradient<'a>>; MAX_SLAB_SAMPLES - 1] = std::array::from_fn(|_| OnceCell::new());
         let between_point = |axis: &'a Axis, j: usize| {
             let t = 1.0 - j as f64 / K as f64;
-            PointGradient::new(axis, self.z as f64 + (self.zp as f64 - self.z as f64) * t, self.y + self.dyo * t)
+            PointGradient::between(axis, self.z as f64 + (self.zp as f64 - self.z as f64) * t, self.y + self.dyo * t)
         };
         let between_grad = |j: usize| between_grads[j - 1].get_or_init(|| between_point(self.axis, j));
         let between_grad2 = |s: &SlabSecond<'a>, j: usize| between_grads2[j - 1].get_or_init(|| between_point(s.axis, j));

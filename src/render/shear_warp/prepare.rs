@@ -317,6 +317,21 @@ mod tests {
         Volume { rescale: Rescale { slope: 2.0, intercept: -10.0 }, ..Volume::new(dims, affine, VoxelData::I16(values)) }
     }
 
+    /// Every voxel of axis copy `a` (permutation `perm`) is the volume's quantum there.
+    fn assert_holds_every_voxel(p: &Prepared, a: &Axis, perm: [usize; 3]) {
+        let (dims, pd) = (p.dims, a.dims);
+        for k in 0..pd[2] {
+            for j in 0..pd[1] {
+                for i in 0..pd[0] {
+                    let mut idx = [0; 3];
+                    (idx[perm[0]], idx[perm[1]], idx[perm[2]]) = (i, j, k);
+                    let want = p.quantum(idx[0] + dims[0] * (idx[1] + dims[1] * idx[2]));
+                    assert_eq!(a.data[i + pd[0] * (j + pd[1] * k)], want, "perm {perm:?} at {idx:?}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn every_axis_copy_holds_every_voxel_across_tile_edges() {
         // More than one 32-voxel tile along every axis, none a multiple of 32.
@@ -326,17 +341,7 @@ mod tests {
         let p = Prepared::new(&v, &Default::default()).unwrap();
         for perm in [[1, 2, 0], [2, 0, 1], [0, 1, 2]] {
             let a = p.axis(perm).unwrap();
-            let pd = a.dims;
-            for k in 0..pd[2] {
-                for j in 0..pd[1] {
-                    for i in 0..pd[0] {
-                        let mut idx = [0; 3];
-                        (idx[perm[0]], idx[perm[1]], idx[perm[2]]) = (i, j, k);
-                        let want = p.quantum(idx[0] + dims[0] * (idx[1] + dims[1] * idx[2]));
-                        assert_eq!(a.data[i + pd[0] * (j + pd[1] * k)], want, "perm {perm:?} at {idx:?}");
-                    }
-                }
-            }
+            assert_holds_every_voxel(&p, &a, perm);
         }
     }
 
@@ -356,17 +361,7 @@ mod tests {
                 assert_eq!(address, last, "perm {perm:?}: the replaced copy's memory reused");
             }
             last = Some(address);
-            let pd = a.dims;
-            for k in 0..pd[2] {
-                for j in 0..pd[1] {
-                    for i in 0..pd[0] {
-                        let mut idx = [0; 3];
-                        (idx[perm[0]], idx[perm[1]], idx[perm[2]]) = (i, j, k);
-                        let want = p.quantum(idx[0] + dims[0] * (idx[1] + dims[1] * idx[2]));
-                        assert_eq!(a.data[i + pd[0] * (j + pd[1] * k)], want, "perm {perm:?} at {idx:?}");
-                    }
-                }
-            }
+            assert_holds_every_voxel(&p, &a, perm);
         }
         // A copy still held (by a frame in flight) is not reused: the new one is fresh.
         let held = p.axis([2, 0, 1]).unwrap();
