@@ -331,7 +331,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         };
         // And each ray's direction toward the eye, for the lighting's view vector (lit
         // perspective views only): a world transform and a normalisation per pixel, where
-        // they were per shaded segment (a sixth of a shaded clinical frame's time).
+        // they were per shaded segment (2–3 % of a shaded clinical frame).
         let lit = shading.as_ref().is_some_and(|s| s.is_lit()) || shading2.as_ref().is_some_and(|s| s.is_lit());
         let to_eyes: Vec<Vec<glam::Vec3>> = if perspective && lit {
             (0..band_rows)

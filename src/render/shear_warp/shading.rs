@@ -8,10 +8,9 @@
 //! the slice samples (`SliceGradient`: the ±z neighbours lie on the neighbouring slices,
 //! so each difference is two bilinear samples of the u16 slices) and, with more than one
 //! sample per slab, the samples between the slices (`PointGradient`, twelve bilinear
-//! samples). Per-voxel normals kept per
-//! principal axis, as VolPack does, would add at least 2 bytes a voxel to each permuted
-//! copy (the clinical-size memory target leaves no room for them), and would be quantised
-//! where these are not. They are computed only where a segment is visible, and each slice
+//! samples). Per-voxel normals kept per principal axis, as VolPack does, would add at
+//! least 2 bytes a voxel to each permuted copy (the clinical-size memory target leaves no
+//! room for them), and would be quantised where these are not. They are computed only where a segment is visible, and each slice
 //! sample's gradient is reused as the next slab's front.
 //!
 //! With pre-integration a segment's premultiplied colour C and opacity α come from the
@@ -26,7 +25,7 @@
 //! every voxel boundary the ray crosses between the slices. On the aneurism at 512²
 //! (`volterra bench shear-warp`, five views) that floor was about 3 %: 3.63 % at the
 //! defaults, 3.27 % at ratio 4 with four samples per slab; with the segments' own ends
-//! 2.29 % and 1.29 %, at 1.2–1.3 times the time for the same settings.
+//! 2.29 % and 1.29 %, at 1.15–1.2 times the time for the same settings.
 
 use super::factor::Factorization;
 use super::prepare::Axis;
