@@ -81,15 +81,20 @@ override SPLIT: bool = false;
 @group(0) @binding(14) var pyramid2: texture_2d_array<f32>;
 @group(0) @binding(15) var pyramid3: texture_2d_array<f32>;
 
+// The texture array of tile `tile` and its layer there (split heightfields).
+fn split_tile(tile: i32) -> vec2<i32> {
+    let per = i32(P.misc.w);
+    return vec2<i32>(tile / per, tile % per);
+}
+
 // Texel l of tile `tile`'s heights.
 fn load_height(l: vec2<i32>, tile: i32) -> f32 {
     if !SPLIT {
         return textureLoad(heights, l, tile, 0).r;
     }
-    let per = i32(P.misc.w);
-    let a = tile / per;
-    let k = tile - a * per;
-    switch a {
+    let at = split_tile(tile);
+    let k = at.y;
+    switch at.x {
         case 0: { return textureLoad(heights, l, k, 0).r; }
         case 1: { return textureLoad(heights1, l, k, 0).r; }
         case 2: { return textureLoad(heights2, l, k, 0).r; }
@@ -102,10 +107,9 @@ fn load_corners(l: vec2<i32>, tile: i32) -> vec4<f32> {
     if !SPLIT {
         return corners_of(heights, l, tile);
     }
-    let per = i32(P.misc.w);
-    let a = tile / per;
-    let k = tile - a * per;
-    switch a {
+    let at = split_tile(tile);
+    let k = at.y;
+    switch at.x {
         case 0: { return corners_of(heights, l, k); }
         case 1: { return corners_of(heights1, l, k); }
         case 2: { return corners_of(heights2, l, k); }
@@ -127,10 +131,9 @@ fn load_lid(n: vec2<i32>, tile: i32, m: i32) -> f32 {
     if !SPLIT {
         return textureLoad(pyramid, n, tile, m).r;
     }
-    let per = i32(P.misc.w);
-    let a = tile / per;
-    let k = tile - a * per;
-    switch a {
+    let at = split_tile(tile);
+    let k = at.y;
+    switch at.x {
         case 0: { return textureLoad(pyramid, n, k, m).r; }
         case 1: { return textureLoad(pyramid1, n, k, m).r; }
         case 2: { return textureLoad(pyramid2, n, k, m).r; }
