@@ -29,7 +29,7 @@ struct Params {
     // width, height (pixels), cells east, cells north.
     size: vec4<u32>,
     // top level, step cap, traversal (0 quadtree, 1 quadtree without the raise, 2 linear),
-    // flags (1 shadows, 2 texture, 4 smooth normals).
+    // flags (1 shadows, 2 texture, 4 smooth normals, 8 the pyramid's texel pairs east-west).
     control: vec4<u32>,
     // number of lights; shadow lift (metres, as f32 bits); rays per pixel side; tiles per
     // texture array (SPLIT).
@@ -60,7 +60,7 @@ struct Params {
 // The samples and each tile's pyramid, one tile per layer (one layer when not tiled), and
 // the pyramid's levels above the tiles (gpu.rs, Tiling).
 @group(0) @binding(1) var heights: texture_2d_array<f32>;
-@group(0) @binding(2) var pyramid: texture_2d_array<f32>;
+@group(0) @binding(2) var pyramid: texture_2d_array<u32>;
 @group(0) @binding(3) var colour_map: texture_2d<f32>;
 @group(0) @binding(4) var colour_sampler: sampler;
 @group(0) @binding(5) var<storage, read_write> out_colour: array<vec4<f32>>;
@@ -77,9 +77,9 @@ override SPLIT: bool = false;
 @group(0) @binding(10) var heights1: texture_2d_array<f32>;
 @group(0) @binding(11) var heights2: texture_2d_array<f32>;
 @group(0) @binding(12) var heights3: texture_2d_array<f32>;
-@group(0) @binding(13) var pyramid1: texture_2d_array<f32>;
-@group(0) @binding(14) var pyramid2: texture_2d_array<f32>;
-@group(0) @binding(15) var pyramid3: texture_2d_array<f32>;
+@group(0) @binding(13) var pyramid1: texture_2d_array<u32>;
+@group(0) @binding(14) var pyramid2: texture_2d_array<u32>;
+@group(0) @binding(15) var pyramid3: texture_2d_array<u32>;
 
 // The texture array of tile `tile` and its layer there (split heightfields).
 fn split_tile(tile: i32) -> vec2<i32> {
@@ -126,18 +126,26 @@ fn corners_of(t: texture_2d_array<f32>, l: vec2<i32>, layer: i32) -> vec4<f32> {
     );
 }
 
-// Texel n of mip m of tile `tile`'s pyramid.
+// Texel n of mip m of tile `tile`'s pyramid: two half floats (rounded up) to a texel,
+// neighbours east-west where flag 8 is set, else north-south (terrain_pyramid.wgsl).
 fn load_lid(n: vec2<i32>, tile: i32, m: i32) -> f32 {
+    let east = (P.control.w & 8u) != 0u;
+    let t = select(vec2<i32>(n.x, n.y >> 1u), vec2<i32>(n.x >> 1u, n.y), east);
+    let pair = unpack2x16float(load_pair(t, tile, m));
+    return select(pair.x, pair.y, (select(n.y, n.x, east) & 1) == 1);
+}
+
+fn load_pair(t: vec2<i32>, tile: i32, m: i32) -> u32 {
     if !SPLIT {
-        return textureLoad(pyramid, n, tile, m).r;
+        return textureLoad(pyramid, t, tile, m).r;
     }
     let at = split_tile(tile);
     let k = at.y;
     switch at.x {
-        case 0: { return textureLoad(pyramid, n, k, m).r; }
-        case 1: { return textureLoad(pyramid1, n, k, m).r; }
-        case 2: { return textureLoad(pyramid2, n, k, m).r; }
-        default: { return textureLoad(pyramid3, n, k, m).r; }
+        case 0: { return textureLoad(pyramid, t, k, m).r; }
+        case 1: { return textureLoad(pyramid1, t, k, m).r; }
+        case 2: { return textureLoad(pyramid2, t, k, m).r; }
+        default: { return textureLoad(pyramid3, t, k, m).r; }
     }
 }
 

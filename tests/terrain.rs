@@ -49,6 +49,20 @@ fn counter(f: &Frame, name: &str) -> f64 {
     f.stats.counter(name).unwrap_or_else(|| panic!("no counter '{name}'"))
 }
 
+/// The GPU ray-caster's shading for tests that call it directly: the sun from `to_sun`
+/// (none: no lights), shadows with a sun, smooth normals, one ray per pixel.
+fn sun_shading(to_sun: Option<[f64; 3]>) -> volterra::render::terrain::shading::Shading {
+    let lights: Vec<_> = to_sun.map(common::sun).into_iter().collect();
+    volterra::render::terrain::shading::Shading {
+        lights: volterra::render::terrain::shading::sun_lights(&lights).unwrap(),
+        ambient: 0.25,
+        shadows: to_sun.is_some(),
+        smooth: true,
+        rays_per_side: 1,
+        colormap: volterra::render::colormap::Colormap::Hypsometric,
+    }
+}
+
 /// GPU and reference renders of one view, or None where the GPU is missing (local runs).
 fn render_both(hf: &Heightfield, cam: &Camera, size: (usize, usize), settings: &Settings) -> Option<(Frame, Frame)> {
     common::gpu()?;
@@ -617,7 +631,6 @@ fn a_ray_through_a_nodata_void_meets_the_void_s_wall() {
 #[test]
 fn tiled_terrains_render_exactly_as_one_texture() {
     use volterra::render::terrain::gpu::{self, GpuTerrain, View};
-    use volterra::render::terrain::shading::{sun_lights, Shading};
     if common::gpu().is_none() {
         return;
     }
@@ -639,14 +652,7 @@ fn tiled_terrains_render_exactly_as_one_texture() {
     let ground = hf.surface_height(x, y).unwrap();
     let walk = perspective([x, y, ground + 2.0], [x + 0.5 * ex, y + 0.4 * ey, ground + 40.0], [0.0, 0.0, 1.0], 60.0);
     let lights = [common::sun([-0.8, -0.5, -0.45])];
-    let shading = Shading {
-        lights: sun_lights(&lights).unwrap(),
-        ambient: 0.25,
-        shadows: true,
-        smooth: true,
-        rays_per_side: 1,
-        colormap: volterra::render::colormap::Colormap::Hypsometric,
-    };
+    let shading = sun_shading(Some([-0.8, -0.5, -0.45]));
     let whole = GpuTerrain::new(gpu, &grid, None).unwrap();
     let cap = Settings::default().step_cap(&grid);
     // Tiles of 32 patches: 33² heights (4356 bytes) a layer; 40 layers an array.
@@ -684,7 +690,6 @@ fn tiled_terrains_render_exactly_as_one_texture() {
 #[test]
 fn the_smallest_pyramids_and_tiles_of_two_patches() {
     use volterra::render::terrain::gpu::{self, GpuTerrain, View};
-    use volterra::render::terrain::shading::{sun_lights, Shading};
     let settings = Settings { rays_per_pixel: 1, ..Default::default() };
     for (w, h) in [(2, 2), (2, 6), (7, 2), (3, 3), (9, 7)] {
         // A tilted, bumpy surface with one NoData sample where there is room for it.
@@ -704,14 +709,7 @@ fn the_smallest_pyramids_and_tiles_of_two_patches() {
             // Tiles of 2 patches (3 samples a side): 4 × 3 tiles, each pyramid one level.
             let gpu = gpu::gpu().unwrap();
             let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
-            let shading = Shading {
-                lights: sun_lights(&[common::sun([-0.8, -0.5, -0.45])]).unwrap(),
-                ambient: 0.25,
-                shadows: true,
-                smooth: true,
-                rays_per_side: 1,
-                colormap: volterra::render::colormap::Colormap::Hypsometric,
-            };
+            let shading = sun_shading(Some([-0.8, -0.5, -0.45]));
             let (whole, tiled) = (GpuTerrain::new(gpu, &grid, None).unwrap(), GpuTerrain::with_texture_limit(gpu, &grid, None, 3).unwrap());
             assert!(tiled.tiled());
             let rays = cam.rays(96, 64);
@@ -721,5 +719,110 @@ fn the_smallest_pyramids_and_tiles_of_two_patches() {
             assert!(a.depth.iter().zip(&b.depth).all(|(p, q)| p.to_bits() == q.to_bits()), "tiles of 2 patches: depth");
             assert_eq!(a.rgba, b.rgba, "tiles of 2 patches: colour");
         }
+    }
+}
+
+/// The pyramid holds half floats, rounded up (terrain_pyramid.wgsl): a plateau 1000.2 m
+/// above the middle of the elevation range is bounded by 1000.5, never by the nearest
+/// half, 1000.0 — which would pass level rays between 1000.0 and 1000.2 over it; a shelf
+/// 999.8 m below the middle is bounded by −999.5, not −1000.0. Rays exactly there all meet
+/// the edge where the f64 reference does, in one texture and in tiles (whose texture over
+/// the tiles rounds the same way on the CPU).
+#[test]
+fn lids_rounded_to_half_floats_round_up_and_hide_no_hit() {
+    use volterra::render::terrain::gpu::{self, GpuTerrain, View};
+    let cases = [
+        // Ground at 0 west of column 20, a plateau at 2000.4 m from it: z_ref = 1000.2;
+        // level rays from the west at 2000.22 … 2000.38 m, 1000.02 … 1000.18 over z_ref.
+        ("a plateau above the middle", field(40, 40, 1.0, |c, _| if c < 20 { 0.0 } else { 2000.4 }), 2000.3),
+        // A 4000 m wall in the west, ground at 0, a shelf at 1000.2 m from column 20:
+        // z_ref = 2000, the shelf −999.8 below it; rays at −999.98 … −999.82.
+        (
+            "a shelf below the middle",
+            field(40, 40, 1.0, |c, _| match c {
+                0..10 => 4000.0,
+                10..20 => 0.0,
+                _ => 1000.2,
+            }),
+            1000.1,
+        ),
+    ];
+    for (name, hf, z) in cases {
+        let cam = parallel([15.0, 20.0, z], [30.0, 20.0, z], [0.0, 0.0, 1.0], 0.08);
+        let settings = Settings { rays_per_pixel: 1, ..Default::default() };
+        let Some((one, reference)) = render_both(&hf, &cam, (32, 16), &settings) else { return };
+        assert!(reference.depth.iter().all(|d| d.is_finite()), "{name}: every reference ray meets the edge");
+        assert_agree(&format!("{name}, one texture"), &one, &reference);
+        let gpu = gpu::gpu().unwrap();
+        let grid = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
+        let tiled = GpuTerrain::with_texture_limit(gpu, &grid, None, 9).unwrap();
+        assert!(tiled.tiled());
+        let rays = cam.rays(32, 16);
+        let shading = sun_shading(None);
+        let cap = settings.step_cap(&grid);
+        let view = View { grid: &grid, rays: &rays, shading: &shading, traversal: Traversal::Quadtree, max_steps: cap };
+        assert_agree(&format!("{name}, tiles of 8 patches"), &tiled.render(gpu, &view).unwrap(), &reference);
+    }
+}
+
+/// A heightfield read row by row (`HeightRows`: a DEM not held in memory as a whole) is
+/// the same terrain as the one held: the GPU's images bit for bit, in one texture and in
+/// tiles, the elevation range and a point's surface height alike.
+#[test]
+fn heights_read_row_by_row_render_as_the_heightfield_held() {
+    use std::sync::Arc;
+    use volterra::render::terrain::gpu::{self, GpuTerrain, View};
+    use volterra::render::terrain::grid::HeightRows;
+    struct Rows(Heightfield);
+    impl HeightRows for Rows {
+        fn size(&self) -> [usize; 2] {
+            [self.0.width, self.0.height]
+        }
+        fn cell_size(&self) -> [f64; 2] {
+            self.0.cell_size
+        }
+        fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+            for (k, z) in out.iter_mut().enumerate() {
+                let c = col + k;
+                *z = if self.0.is_nodata(c, row) { f32::NAN } else { self.0.elevations[row * self.0.width + c] };
+            }
+        }
+    }
+    if common::gpu().is_none() {
+        return;
+    }
+    let gpu = gpu::gpu().unwrap();
+    let base = volterra::samples::fractal_dem(8, 25.0, 3);
+    // 200 × 150 samples, a NoData void, 25 m × 40 m cells.
+    let mut hf = field(200, 150, 25.0, |c, r| {
+        if (80..95).contains(&c) && (60..70).contains(&r) {
+            f32::NAN
+        } else {
+            base.elevations[r * base.width + c] + 300.0
+        }
+    });
+    hf.cell_size[1] = 40.0;
+    let held = TerrainGrid::new(&hf, DMat4::IDENTITY).unwrap();
+    let rows = TerrainGrid::from_rows(Arc::new(Rows(hf.clone())), DMat4::IDENTITY).unwrap();
+    assert_eq!((rows.z_ref, rows.z_lo, rows.z_hi, rows.cell), (held.z_ref, held.z_lo, held.z_hi, held.cell));
+    for (x, y) in [(1000.0, 2000.0), (3333.3, 4321.0), (0.0, 0.0)] {
+        assert_eq!(rows.surface_height(x, y), held.surface_height(x, y), "at ({x}, {y})");
+        let direct = hf.surface_height(x, y).unwrap();
+        assert!((held.surface_height(x, y).unwrap() - direct).abs() < 1e-3, "the grid's surface at ({x}, {y}) against the heightfield's");
+    }
+    let (ex, ey) = (25.0 * 199.0, 40.0 * 149.0);
+    let cam =
+        perspective([-0.1 * ex, -0.2 * ey, held.z_ref + held.z_hi + 0.4 * ex], [0.5 * ex, 0.5 * ey, held.z_ref], [0.0, 0.0, 1.0], 45.0);
+    let rays = cam.rays(120, 80);
+    let shading = sun_shading(Some([-0.8, -0.5, -0.45]));
+    let cap = Settings::default().step_cap(&held);
+    for limit in [4096, 40] {
+        let a = GpuTerrain::with_texture_limit(gpu, &held, None, limit).unwrap();
+        let b = GpuTerrain::with_texture_limit(gpu, &rows, None, limit).unwrap();
+        let view = |grid| View { grid, rays: &rays, shading: &shading, traversal: Traversal::Quadtree, max_steps: cap };
+        let (fa, fb) = (a.render(gpu, &view(&held)).unwrap(), b.render(gpu, &view(&rows)).unwrap());
+        assert!(fa.depth.iter().filter(|d| d.is_finite()).count() > fa.depth.len() / 2, "the view sees the terrain");
+        assert!(fa.depth.iter().zip(&fb.depth).all(|(p, q)| p.to_bits() == q.to_bits()), "textures ≤ {limit}: depth");
+        assert_eq!(fa.rgba, fb.rgba, "textures ≤ {limit}: colour");
     }
 }

@@ -64,12 +64,13 @@ fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-fn texture_array_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+/// A texture array of f32 (heights) or, `packed`, of u32 (the pyramids' half-float pairs).
+fn texture_array_entry(binding: u32, packed: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
         ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            sample_type: if packed { wgpu::TextureSampleType::Uint } else { wgpu::TextureSampleType::Float { filterable: false } },
             view_dimension: wgpu::TextureViewDimension::D2Array,
             multisampled: false,
         },
@@ -77,13 +78,14 @@ fn texture_array_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
+/// A level of a pyramid being written (half-float pairs in u32 texels).
 fn storage_texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
         ty: wgpu::BindingType::StorageTexture {
             access: wgpu::StorageTextureAccess::WriteOnly,
-            format: wgpu::TextureFormat::R32Float,
+            format: wgpu::TextureFormat::R32Uint,
             view_dimension: wgpu::TextureViewDimension::D2,
         },
         count: None,
@@ -107,13 +109,23 @@ impl Pipelines {
         };
         let lid_layout =
             layout("lid", &[texture_entry(0, false), storage_texture_entry(1), buffer_entry(2, wgpu::BufferBindingType::Uniform)]);
-        let reduce_layout = layout("reduce", &[texture_entry(0, false), storage_texture_entry(1)]);
+        let uint_texture = wgpu::BindGroupLayoutEntry {
+            binding: 3,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Uint,
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let reduce_layout = layout("reduce", &[storage_texture_entry(1), buffer_entry(2, wgpu::BufferBindingType::Uniform), uint_texture]);
         let ray_layout = layout(
             "raycast",
             &[
                 buffer_entry(0, wgpu::BufferBindingType::Uniform),
-                texture_array_entry(1),
-                texture_array_entry(2),
+                texture_array_entry(1, false),
+                texture_array_entry(2, true),
                 texture_entry(3, true),
                 wgpu::BindGroupLayoutEntry {
                     binding: 4,
@@ -127,12 +139,12 @@ impl Pipelines {
                 buffer_entry(8, storage),
                 texture_entry(9, false),
                 // The heights' and the pyramids' further arrays (MAX_ARRAYS − 1 each).
-                texture_array_entry(10),
-                texture_array_entry(11),
-                texture_array_entry(12),
-                texture_array_entry(13),
-                texture_array_entry(14),
-                texture_array_entry(15),
+                texture_array_entry(10, false),
+                texture_array_entry(11, false),
+                texture_array_entry(12, false),
+                texture_array_entry(13, true),
+                texture_array_entry(14, true),
+                texture_array_entry(15, true),
             ],
         );
         let pyramid = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -268,8 +280,9 @@ impl Tiling {
     fn new(grid: &TerrainGrid, limit: usize, max_layers: usize, array_bytes: u64) -> Result<Tiling> {
         let tiling = Tiling::tiles(grid, limit, max_layers)?;
         // A layer's bytes: its heights, or its pyramid with every mip, whichever is more.
-        let (size, mips) = tiling.pyramid_texture();
-        let layer_bytes = (4 * tiling.heights_size[0] as u64 * tiling.heights_size[1] as u64).max(mip_bytes(size, mips));
+        let (_, mips) = tiling.pyramid_texture();
+        let (_, packed) = tiling.pyramid_packing();
+        let layer_bytes = (4 * tiling.heights_size[0] as u64 * tiling.heights_size[1] as u64).max(mip_bytes(packed, mips));
         let per_array = ((array_bytes / layer_bytes) as usize).clamp(1, max_layers);
         let arrays = tiling.layers().div_ceil(per_array);
         if arrays > MAX_ARRAYS {
@@ -352,6 +365,16 @@ impl Tiling {
         (self.pyramid_size.map(|s| (s / 2).max(1)), (self.tile_levels - 1).max(1))
     }
 
+    /// Whether the pyramid's half-float pairs are neighbours east-west (else north-south),
+    /// and the size of the texture holding them. Pairs lie along the shorter side (north-
+    /// south when square): halving the longer one would leave the texture a mip short of
+    /// the quadtree's levels.
+    fn pyramid_packing(&self) -> (bool, [u32; 2]) {
+        let ([w, h], _) = self.pyramid_texture();
+        let east = w < h;
+        (east, if east { [(w / 2).max(1), h] } else { [w, (h / 2).max(1)] })
+    }
+
     fn layers(&self) -> usize {
         self.tiles[0] * self.tiles[1]
     }
@@ -400,7 +423,75 @@ impl Tiling {
     }
 }
 
-/// Bytes of an R32Float texture of `size` with `levels` mips.
+/// The highest lid of the patches between two neighbouring rows of samples (HOLE where
+/// every patch touches NoData, stored as HOLE).
+fn highest_lid(below: &[f32], above: &[f32]) -> f32 {
+    // As the shaders: below -1e37 is NoData (uploaded as HOLE).
+    let valid = |z: f32| z > -1.0e37;
+    let mut highest = HOLE;
+    for i in 0..below.len() - 1 {
+        let z = [below[i], below[i + 1], above[i], above[i + 1]];
+        if z.iter().all(|&v| valid(v)) {
+            highest = highest.max(z[0].max(z[1]).max(z[2].max(z[3])));
+        }
+    }
+    highest
+}
+
+/// The smallest half float ≥ v, as an f32: the value terrain_pyramid.wgsl's `half_up`
+/// stores (−∞ for NoData, +∞ above the half floats, no subnormals). The texture over the
+/// tiles holds f32 texels, but the same values as the tiles' pyramids would hold there,
+/// so a tiled heightfield's quadtree is the one of the same heights in one texture.
+fn half_up(v: f32) -> f32 {
+    use half::f16;
+    let smallest_normal = f16::MIN_POSITIVE.to_f32();
+    if v <= -1.0e37 {
+        return f32::NEG_INFINITY;
+    }
+    if v > 65504.0 {
+        return f32::INFINITY;
+    }
+    if v < -65504.0 {
+        return -65504.0;
+    }
+    if v.abs() < smallest_normal {
+        return if v > 0.0 { smallest_normal } else { 0.0 };
+    }
+    let mut h = f16::from_f32(v).to_bits();
+    if f16::from_bits(h).to_f32() < v {
+        h = if h & 0x8000 != 0 { h - 1 } else { h + 1 };
+    }
+    f16::from_bits(h).to_f32()
+}
+
+/// The levels of the texture over the tiles (`levels` of them from `size`, powers of two):
+/// level 0 each tile's highest lid rounded up to a half float (tiles east × north of them,
+/// −∞ — the pyramids' HOLE — past them), each
+/// further texel the highest of the 2 × 2 below it (a side already 1 texel stays 1).
+fn top_levels(tile_lids: &[f32], tiles: [usize; 2], size: [u32; 2], levels: u32) -> Vec<Vec<f32>> {
+    let [w, h] = size.map(|s| s as usize);
+    let mut level0 = vec![f32::NEG_INFINITY; w * h];
+    for (t, &lid) in tile_lids.iter().enumerate() {
+        level0[t / tiles[0] * w + t % tiles[0]] = half_up(lid);
+    }
+    let mut out = vec![level0];
+    for l in 1..levels.max(1) as usize {
+        let (sw, sh) = ((w >> (l - 1)).max(1), (h >> (l - 1)).max(1));
+        let (dw, dh) = ((w >> l).max(1), (h >> l).max(1));
+        let src = &out[l - 1];
+        let at = |x: usize, y: usize| src[y.min(sh - 1) * sw + x.min(sw - 1)];
+        let level = (0..dw * dh)
+            .map(|k| {
+                let (x, y) = (2 * (k % dw), 2 * (k / dw));
+                at(x, y).max(at(x + 1, y)).max(at(x, y + 1)).max(at(x + 1, y + 1))
+            })
+            .collect();
+        out.push(level);
+    }
+    out
+}
+
+/// Bytes of a texture of 4-byte texels of `size` with `levels` mips.
 fn mip_bytes(size: [u32; 2], levels: u32) -> u64 {
     (0..levels).map(|l| 4 * ((size[0] >> l).max(1) as u64) * ((size[1] >> l).max(1) as u64)).sum()
 }
@@ -472,37 +563,49 @@ impl GpuTerrain {
         let [cx, cy] = grid.cells();
         let layers = tiling.layers();
         let levels = tiling.levels();
-        let texture_2d_array = |label: &str, size: [u32; 2], mips: u32, usage: wgpu::TextureUsages, layers: usize| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: layers as u32 },
-                mip_level_count: mips,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::R32Float,
-                usage,
-                view_formats: &[],
-            })
-        };
+        let texture_2d_array =
+            |label: &str, size: [u32; 2], mips: u32, format: wgpu::TextureFormat, usage: wgpu::TextureUsages, layers: usize| {
+                device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: layers as u32 },
+                    mip_level_count: mips,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                })
+            };
         let heights: Vec<wgpu::Texture> = (0..tiling.arrays())
             .map(|a| {
                 let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
-                texture_2d_array("heights", tiling.heights_size, 1, usage, tiling.layers_in(a))
+                texture_2d_array("heights", tiling.heights_size, 1, wgpu::TextureFormat::R32Float, usage, tiling.layers_in(a))
             })
             .collect();
         // Each tile's samples uploaded in bands of rows of about 16 MiB, each submitted and
         // finished before the next: a copy of the whole grid (and wgpu's staging of it)
-        // would add twice the heights to the peak memory.
+        // would add twice the heights to the peak memory. On the way, each tile's highest
+        // lid: the texture over the tiles, built here (`top_levels`) rather than from the
+        // tiles' pyramids, whose half-float pairs a texture copy cannot unpack.
+        let mut tile_lids = vec![HOLE; layers];
         for tile in 0..layers {
             let ([i0, j0], [w, h]) = tiling.samples_of(tile, grid);
             let (array, layer) = tiling.place(tile);
             let band_rows = ((16usize << 20) / (4 * w)).clamp(1, h);
+            let mut below = Vec::new();
             for r0 in (0..h).step_by(band_rows) {
                 let rows = band_rows.min(h - r0);
                 let mut band = vec![0f32; rows * w];
                 for (r, row) in band.chunks_exact_mut(w).enumerate() {
                     grid.heights_of_row(i0, j0 + r0 + r, row);
                     row.iter_mut().filter(|z| !z.is_finite()).for_each(|z| *z = HOLE);
+                    if tiling.tiled() {
+                        if !below.is_empty() {
+                            tile_lids[tile] = tile_lids[tile].max(highest_lid(&below, row));
+                        }
+                        below.clear();
+                        below.extend_from_slice(row);
+                    }
                 }
                 gpu.queue.write_texture(
                     wgpu::TexelCopyTextureInfo {
@@ -519,10 +622,11 @@ impl GpuTerrain {
                 device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("uploading the heights: {e}"))?;
             }
         }
-        let storage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
+        let storage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING;
         let (pyramid_size, pyramid_mips) = tiling.pyramid_texture();
+        let (pairs_east, packed_size) = tiling.pyramid_packing();
         let pyramid: Vec<wgpu::Texture> = (0..tiling.arrays())
-            .map(|a| texture_2d_array("lid pyramid", pyramid_size, pyramid_mips, storage, tiling.layers_in(a)))
+            .map(|a| texture_2d_array("lid pyramid", packed_size, pyramid_mips, wgpu::TextureFormat::R32Uint, storage, tiling.layers_in(a)))
             .collect();
         // Above the tiles: one texel per tile (the tile's top level), then its own levels.
         let top_size = [tiling.tiles[0].next_power_of_two() as u32, tiling.tiles[1].next_power_of_two() as u32];
@@ -533,9 +637,25 @@ impl GpuTerrain {
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format: wgpu::TextureFormat::R32Float,
-            usage: storage | wgpu::TextureUsages::COPY_DST,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
+        if tiling.tiled() {
+            for (level, texels) in top_levels(&tile_lids, tiling.tiles, top_size, tiling.top_levels).iter().enumerate() {
+                let size = top_size.map(|s| (s >> level).max(1));
+                gpu.queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &top,
+                        mip_level: level as u32,
+                        origin: wgpu::Origin3d::ZERO,
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    bytemuck::cast_slice(texels),
+                    wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * size[0]), rows_per_image: None },
+                    wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+                );
+            }
+        }
         let (colour, has_texture, placement) = match texture {
             Some((drape, placement)) => (colour_texture(gpu, drape, max_dim)?, true, placement),
             None => {
@@ -543,14 +663,6 @@ impl GpuTerrain {
                 (colour_texture(gpu, &blank, max_dim)?, false, [0.0; 4])
             }
         };
-        // Tiles that do not exist (the padding up to a power of two) are holes.
-        let holes = vec![HOLE; (top_size[0] * top_size[1]) as usize];
-        gpu.queue.write_texture(
-            top.as_image_copy(),
-            bytemuck::cast_slice(&holes),
-            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * top_size[0]), rows_per_image: None },
-            wgpu::Extent3d { width: top_size[0], height: top_size[1], depth_or_array_layers: 1 },
-        );
         // Uploads first, so that the build time below is the compute passes alone.
         gpu.queue.submit([]);
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU upload failed: {e}"))?;
@@ -567,81 +679,65 @@ impl GpuTerrain {
             })
         };
         let mut enc = device.create_command_encoder(&Default::default());
-        let groups = |w: u32, h: u32| (w.div_ceil(8), h.div_ceil(8));
-        let reduce = |enc: &mut wgpu::CommandEncoder, src: &wgpu::TextureView, dst: &wgpu::TextureView, size: [u32; 2]| {
-            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("reduce"),
-                layout: &gpu.pipelines.reduce_layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(src) },
-                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(dst) },
-                ],
-            });
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&gpu.pipelines.reduce);
-            pass.set_bind_group(0, &bg, &[]);
-            let (gx, gy) = groups(size[0], size[1]);
-            pass.dispatch_workgroups(gx, gy, 1);
+        // The packed texels written by a pass over a level of `logical` texels.
+        let packed =
+            |logical: [u32; 2]| if pairs_east { [logical[0].div_ceil(2), logical[1]] } else { [logical[0], logical[1].div_ceil(2)] };
+        let groups = |size: [u32; 2]| (size[0].div_ceil(8), size[1].div_ceil(8));
+        let packing_buffer = |src: [u32; 2], dst: [u32; 2]| {
+            uniform_buffer(gpu, bytemuck::cast_slice(&[src[0], src[1], dst[0], dst[1], pairs_east as u32, 0, 0, 0]))
         };
-        let mut cell_buffers = Vec::new();
+        let mut uniforms = Vec::new();
         for tile in 0..layers {
             let (_, [w, h]) = tiling.samples_of(tile, grid);
             let (array, layer) = tiling.place(tile);
             let (heights, pyramid) = (&heights[array], &pyramid[array]);
-            let cells_buf = uniform_buffer(gpu, bytemuck::cast_slice(&[w as u32 - 1, h as u32 - 1, 0, 0]));
-            let (src, dst) = (layer_view(heights, layer, 0), layer_view(pyramid, layer, 0));
-            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("lid"),
-                layout: &gpu.pipelines.lid_layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&src) },
-                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
-                    wgpu::BindGroupEntry { binding: 2, resource: cells_buf.as_entire_binding() },
-                ],
-            });
-            cell_buffers.push(cells_buf);
             if tiling.tile_levels > 1 {
+                let uniform = packing_buffer([w as u32 - 1, h as u32 - 1], pyramid_size);
+                let (src, dst) = (layer_view(heights, layer, 0), layer_view(pyramid, layer, 0));
+                let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("lid"),
+                    layout: &gpu.pipelines.lid_layout,
+                    entries: &[
+                        wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&src) },
+                        wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
+                        wgpu::BindGroupEntry { binding: 2, resource: uniform.as_entire_binding() },
+                    ],
+                });
+                uniforms.push(uniform);
                 let mut pass = enc.begin_compute_pass(&Default::default());
                 pass.set_pipeline(&gpu.pipelines.level1);
                 pass.set_bind_group(0, &bg, &[]);
-                let (gx, gy) = groups(pyramid_size[0], pyramid_size[1]);
+                let (gx, gy) = groups(packed(pyramid_size));
                 pass.dispatch_workgroups(gx, gy, 1);
             }
             // Quadtree level L is the pyramid texture's mip L − 1.
             for level in 2..tiling.tile_levels {
-                let size = tiling.pyramid_size.map(|s| (s >> level).max(1));
-                reduce(&mut enc, &layer_view(pyramid, layer, level - 2), &layer_view(pyramid, layer, level - 1), size);
+                let logical = |l: u32| tiling.pyramid_size.map(|s| (s >> l).max(1));
+                let uniform = packing_buffer(logical(level - 1), logical(level));
+                let (src, dst) = (layer_view(pyramid, layer, level - 2), layer_view(pyramid, layer, level - 1));
+                let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("reduce"),
+                    layout: &gpu.pipelines.reduce_layout,
+                    entries: &[
+                        wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&dst) },
+                        wgpu::BindGroupEntry { binding: 2, resource: uniform.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&src) },
+                    ],
+                });
+                uniforms.push(uniform);
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&gpu.pipelines.reduce);
+                pass.set_bind_group(0, &bg, &[]);
+                let (gx, gy) = groups(packed(logical(level)));
+                pass.dispatch_workgroups(gx, gy, 1);
             }
-            if tiling.tiled() {
-                // The tile's top level (one texel) into the texture over the tiles.
-                let [a, b] = [tile % tiling.tiles[0], tile / tiling.tiles[0]];
-                enc.copy_texture_to_texture(
-                    wgpu::TexelCopyTextureInfo {
-                        texture: pyramid,
-                        mip_level: tiling.tile_levels - 2,
-                        origin: wgpu::Origin3d { x: 0, y: 0, z: layer },
-                        aspect: wgpu::TextureAspect::All,
-                    },
-                    wgpu::TexelCopyTextureInfo {
-                        texture: &top,
-                        mip_level: 0,
-                        origin: wgpu::Origin3d { x: a as u32, y: b as u32, z: 0 },
-                        aspect: wgpu::TextureAspect::All,
-                    },
-                    wgpu::Extent3d { width: 1, height: 1, depth_or_array_layers: 1 },
-                );
-            }
-        }
-        for level in 1..tiling.top_levels {
-            let size = top_size.map(|s| (s >> level).max(1));
-            reduce(&mut enc, &layer_view(&top, 0, level - 1), &layer_view(&top, 0, level), size);
         }
         gpu.queue.submit([enc.finish()]);
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU pyramid build failed: {e}"))?;
         let build_seconds = start.elapsed().as_secs_f64();
 
         let gpu_bytes = 4 * (tiling.heights_size[0] as u64 * tiling.heights_size[1] as u64) * layers as u64
-            + mip_bytes(pyramid_size, pyramid_mips) * layers as u64
+            + mip_bytes(packed_size, pyramid_mips) * layers as u64
             + mip_bytes(top_size, tiling.top_levels.max(1))
             + 4 * colour.width() as u64 * colour.height() as u64;
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
@@ -708,7 +804,10 @@ impl GpuTerrain {
         p.normal_z = v4(n.row(2), 0.0);
         p.extent = [(grid.z_lo - eye_grid.z) as f32, (grid.z_hi - eye_grid.z) as f32, grid.cell[0] as f32, grid.cell[1] as f32];
         p.size = [w as u32, h as u32, self.cells[0], self.cells[1]];
-        let flags = shading.shadows as u32 | (self.has_texture as u32) << 1 | (shading.smooth as u32) << 2;
+        let flags = shading.shadows as u32
+            | (self.has_texture as u32) << 1
+            | (shading.smooth as u32) << 2
+            | (self.tiling.pyramid_packing().0 as u32) << 3;
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];
         p.drape = self.placement;
         p.tiles = self.tiling.params();

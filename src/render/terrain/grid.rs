@@ -17,14 +17,47 @@ use volterra_formats::Heightfield;
 /// Lid-map value of a patch that touches a NoData sample: lower than any ray.
 pub const HOLE: f32 = -3.0e38;
 
+/// Heights read a row at a time, for a heightfield that is not held in memory as a whole:
+/// the GPU ray-caster reads each sample once (the samples tiles share, twice), a tile at a
+/// time in bands of rows, into its textures, so a DEM near the size of the host's memory
+/// is held only there (on a software adapter the textures are host memory: `volterra bench
+/// terrain --large` measures a 40000² DEM so). The elevation range takes one more pass;
+/// the f64 reference reads sample by sample (meant for generators and windowed readers:
+/// correct, not fast).
+pub trait HeightRows: Send + Sync {
+    /// Samples east-west and north-south.
+    fn size(&self) -> [usize; 2];
+    /// Metres between samples east-west and north-south.
+    fn cell_size(&self) -> [f64; 2];
+    /// Elevations (metres) of `out.len()` samples of row `row` (row 0 the northernmost, as
+    /// in the file) from column `col`; NaN for NoData.
+    fn read_row(&self, row: usize, col: usize, out: &mut [f32]);
+}
+
+/// Where a grid's heights are: a heightfield in memory, shared and not copied (a large
+/// DEM is most of the memory a render holds), or a source read row by row.
+#[derive(Clone)]
+enum Samples {
+    Held(Arc<Heightfield>),
+    Rows(Arc<dyn HeightRows>),
+}
+
+impl std::fmt::Debug for Samples {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Samples::Held(hf) => write!(f, "Held({}×{})", hf.width, hf.height),
+            Samples::Rows(r) => write!(f, "Rows({:?})", r.size()),
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct TerrainGrid {
     /// Samples east-west and south-north.
     pub nx: usize,
     pub ny: usize,
-    /// The heightfield itself, shared and not copied (a large DEM is most of the memory a
-    /// render holds): heights are read from it relative to `z_ref` (see `height`).
-    heightfield: Arc<Heightfield>,
+    /// The heights, read relative to `z_ref` (see `height`).
+    samples: Samples,
     pub z_ref: f64,
     /// Range of valid heights relative to `z_ref` (0, 0 when every sample is NoData).
     pub z_lo: f64,
@@ -55,20 +88,46 @@ impl TerrainGrid {
 
     pub fn shared(hf: Arc<Heightfield>, node_to_world: DMat4) -> Result<TerrainGrid> {
         let (nx, ny) = (hf.width, hf.height);
-        if nx < 2 || ny < 2 {
-            bail!("a terrain needs at least 2×2 samples (this heightfield has {nx}×{ny})");
-        }
         if hf.elevations.len() != nx * ny {
             bail!("the heightfield holds {} elevations for {nx}×{ny} samples", hf.elevations.len());
         }
-        let [cx, cy] = hf.cell_size;
+        let range = hf.range();
+        let cell = hf.cell_size;
+        TerrainGrid::with_samples([nx, ny], cell, range, Samples::Held(hf), node_to_world)
+    }
+
+    /// The grid of heights read row by row from `rows` (the elevation range found by
+    /// reading every row once).
+    pub fn from_rows(rows: Arc<dyn HeightRows>, node_to_world: DMat4) -> Result<TerrainGrid> {
+        let [nx, ny] = rows.size();
+        let mut range: Option<(f32, f32)> = None;
+        let mut row = vec![0f32; nx];
+        for r in 0..ny {
+            rows.read_row(r, 0, &mut row);
+            for &z in row.iter().filter(|z| z.is_finite()) {
+                range = Some(range.map_or((z, z), |(lo, hi)| (lo.min(z), hi.max(z))));
+            }
+        }
+        let cell = rows.cell_size();
+        TerrainGrid::with_samples([nx, ny], cell, range, Samples::Rows(rows), node_to_world)
+    }
+
+    fn with_samples(
+        [nx, ny]: [usize; 2],
+        [cx, cy]: [f64; 2],
+        range: Option<(f32, f32)>,
+        samples: Samples,
+        node_to_world: DMat4,
+    ) -> Result<TerrainGrid> {
+        if nx < 2 || ny < 2 {
+            bail!("a terrain needs at least 2×2 samples (this heightfield has {nx}×{ny})");
+        }
         if !(cx > 0.0 && cy > 0.0 && cx.is_finite() && cy.is_finite()) {
             bail!("heightfield cell size {cx}×{cy} m is not positive");
         }
         if node_to_world.determinant().abs() < 1e-300 || !node_to_world.is_finite() {
             bail!("the heightfield node's transform is not invertible");
         }
-        let range = hf.range();
         let (lo, hi) = range.map(|(a, b)| (a as f64, b as f64)).unwrap_or((0.0, 0.0));
         let z_ref = 0.5 * (lo + hi);
         let local_to_grid = DMat4::from_scale(DVec3::new(1.0 / cx, 1.0 / cy, 1.0)) * DMat4::from_translation(DVec3::new(0.0, 0.0, -z_ref));
@@ -77,7 +136,7 @@ impl TerrainGrid {
         Ok(TerrainGrid {
             nx,
             ny,
-            heightfield: hf,
+            samples,
             z_ref,
             z_lo: lo - z_ref,
             z_hi: hi - z_ref,
@@ -91,8 +150,18 @@ impl TerrainGrid {
     /// Heights of samples i0 … i0 + out.len() − 1 of row j (grid space: j = 0 the southern
     /// row), relative to `z_ref`; NaN for NoData.
     pub fn heights_of_row(&self, i0: usize, j: usize, out: &mut [f32]) {
-        for (k, h) in out.iter_mut().enumerate() {
-            *h = self.height(i0 + k, j);
+        match &self.samples {
+            Samples::Held(_) => {
+                for (k, h) in out.iter_mut().enumerate() {
+                    *h = self.height(i0 + k, j);
+                }
+            }
+            Samples::Rows(rows) => {
+                rows.read_row(self.ny - 1 - j, i0, out);
+                for z in out.iter_mut() {
+                    *z = if z.is_finite() { (*z as f64 - self.z_ref) as f32 } else { f32::NAN };
+                }
+            }
         }
     }
 
@@ -105,12 +174,34 @@ impl TerrainGrid {
     /// NoData.
     pub fn height(&self, i: usize, j: usize) -> f32 {
         let row = self.ny - 1 - j;
-        let z = self.heightfield.elevations[row * self.nx + i];
-        if z.is_finite() && !self.heightfield.is_nodata(i, row) {
-            (z as f64 - self.z_ref) as f32
-        } else {
-            f32::NAN
+        match &self.samples {
+            Samples::Held(hf) => {
+                let z = hf.elevations[row * self.nx + i];
+                if z.is_finite() && !hf.is_nodata(i, row) {
+                    (z as f64 - self.z_ref) as f32
+                } else {
+                    f32::NAN
+                }
+            }
+            Samples::Rows(_) => {
+                let mut z = [0f32];
+                self.heights_of_row(i, j, &mut z);
+                z[0]
+            }
         }
+    }
+
+    /// The elevation (metres) at a point of the node's local frame — x east, y north in
+    /// metres from the south-west sample — bilinear on the patch there, as the f32 heights
+    /// the renderers hold; None outside the samples or on a patch touching NoData.
+    pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
+        let [cx, cy] = self.cells();
+        let (gx, gy) = (x / self.cell[0], y / self.cell[1]);
+        if !(gx >= 0.0 && gy >= 0.0 && gx <= cx as f64 && gy <= cy as f64) {
+            return None;
+        }
+        let (i, j) = ((gx.floor() as usize).min(cx - 1), (gy.floor() as usize).min(cy - 1));
+        Some(self.z_ref + bilinear(self.patch(i, j)?, gx - i as f64, gy - j as f64))
     }
 
     /// The patch's corner heights (z00, z10, z01, z11), or None where one is NoData.
