@@ -727,7 +727,8 @@ fn the_smallest_pyramids_and_tiles_of_two_patches() {
 /// half, 1000.0 — which would pass level rays between 1000.0 and 1000.2 over it; a shelf
 /// 999.8 m below the middle is bounded by −999.5, not −1000.0. Rays exactly there all meet
 /// the edge where the f64 reference does, in one texture and in tiles (whose texture over
-/// the tiles rounds the same way on the CPU).
+/// the tiles rounds the same way on the CPU). The shelf's grid is taller than wide, so its
+/// pyramid pairs texels east-west where the plateau's square one pairs them north-south.
 #[test]
 fn lids_rounded_to_half_floats_round_up_and_hide_no_hit() {
     use volterra::render::terrain::gpu::{self, GpuTerrain, View};
@@ -739,7 +740,7 @@ fn lids_rounded_to_half_floats_round_up_and_hide_no_hit() {
         // z_ref = 2000, the shelf −999.8 below it; rays at −999.98 … −999.82.
         (
             "a shelf below the middle",
-            field(40, 40, 1.0, |c, _| match c {
+            field(40, 100, 1.0, |c, _| match c {
                 0..10 => 4000.0,
                 10..20 => 0.0,
                 _ => 1000.2,

@@ -466,8 +466,8 @@ fn half_up(v: f32) -> f32 {
 
 /// The levels of the texture over the tiles (`levels` of them from `size`, powers of two):
 /// level 0 each tile's highest lid rounded up to a half float (tiles east × north of them,
-/// −∞ — the pyramids' HOLE — past them), each
-/// further texel the highest of the 2 × 2 below it (a side already 1 texel stays 1).
+/// −∞ — the pyramids' HOLE — past them), each further texel the highest of the 2 × 2
+/// below it (a side already 1 texel stays 1).
 fn top_levels(tile_lids: &[f32], tiles: [usize; 2], size: [u32; 2], levels: u32) -> Vec<Vec<f32>> {
     let [w, h] = size.map(|s| s as usize);
     let mut level0 = vec![f32::NEG_INFINITY; w * h];
