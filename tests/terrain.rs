@@ -651,8 +651,9 @@ fn tiled_terrains_render_exactly_as_one_texture() {
     let (x, y) = (0.3 * ex, 0.3 * ey);
     let ground = hf.surface_height(x, y).unwrap();
     let walk = perspective([x, y, ground + 2.0], [x + 0.5 * ex, y + 0.4 * ey, ground + 40.0], [0.0, 0.0, 1.0], 60.0);
-    let lights = [common::sun([-0.8, -0.5, -0.45])];
-    let shading = sun_shading(Some([-0.8, -0.5, -0.45]));
+    let to_sun = [-0.8, -0.5, -0.45];
+    let lights = [common::sun(to_sun)];
+    let shading = sun_shading(Some(to_sun));
     let whole = GpuTerrain::new(gpu, &grid, None).unwrap();
     let cap = Settings::default().step_cap(&grid);
     // Tiles of 32 patches: 33² heights (4356 bytes) a layer; 40 layers an array.

@@ -438,6 +438,20 @@ fn highest_lid(below: &[f32], above: &[f32]) -> f32 {
     highest
 }
 
+/// The highest lid of the patches a band of rows (`w` samples each) closes: those between
+/// its rows, and those between its first row and `below`, the last row of the band before
+/// (empty for a tile's first band). `below` becomes this band's last row.
+fn band_lid(below: &mut Vec<f32>, band: &[f32], w: usize) -> f32 {
+    let rows = band.len() / w;
+    let mut highest = if below.is_empty() { HOLE } else { highest_lid(below, &band[..w]) };
+    for r in 1..rows {
+        highest = highest.max(highest_lid(&band[(r - 1) * w..r * w], &band[r * w..(r + 1) * w]));
+    }
+    below.clear();
+    below.extend_from_slice(&band[(rows - 1) * w..]);
+    highest
+}
+
 /// The smallest half float ≥ v, as an f32: the value terrain_pyramid.wgsl's `half_up`
 /// stores (−∞ for NoData, +∞ above the half floats, no subnormals). The texture over the
 /// tiles holds f32 texels, but the same values as the tiles' pyramids would hold there,
@@ -599,13 +613,9 @@ impl GpuTerrain {
                 for (r, row) in band.chunks_exact_mut(w).enumerate() {
                     grid.heights_of_row(i0, j0 + r0 + r, row);
                     row.iter_mut().filter(|z| !z.is_finite()).for_each(|z| *z = HOLE);
-                    if tiling.tiled() {
-                        if !below.is_empty() {
-                            tile_lids[tile] = tile_lids[tile].max(highest_lid(&below, row));
-                        }
-                        below.clear();
-                        below.extend_from_slice(row);
-                    }
+                }
+                if tiling.tiled() {
+                    tile_lids[tile] = tile_lids[tile].max(band_lid(&mut below, &band, w));
                 }
                 gpu.queue.write_texture(
                     wgpu::TexelCopyTextureInfo {
@@ -998,4 +1008,47 @@ fn colour_texture(gpu: &Gpu, img: &Drape, max_dim: usize) -> Result<wgpu::Textur
         tex.size(),
     );
     Ok(tex)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tile's highest lid is the same whichever bands of rows its heights arrive in,
+    /// the patches between two bands included: here the only patch clear of NoData, and
+    /// the highest, straddles the bands' border.
+    #[test]
+    fn a_tile_s_highest_lid_does_not_depend_on_its_bands() {
+        let w = 3;
+        #[rustfmt::skip]
+        let rows = [
+            HOLE, HOLE, HOLE,
+            1.0, 7.0, HOLE,
+            2.0, 3.0, HOLE,
+            HOLE, 9.0, HOLE,
+        ];
+        let whole = band_lid(&mut Vec::new(), &rows, w);
+        assert_eq!(whole, 7.0);
+        for split in 1..4 {
+            let mut below = Vec::new();
+            let (first, second) = rows.split_at(split * w);
+            let highest = band_lid(&mut below, first, w).max(band_lid(&mut below, second, w));
+            assert_eq!(highest, whole, "bands of {split} and {} rows", 4 - split);
+        }
+        // Every patch touching NoData: nothing to bound.
+        assert_eq!(band_lid(&mut Vec::new(), &[HOLE, 1.0, 2.0, 3.0], 2), HOLE);
+    }
+
+    /// Rounding to half floats goes up, never down, and keeps NoData below everything.
+    #[test]
+    fn half_up_never_rounds_down() {
+        for v in [1000.2f32, -999.8, 0.1, -0.1, 1e-6, -1e-6, 2048.5, 65504.0, 70000.0, -70000.0] {
+            let h = half_up(v);
+            assert!(h >= v, "{v} → {h}");
+            assert_eq!(half::f16::from_f32(h).to_f32(), h, "{v} → {h} is a half float");
+        }
+        assert_eq!(half_up(HOLE), f32::NEG_INFINITY);
+        assert_eq!(half_up(1000.2), 1000.5);
+        assert_eq!(half_up(-999.8), -999.5);
+    }
 }
