@@ -275,3 +275,126 @@ fn a_drape_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits()
         assert!(err.to_string().contains("draped image needs"), "{err}");
     }
 }
+
+/// The same elevation bit for bit, or both NoData (NaN).
+fn same_sample(a: f32, b: f32) -> bool {
+    a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+}
+
+/// Every sample of `rows` read row by row — south to north in column bands that cut across
+/// tiles, then north to south whole — equals `held`'s, bit for bit, NoData as NaN; where
+/// they lie, and what `info` says of the file, too.
+fn assert_rows_read_as_held(rows: &volterra_formats::geotiff_rows::GeoTiffRows, held: &Heightfield, what: &str) {
+    let g = rows.georef();
+    assert_eq!(g, &held.georef(), "{what}: georeferencing");
+    assert_eq!(rows.attributes, held.attributes, "{what}: attributes");
+    assert_eq!(rows.nodata_value, held.nodata_value, "{what}: NoData value");
+    let expected = |r: usize, c: usize| if held.is_nodata(c, r) { f32::NAN } else { held.elevations[r * held.width + c] };
+    let (mut differ, mut voids) = (0, 0);
+    let band = 100;
+    for c0 in (0..g.width).step_by(band) {
+        let mut out = vec![0f32; band.min(g.width - c0)];
+        for r in (0..g.height).rev() {
+            rows.read_row(r, c0, &mut out);
+            for (k, z) in out.iter().enumerate() {
+                differ += usize::from(!same_sample(*z, expected(r, c0 + k)));
+                voids += usize::from(z.is_nan());
+            }
+        }
+    }
+    let mut out = vec![0f32; g.width];
+    for r in 0..g.height {
+        rows.read_row(r, 0, &mut out);
+        for (c, z) in out.iter().enumerate() {
+            differ += usize::from(!same_sample(*z, expected(r, c)));
+        }
+    }
+    assert_eq!(differ, 0, "{what}: samples read by rows that differ from the raster read whole");
+    assert_eq!(voids, held.nodata_count(), "{what}: NoData samples");
+    assert_eq!(rows.failure(), None, "{what}");
+}
+
+/// A GeoTIFF read row by row (`GeoTiffRows`, what the GPU ray-caster's textures are filled
+/// from, so a DEM is held once) reads as the raster read whole: stripped, tiled and COG
+/// files, float32 and int16 with NoData, whole, by extent and from an overview when the
+/// full raster's GPU bytes exceed the limit; a tile that fails to decode reads as NoData
+/// and is reported, naming the file.
+#[test]
+fn rows_read_by_windows_of_tiles_equal_the_raster_read_whole() {
+    use volterra_formats::geotiff::{read_geotiff_with, GeoTiffOptions};
+    use volterra_formats::geotiff_rows::GeoTiffRows;
+    let Some(gdal_translate) = gdal() else { return };
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let plain = dir.path().join("hills.tif");
+    dem(&plain);
+    let tiled = dir.path().join("tiled.tif");
+    run(Command::new(&gdal_translate)
+        .args(["-q", "-co", "TILED=YES", "-co", "BLOCKXSIZE=128", "-co", "BLOCKYSIZE=64", "-co", "COMPRESS=DEFLATE"])
+        .arg(&plain)
+        .arg(&tiled));
+    run(Command::new("gdaladdo").args(["-q", "-r", "average"]).arg(&tiled).args(["2", "4"]));
+    let strips = dir.path().join("strips.tif");
+    run(Command::new(&gdal_translate).args(["-q", "-co", "BLOCKYSIZE=7"]).arg(&plain).arg(&strips));
+    let int16 = dir.path().join("int16.tif");
+    run(Command::new(&gdal_translate).args(["-q", "-ot", "Int16", "-co", "TILED=YES", "-co", "COMPRESS=LZW"]).arg(&plain).arg(&int16));
+    let cog = dir.path().join("cog.tif");
+    run(Command::new(&gdal_translate).args(["-q", "-of", "COG", "-co", "BLOCKSIZE=256", "-co", "COMPRESS=ZSTD"]).arg(&plain).arg(&cog));
+    let whole = GeoTiffOptions::default();
+    // Columns 250..=612, rows 100..=377 (see the extent test).
+    let extent = GeoTiffOptions {
+        extent: Some([
+            500_015.0 + 250.0 * 30.0 - 10.0,
+            4_200_015.0 - 377.0 * 30.0 - 10.0,
+            500_015.0 + 612.0 * 30.0 + 10.0,
+            4_200_015.0 - 100.0 * 30.0 + 10.0,
+        ]),
+    };
+    for file in [&plain, &tiled, &strips, &int16, &cog] {
+        let name = file.file_name().unwrap().to_string_lossy().into_owned();
+        for (opts, part) in [(&whole, "whole"), (&extent, "extent")] {
+            let rows = GeoTiffRows::open(file, opts, &Limits::default(), 5).unwrap();
+            let held = read_geotiff_with(file, opts, &Limits::default()).unwrap();
+            assert_rows_read_as_held(&rows, &held, &format!("{name}, {part}"));
+        }
+    }
+    // The limit counts the bytes the caller holds a sample (5 for the GPU's textures):
+    // room for the first overview's (501 × 352 × 5 = 0.9 MB) and one row of tiles, not the
+    // full raster's (3.5 MB): overview 0, as GDAL writes it.
+    let limit = Limits::max(in_use() + 1_500_000);
+    let rows = GeoTiffRows::open(&tiled, &whole, &limit, 5).unwrap();
+    let gdal_ov = dir.path().join("tiled.ov0.tif");
+    run(Command::new(&gdal_translate).args(["-q", "-oo", "OVERVIEW_LEVEL=0"]).arg(&tiled).arg(&gdal_ov));
+    let reference = read_geotiff(&gdal_ov, &Limits::default()).unwrap();
+    assert_eq!(rows.georef(), &reference.georef(), "overview 0: where it lies");
+    assert!(rows.notes.iter().any(|n| n.contains("501×352 overview")), "{:?}", rows.notes);
+    let mut out = vec![0f32; 501];
+    let mut differ = 0;
+    for r in 0..352 {
+        rows.read_row(r, 0, &mut out);
+        differ += (0..501).filter(|&c| !same_sample(out[c], reference.elevations[r * 501 + c])).count();
+    }
+    assert_eq!(differ, 0, "overview 0, read by rows");
+
+    // One tile's compressed bytes overwritten: opening reads no tile; reading reads its
+    // samples as NoData and says which file failed.
+    let broken = dir.path().join("broken.tif");
+    std::fs::copy(&tiled, &broken).unwrap();
+    let (offset, count) = {
+        let mut d = tiff::decoder::Decoder::new(std::fs::File::open(&broken).unwrap()).unwrap();
+        let offsets = d.get_tag_u64_vec(tiff::tags::Tag::TileOffsets).unwrap();
+        let counts = d.get_tag_u64_vec(tiff::tags::Tag::TileByteCounts).unwrap();
+        (offsets[9], counts[9])
+    };
+    let mut bytes = std::fs::read(&broken).unwrap();
+    bytes[offset as usize..(offset + count) as usize].fill(0xA5);
+    std::fs::write(&broken, &bytes).unwrap();
+    let rows = GeoTiffRows::open(&broken, &whole, &Limits::default(), 5).unwrap();
+    assert_eq!(rows.failure(), None);
+    // Tile 9: columns 128..256 of rows 64..128 (8 tiles of 128 across 1001 columns).
+    let mut out = vec![0f32; 1001];
+    rows.read_row(70, 0, &mut out);
+    assert!(out[128..256].iter().all(|z| z.is_nan()) && out[..128].iter().all(|z| z.is_finite()), "the broken tile reads as NoData");
+    let why = rows.failure().expect("the failure is kept");
+    assert!(why.contains("broken.tif"), "{why}");
+}

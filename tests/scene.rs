@@ -6,7 +6,7 @@ mod common;
 use common::repo_path;
 use std::path::Path;
 use volterra::render::{self, reference_volume};
-use volterra::scene::{BlendMode, Camera, Scene, TransferFunction};
+use volterra::scene::{BlendMode, Camera, NodeData, Scene, TransferFunction};
 use volterra_formats::{Volume, VoxelData};
 
 fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
@@ -391,4 +391,68 @@ fn walk_keeps_the_eye_above_the_ground_and_frames_pass_through_the_keyframes() {
     let off = Scene::load(&dir.path().join("terrain_walk.toml"), &["camera.position=[-500.0, 100.0, 0.0]".into()]).unwrap();
     let e = format!("{:#}", off.camera(None).unwrap_err());
     assert!(e.contains("walk") && e.contains("not over the terrain"), "{e}");
+}
+
+/// A GeoTIFF terrain drawn by the GPU ray-caster is read row by row into its textures
+/// (issue 20: a DEM held once, there, not also as a raster on the host): the scene never
+/// reads the raster whole, and the frames — colour and depth, the walk's eye on the ground,
+/// a drape, shadows, and a node `extent` — are those of the raster held, bit for bit. A
+/// strip that fails to decode fails the render with the file's name.
+#[test]
+fn a_geotiff_terrain_is_read_row_by_row_into_the_gpu_and_renders_as_the_raster_held() {
+    if common::gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    volterra::samples::write_samples(dir.path()).unwrap();
+    let path = dir.path().join("terrain_walk.toml");
+    let dem = dir.path().join("fractal_dem.tif");
+    let held = volterra::formats::geotiff::read_geotiff(&dem, &Default::default()).unwrap();
+    // Columns 20..=400 and rows 30..=380 of the DEM (map units are metres from its corner).
+    let (ox, oy, cell) = (held.origin[0], held.origin[1], held.cell_size_native[0]);
+    let extent = [ox + 20.0 * cell, oy - 380.0 * cell, ox + 400.0 * cell, oy - 30.0 * cell];
+    let sizes = ["image.width=160".to_string(), "image.height=96".to_string()];
+    let with_extent = format!("node.dem.extent=[{}, {}, {}, {}]", extent[0], extent[1], extent[2], extent[3]);
+    for sets in [sizes.to_vec(), [sizes.to_vec(), vec![with_extent]].concat()] {
+        let windowed = sets.len() > 2;
+        let streamed = Scene::load(&path, &sets).unwrap();
+        assert!(matches!(streamed.terrain_data(0).unwrap(), volterra::scene::TerrainData::Rows(_)), "the GPU's heights come by rows");
+        let a = render::render_scene(&streamed, None).unwrap();
+        assert!(!streamed.is_loaded(0), "the raster was not read whole");
+        let b = {
+            let scene = Scene::load(&path, &sets).unwrap();
+            let opts = volterra::formats::geotiff::GeoTiffOptions { extent: windowed.then_some(extent) };
+            scene.provide_data(
+                0,
+                NodeData::Heightfield(std::sync::Arc::new(
+                    volterra::formats::geotiff::read_geotiff_with(&dem, &opts, &Default::default()).unwrap(),
+                )),
+            );
+            assert!(matches!(scene.terrain_data(0).unwrap(), volterra::scene::TerrainData::Held(_)));
+            assert_eq!(scene.camera(None).unwrap(), streamed.camera(None).unwrap(), "the walk's eye stands on the same ground");
+            render::render_scene(&scene, None).unwrap()
+        };
+        let hits = a.depth.iter().filter(|d| d.is_finite()).count();
+        assert!(hits > a.depth.len() / 3, "the terrain fills much of the view ({hits} hits)");
+        let bits = |f: &render::Frame| {
+            (f.rgba.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>(), f.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>())
+        };
+        assert!(bits(&a) == bits(&b), "extent {windowed}: the frames differ from those of the raster held");
+    }
+
+    // A broken strip: the render fails naming the file (its rows read as NoData until then).
+    let broken = dir.path().join("broken.tif");
+    let (offset, count) = {
+        let mut d = tiff::decoder::Decoder::new(std::fs::File::open(&dem).unwrap()).unwrap();
+        let offsets = d.get_tag_u64_vec(tiff::tags::Tag::StripOffsets).unwrap();
+        let counts = d.get_tag_u64_vec(tiff::tags::Tag::StripByteCounts).unwrap();
+        (offsets[offsets.len() / 2], counts[offsets.len() / 2])
+    };
+    let mut bytes = std::fs::read(&dem).unwrap();
+    bytes[offset as usize..(offset + count) as usize].fill(0x5A);
+    std::fs::write(&broken, &bytes).unwrap();
+    let scene = Scene::load(&path, &[sizes.to_vec(), vec!["node.dem.file=broken.tif".into()]].concat()).unwrap();
+    let Err(e) = render::render_scene(&scene, None) else { panic!("a broken strip fails the render") };
+    let e = format!("{e:#}");
+    assert!(e.contains("broken.tif"), "{e}");
 }

@@ -238,13 +238,13 @@ fn a_drape_in_another_crs_or_off_the_dem_is_refused() {
     let path = dir.path().join("other.tif");
     volterra_formats::geotiff::write_band(&path, &other, volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
     let drape = Drape::load(&path, None, &Default::default()).unwrap();
-    let e = terrain::drape_placement(&hf, &drape).unwrap_err().to_string();
+    let e = terrain::drape_placement(&hf.georef(), &drape).unwrap_err().to_string();
     assert!(e.contains("EPSG:32611") && e.contains("EPSG:32610") && e.contains("CRS"), "{e}");
     let away = drape_grid(4, 4, 30.0, [hf.origin[0] + 1e5, hf.origin[1]], utm(32610));
     let path = dir.path().join("away.tif");
     volterra_formats::geotiff::write_band(&path, &away, volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
     let drape = Drape::load(&path, None, &Default::default()).unwrap();
-    let e = terrain::drape_placement(&hf, &drape).unwrap_err().to_string();
+    let e = terrain::drape_placement(&hf.georef(), &drape).unwrap_err().to_string();
     assert!(e.contains("outside the heightfield"), "{e}");
     // A colour map for an RGB drape is a mistake, said so.
     let colours = BandColours { colormap: volterra::render::colormap::Colormap::Grey, range: None };

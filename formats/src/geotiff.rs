@@ -26,7 +26,7 @@ enum GeoKey {
     Ascii(String),
 }
 
-fn tiff_err(path: &Path, e: tiff::TiffError) -> FormatError {
+pub(crate) fn tiff_err(path: &Path, e: tiff::TiffError) -> FormatError {
     match e {
         tiff::TiffError::UnsupportedError(u) => FormatError::unsupported(path, format!("unsupported TIFF feature: {u}")),
         tiff::TiffError::IoError(io) => FormatError::invalid(path, format!("TIFF is truncated or unreadable: {io}")),
@@ -430,6 +430,18 @@ pub fn read_geotiff_image(path: &Path, limits: &Limits) -> Result<GeoImage> {
     })
 }
 
+/// A sample's elevation in metres (f32), `vertical` metres per unit; Err(true) where it
+/// is declared NoData (the file's NoData value, NaN), Err(false) where it is out of f32's
+/// range once converted (also NoData).
+pub(crate) fn sample_metres(v: f64, nodata_value: Option<f64>, vertical: f64) -> std::result::Result<f32, bool> {
+    let declared = v.is_nan() || nodata_value.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
+    let metres = (v * vertical) as f32;
+    match (declared, metres.is_finite()) {
+        (false, true) => Ok(metres),
+        _ => Err(declared),
+    }
+}
+
 /// Samples to elevations in metres (f32), NoData (declared, NaN, or out of f32's range) as
 /// NaN and flagged; the flags are allocated at the first NoData sample.
 struct Metres {
@@ -442,17 +454,16 @@ struct Metres {
 
 impl Metres {
     fn metres(&mut self, i: usize, v: f64) -> f32 {
-        let declared = v.is_nan() || self.nodata_value.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
-        let metres = (v * self.vertical) as f32;
-        if declared || !metres.is_finite() {
-            self.not_finite += usize::from(!declared);
-            if self.nodata.is_empty() {
-                self.nodata = vec![false; self.n];
+        match sample_metres(v, self.nodata_value, self.vertical) {
+            Ok(m) => m,
+            Err(declared) => {
+                self.not_finite += usize::from(!declared);
+                if self.nodata.is_empty() {
+                    self.nodata = vec![false; self.n];
+                }
+                self.nodata[i] = true;
+                f32::NAN
             }
-            self.nodata[i] = true;
-            f32::NAN
-        } else {
-            metres
         }
     }
 
@@ -500,7 +511,7 @@ fn type_name(raw: &DecodingResult) -> &'static str {
 
 /// Sample k of a decoded chunk as f64.
 #[inline]
-fn sample_f64(raw: &DecodingResult, k: usize) -> f64 {
+pub(crate) fn sample_f64(raw: &DecodingResult, k: usize) -> f64 {
     match raw {
         DecodingResult::U8(v) => v[k] as f64,
         DecodingResult::I8(v) => v[k] as f64,
@@ -540,7 +551,7 @@ fn read_window(
         for tx in c0 / cw..=c1 / cw {
             let index =
                 ty.checked_mul(across).and_then(|i| i.checked_add(tx)).ok_or_else(|| FormatError::invalid(path, "too many TIFF chunks"))?;
-            let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_chunk(index).map_err(|e| tiff_err(path, e)))?;
+            let raw = crate::guard::third_party(path, "the TIFF decoder", || crate::tiff_lzw::read_chunk(path, d, index))?;
             let (dw, dh) = crate::guard::third_party(path, "the TIFF decoder", || Ok(d.chunk_data_dimensions(index)))?;
             data_type = type_name(&raw);
             if dw == 0 || dh == 0 {
@@ -587,9 +598,44 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
     read_geotiff_with(path, &GeoTiffOptions::default(), limits)
 }
 
-/// As `read_geotiff`, of `opts.extent` only where given: the window of samples inside it,
-/// at the finest level (the full raster or an overview) whose window fits the limit.
-pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) -> Result<Heightfield> {
+/// A GeoTIFF elevation raster opened at the level and window to read, its georeferencing
+/// settled; nothing decoded yet.
+pub(crate) struct Opened {
+    pub(crate) d: Decoder<BufReader<std::fs::File>>,
+    /// The level's size in samples (its chunks are numbered across it).
+    pub(crate) level: [u32; 2],
+    /// Columns and rows [c0, r0, c1, r1] (inclusive) of the level read.
+    pub(crate) win: [u32; 4],
+    /// The centre of the window's north-west sample and the level's cells (CRS units).
+    pub(crate) origin: [f64; 2],
+    pub(crate) scale: [f64; 2],
+    pub(crate) crs: Crs,
+    pub(crate) nodata_value: Option<f64>,
+    /// Metres per unit of the file's values.
+    pub(crate) vertical: f64,
+    pub(crate) sample_bytes: u64,
+    pub(crate) notes: Vec<String>,
+    /// What `info` shows of the storage, after the data type (see `Opened::attributes`).
+    pub(crate) storage: Vec<(String, String)>,
+}
+
+impl Opened {
+    pub(crate) fn size(&self) -> (u32, u32) {
+        (self.win[2] - self.win[0] + 1, self.win[3] - self.win[1] + 1)
+    }
+
+    /// `info`'s attributes of the raster, given its data type.
+    pub(crate) fn attributes(&self, data_type: &str) -> Vec<(String, String)> {
+        let mut a = vec![("data type".to_string(), data_type.to_string())];
+        a.extend(self.storage.iter().cloned());
+        a
+    }
+}
+
+/// Opens a GeoTIFF elevation raster at the finest level (the full raster or an overview)
+/// whose window (`opts.extent`, else the whole level) fits the memory limit when each of
+/// its samples holds `held_per_sample` bytes (None: the decoded sample's size).
+pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held_per_sample: Option<u64>) -> Result<Opened> {
     let (mut d, images) = open_images(path)?;
     let (spp, sample_bytes) = sample_layout(path, &mut d)?;
     if spp != 1 {
@@ -617,17 +663,16 @@ pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) ->
             }
         }
     };
-    let need = |i: &Image| window(i).map(|win| [(win[2] - win[0] + 1) as u64, (win[3] - win[1] + 1) as u64, sample_bytes]);
+    let per_sample = held_per_sample.unwrap_or(sample_bytes);
+    let need = |i: &Image| window(i).map(|win| [(win[2] - win[0] + 1) as u64, (win[3] - win[1] + 1) as u64, per_sample]);
     let what = if opts.extent.is_some() { "elevation raster's window" } else { "elevation raster" };
     let (image, bytes, note) = finest_fitting(path, limits, &images, what, need)?;
     notes.extend(note);
     let win = window(&image)?;
     let mut d = at_level(path, d, (&full, &image), (spp, sample_bytes), bytes)?;
     let (ox, oy, sx, sy) = level_geo(&image);
-    let whole = win == [0, 0, image.width - 1, image.height - 1];
-    // The window's north-west sample and size.
-    let (ox, oy) = (ox + win[0] as f64 * sx, oy - win[1] as f64 * sy);
-    let (w, h) = (win[2] - win[0] + 1, win[3] - win[1] + 1);
+    // The window's north-west sample.
+    let origin = [ox + win[0] as f64 * sx, oy - win[1] as f64 * sy];
     // What gdalinfo users look for: the storage, before the image is read.
     let compression = match d.get_tag_u32(tiff::tags::Tag::Compression).unwrap_or(1) {
         1 => "none".to_string(),
@@ -651,21 +696,18 @@ pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) ->
         (Ok(tw), Ok(th)) => format!("tiles of {tw}×{th}"),
         _ => "strips".into(),
     };
-    // What `info` shows of the file, given the sample type decoded.
-    let attributes = |data_type: &str| {
-        let mut a = vec![
-            ("data type".to_string(), data_type.to_string()),
-            ("compression".to_string(), if predictor > 1 { format!("{compression}, predictor {predictor}") } else { compression.clone() }),
-            ("layout".to_string(), layout.clone()),
-            ("raster type".to_string(), if point { "PixelIsPoint".into() } else { "PixelIsArea".into() }),
-        ];
-        if images.len() > 1 {
-            let sizes: Vec<String> = images[1..].iter().map(|o| format!("{}×{}", o.width, o.height)).collect();
-            a.push(("overviews".to_string(), sizes.join(", ")));
-        }
-        a
-    };
-    let n = w as usize * h as usize;
+    let mut storage = vec![
+        ("compression".to_string(), if predictor > 1 { format!("{compression}, predictor {predictor}") } else { compression.clone() }),
+        ("layout".to_string(), layout),
+        ("raster type".to_string(), if point { "PixelIsPoint".into() } else { "PixelIsArea".into() }),
+    ];
+    if images.len() > 1 {
+        let sizes: Vec<String> = images[1..].iter().map(|o| format!("{}×{}", o.width, o.height)).collect();
+        storage.push(("overviews".to_string(), sizes.join(", ")));
+    }
+    if win != [0, 0, image.width - 1, image.height - 1] {
+        storage.push(("window".to_string(), format!("columns {}..={}, rows {}..={}", win[0], win[2], win[1], win[3])));
+    }
     let vertical = match short_key(&keys, KEY_VERTICAL_UNITS) {
         Some(9002) => {
             notes.push("vertical unit: foot, converted to metres".into());
@@ -677,20 +719,51 @@ pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) ->
         }
         _ => 1.0,
     };
-    let mut conversion = Metres { nodata_value, vertical, n, nodata: Vec::new(), not_finite: 0 };
-    if !whole {
+    Ok(Opened {
+        d,
+        level: [image.width, image.height],
+        win,
+        origin,
+        scale: [sx, sy],
+        crs,
+        nodata_value,
+        vertical,
+        sample_bytes,
+        notes,
+        storage,
+    })
+}
+
+/// As `read_geotiff`, of `opts.extent` only where given: the window of samples inside it,
+/// at the finest level (the full raster or an overview) whose window fits the limit.
+pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) -> Result<Heightfield> {
+    let mut o = open_elevation(path, opts, limits, None)?;
+    let (w, h) = o.size();
+    let n = w as usize * h as usize;
+    let mut conversion = Metres { nodata_value: o.nodata_value, vertical: o.vertical, n, nodata: Vec::new(), not_finite: 0 };
+    if o.win != [0, 0, o.level[0] - 1, o.level[1] - 1] {
         // A window: only the chunks that hold it.
-        let (elevations, data_type) = read_window(path, &mut d, image.width, win, &mut conversion)?;
-        let mut attributes = attributes(data_type);
-        attributes.push(("window".to_string(), format!("columns {}..={}, rows {}..={}", win[0], win[2], win[1], win[3])));
-        return finish(
-            path,
-            Raster { w, h, origin: [ox, oy], scale: [sx, sy], crs, elevations, nodata_value, notes, attributes },
-            conversion,
-        );
+        let (elevations, data_type) = read_window(path, &mut o.d, o.level[0], o.win, &mut conversion)?;
+        let attributes = o.attributes(data_type);
+        let Opened { origin, scale, crs, nodata_value, notes, .. } = o;
+        return finish(path, Raster { w, h, origin, scale, crs, elevations, nodata_value, notes, attributes }, conversion);
     }
-    let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
-    let attributes = attributes(type_name(&raw));
+    let raw = match crate::guard::third_party(path, "the TIFF decoder", || Ok(o.d.read_image()))
+        .map(|r| r.map_err(|e| (crate::tiff_lzw::is_lzw_end_error(&e), e)))
+    {
+        Ok(Ok(raw)) => raw,
+        // An LZW chunk the tiff crate cannot finish: the raster read chunk by chunk, each
+        // such chunk decoded by `tiff_lzw`.
+        Ok(Err((true, _))) => {
+            let (elevations, data_type) = read_window(path, &mut o.d, o.level[0], o.win, &mut conversion)?;
+            let attributes = o.attributes(data_type);
+            let Opened { origin, scale, crs, nodata_value, notes, .. } = o;
+            return finish(path, Raster { w, h, origin, scale, crs, elevations, nodata_value, notes, attributes }, conversion);
+        }
+        Ok(Err((false, e))) => return Err(tiff_err(path, e)),
+        Err(e) => return Err(e),
+    };
+    let attributes = o.attributes(type_name(&raw));
     // Each sample to metres as f32 straight from the decoded type: no f64 copy of the raster
     // (at the peak that copy alone was twice the f32 elevations), and float32 samples are
     // converted in place.
@@ -715,7 +788,8 @@ pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) ->
     if elevations.len() < n {
         return Err(FormatError::invalid(path, format!("image data holds {} of {n} samples", elevations.len())));
     }
-    finish(path, Raster { w, h, origin: [ox, oy], scale: [sx, sy], crs, elevations, nodata_value, notes, attributes }, conversion)
+    let Opened { origin, scale, crs, nodata_value, notes, .. } = o;
+    finish(path, Raster { w, h, origin, scale, crs, elevations, nodata_value, notes, attributes }, conversion)
 }
 
 /// A raster read, before its cell size in metres and its notes are settled.
@@ -734,12 +808,31 @@ struct Raster {
 /// The heightfield of a raster read: cell size in metres (from degrees at the centre
 /// latitude for a geographic CRS), NoData flags and notes.
 fn finish(path: &Path, raster: Raster, conversion: Metres) -> Result<Heightfield> {
-    let Raster { w, h, origin: [ox, oy], scale: [sx, sy], crs, elevations, nodata_value, mut notes, attributes } = raster;
+    let Raster { w, h, origin, scale, crs, elevations, nodata_value, mut notes, attributes } = raster;
     let Metres { nodata, not_finite, .. } = conversion;
     if not_finite > 0 {
         notes.push(format!("{not_finite} infinite or out-of-range sample(s) treated as NoData"));
     }
+    let cell_size = cell_size_metres(path, &crs, origin[1], h, scale, &mut notes)?;
+    Ok(Heightfield {
+        width: w as usize,
+        height: h as usize,
+        cell_size,
+        cell_size_native: scale,
+        origin,
+        crs,
+        elevations,
+        nodata,
+        nodata_value,
+        notes,
+        attributes,
+    })
+}
 
+/// Metres between samples (east, north) of `h` rows whose northern row's centre lies at
+/// map y `oy`, cells `[sx, sy]` in CRS units: converted from degrees at the centre latitude
+/// (with a note) for a geographic CRS.
+pub(crate) fn cell_size_metres(path: &Path, crs: &Crs, oy: f64, h: u32, [sx, sy]: [f64; 2], notes: &mut Vec<String>) -> Result<[f64; 2]> {
     let cell_size = if crs.geographic {
         let centre_lat = oy - 0.5 * (h as f64 - 1.0) * sy;
         if !(-90.0..=90.0).contains(&centre_lat) {
@@ -758,19 +851,7 @@ fn finish(path: &Path, raster: Raster, conversion: Metres) -> Result<Heightfield
     if !cell_size.iter().all(|c| c.is_finite() && *c > 0.0) {
         return Err(FormatError::invalid(path, format!("cell size {cell_size:?} m is not positive and finite")));
     }
-    Ok(Heightfield {
-        width: w as usize,
-        height: h as usize,
-        cell_size,
-        cell_size_native: [sx, sy],
-        origin: [ox, oy],
-        crs,
-        elevations,
-        nodata,
-        nodata_value,
-        notes,
-        attributes,
-    })
+    Ok(cell_size)
 }
 
 /// Writes a float32 GeoTIFF (Deflate; the tiff crate's encoder has no floating-point

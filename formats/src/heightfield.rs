@@ -59,23 +59,22 @@ impl Heightfield {
     /// in metres from the south-west sample's centre — bilinear between the four samples
     /// around it. None outside the samples or where one of the four is NoData.
     pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
-        let gx = x / self.cell_size[0];
-        let gy = y / self.cell_size[1];
-        let (cx, cy) = (self.width.checked_sub(1)?, self.height.checked_sub(1)?);
-        if !(gx >= 0.0 && gy >= 0.0 && gx <= cx as f64 && gy <= cy as f64) || cx == 0 || cy == 0 {
-            return None;
-        }
-        let i = (gx.floor() as usize).min(cx - 1);
-        let j = (gy.floor() as usize).min(cy - 1);
-        let (u, v) = (gx - i as f64, gy - j as f64);
-        // Row index from the north: j counts from the south.
-        let z = |col: usize, jj: usize| {
-            let row = self.height - 1 - jj;
+        bilinear_height([self.width, self.height], self.cell_size, x, y, |col, row| {
             let e = self.elevations[row * self.width + col];
             (!self.is_nodata(col, row) && e.is_finite()).then_some(e as f64)
-        };
-        let (z00, z10, z01, z11) = (z(i, j)?, z(i + 1, j)?, z(i, j + 1)?, z(i + 1, j + 1)?);
-        Some((1.0 - u) * (1.0 - v) * z00 + u * (1.0 - v) * z10 + (1.0 - u) * v * z01 + u * v * z11)
+        })
+    }
+
+    /// Where the samples lie, without them.
+    pub fn georef(&self) -> GridGeoref {
+        GridGeoref {
+            width: self.width,
+            height: self.height,
+            cell_size: self.cell_size,
+            cell_size_native: self.cell_size_native,
+            origin: self.origin,
+            crs: self.crs.clone(),
+        }
     }
 
     /// (min, max) elevation over valid samples.
@@ -90,6 +89,47 @@ impl Heightfield {
         }
         (lo <= hi).then_some((lo, hi))
     }
+}
+
+/// Where a heightfield's samples lie — their number and georeferencing, as in
+/// [`Heightfield`] — for a raster whose samples are read as needed, not held.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridGeoref {
+    pub width: usize,
+    pub height: usize,
+    /// Metres between samples (east, north).
+    pub cell_size: [f64; 2],
+    /// CRS units between samples (east, north).
+    pub cell_size_native: [f64; 2],
+    /// Map coordinates of the centre of the north-west sample.
+    pub origin: [f64; 2],
+    pub crs: Crs,
+}
+
+/// The elevation at (x, y) metres east and north of the south-west sample's centre of a
+/// `size` grid with cells `cell_size`, bilinear between the four samples around it, read by
+/// `sample(col, row)` (row 0 the northern one; None for NoData). None outside the samples
+/// or where one of the four is NoData.
+pub fn bilinear_height(
+    [width, height]: [usize; 2],
+    cell_size: [f64; 2],
+    x: f64,
+    y: f64,
+    mut sample: impl FnMut(usize, usize) -> Option<f64>,
+) -> Option<f64> {
+    let gx = x / cell_size[0];
+    let gy = y / cell_size[1];
+    let (cx, cy) = (width.checked_sub(1)?, height.checked_sub(1)?);
+    if !(gx >= 0.0 && gy >= 0.0 && gx <= cx as f64 && gy <= cy as f64) || cx == 0 || cy == 0 {
+        return None;
+    }
+    let i = (gx.floor() as usize).min(cx - 1);
+    let j = (gy.floor() as usize).min(cy - 1);
+    let (u, v) = (gx - i as f64, gy - j as f64);
+    // Row index from the north: j counts from the south.
+    let mut z = |col: usize, jj: usize| sample(col, height - 1 - jj);
+    let (z00, z10, z01, z11) = (z(i, j)?, z(i + 1, j)?, z(i, j + 1)?, z(i + 1, j + 1)?);
+    Some((1.0 - u) * (1.0 - v) * z00 + u * (1.0 - v) * z10 + (1.0 - u) * v * z01 + u * v * z11)
 }
 
 /// Metres per degree of longitude and latitude at latitude `lat_deg` on the WGS 84

@@ -20,13 +20,13 @@ pub mod volume_shading;
 
 pub use frame::{Frame, FrameStats, NodeTime};
 
-use crate::scene::{Camera, NodeData, Scene};
+use crate::scene::{Camera, NodeData, Scene, TerrainData};
 use anyhow::{anyhow, Context, Result};
 use registry::NodeSettings;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
-use volterra_formats::{Heightfield, Limits, Volume};
+use volterra_formats::{Limits, Volume};
 
 /// What renderers may keep between frames of one scene: the shear-warp preparation of each
 /// volume (quantised copy, permuted axes, min-max maps), which depends only on the volume,
@@ -61,9 +61,9 @@ type PreparedSecond = (Arc<Volume>, Arc<Volume>, Arc<shear_warp::Prepared>);
 /// A volume and its shear-warp preparation (the volume is held so its address stays taken).
 type PreparedVolume = (Arc<Volume>, Arc<shear_warp::Prepared>);
 type TerrainKey = (usize, usize);
-/// A heightfield, the placement's bits and the terrain preparation for it (the
-/// heightfield is held, so its address stays taken).
-type PreparedTerrain = (Arc<Heightfield>, [u64; 16], Arc<terrain::Prepared>);
+/// Heights, the placement's bits and the terrain preparation for them (the heights are
+/// held, so their address stays taken).
+type PreparedTerrain = (TerrainData, [u64; 16], Arc<terrain::Prepared>);
 
 impl RenderCache {
     /// Keeps only what was prepared for data `scene` holds now, dropping the rest (the
@@ -78,6 +78,7 @@ impl RenderCache {
                 NodeData::Heightfield(h) => Arc::as_ptr(&h) as usize,
                 NodeData::Particles(p) => Arc::as_ptr(&p) as usize,
             })
+            .chain(scene.opened_height_rows())
             .collect();
         self.prepared.lock().unwrap().retain(|k, _| held.contains(k));
         self.fused.lock().unwrap().retain(|k, _| held.contains(&k.0) && held.contains(&k.1));
@@ -139,13 +140,13 @@ impl RenderCache {
 
     fn terrain(
         &self,
-        hf: &Arc<Heightfield>,
+        heights: &TerrainData,
         texture: Option<Arc<crate::scene::drape::Drape>>,
         node_to_world: glam::DMat4,
         limits: &Limits,
     ) -> Result<Arc<terrain::Prepared>> {
         let tex = texture.as_ref().map_or(0, |t| Arc::as_ptr(t) as usize);
-        let key = (Arc::as_ptr(hf) as usize, tex);
+        let key = (heights.address(), tex);
         let placement = node_to_world.to_cols_array().map(f64::to_bits);
         let mut map = self.terrain.lock().unwrap();
         if let Some((_, at, p)) = map.get(&key) {
@@ -154,8 +155,8 @@ impl RenderCache {
             }
         }
         // The prepared terrain holds the texture, so its address stays taken too.
-        let p = Arc::new(terrain::Prepared::new(hf.clone(), texture, node_to_world, limits)?);
-        map.insert(key, (hf.clone(), placement, p.clone()));
+        let p = Arc::new(terrain::Prepared::new(heights, texture, node_to_world, limits)?);
+        map.insert(key, (heights.clone(), placement, p.clone()));
         Ok(p)
     }
 }
@@ -188,14 +189,19 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     // Reading the data (once per scene: the scene keeps it), preparing what the renderer
     // keeps across frames, and the render itself, timed apart.
     let t = Instant::now();
-    let data = scene.data(node)?;
+    // A terrain's heights as its renderer takes them (the GPU's: a GeoTIFF read row by row
+    // into its textures, not held here as well); every other node's data held.
+    let data = match settings {
+        NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_) => Loaded::Terrain(scene.terrain_data(node)?),
+        _ => Loaded::Data(scene.data(node)?),
+    };
     let texture = scene.texture(node)?;
     let load = t.elapsed().as_secs_f64();
     let mut prepare = 0.0;
     let node_to_world = scene.world_transform(node);
     let t = Instant::now();
     let mut frame = match (settings, data) {
-        (NodeSettings::Reference(s), NodeData::Volume(vol)) => {
+        (NodeSettings::Reference(s), Loaded::Data(NodeData::Volume(vol))) => {
             let (tf, shading, crop) = (scene.classification(node)?, scene.shading(node), scene.crop_region(node));
             let input = reference_volume::VolumeInput {
                 volume: &vol,
@@ -208,7 +214,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             };
             reference_volume::render(&input, &rays, s)?
         }
-        (NodeSettings::ShearWarp(s), NodeData::Volume(vol)) => {
+        (NodeSettings::ShearWarp(s), Loaded::Data(NodeData::Volume(vol))) => {
             let prepared = timed(&mut prepare, || cache.shear_warp(&vol, scene.limits()))?;
             let (tf, shading, crop) = (scene.classification(node)?, scene.shading(node), scene.crop_region(node));
             let input = shear_warp::Input {
@@ -223,9 +229,9 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             };
             shear_warp::render(&input, &rays, s)?
         }
-        (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), NodeData::Heightfield(hf)) => {
+        (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), Loaded::Terrain(heights)) => {
             let prepared = timed(&mut prepare, || {
-                let p = cache.terrain(&hf, texture.clone(), node_to_world, scene.limits())?;
+                let p = cache.terrain(&heights, texture.clone(), node_to_world, scene.limits())?;
                 if matches!(settings, NodeSettings::Terrain(_)) {
                     p.prepare_gpu()?;
                 }
@@ -243,7 +249,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             }
             frame
         }
-        (NodeSettings::Smoke(s), NodeData::Particles(particles)) => {
+        (NodeSettings::Smoke(s), Loaded::Data(NodeData::Particles(particles))) => {
             let input = smoke::SmokeInput {
                 particles: &particles,
                 node_to_world,
@@ -254,7 +260,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             let prepared = timed(&mut prepare, || cache.smoke(&particles, &input, s)).with_context(|| format!("node '{}'", desc.name))?;
             prepared.render(&rays, s).with_context(|| format!("node '{}'", desc.name))?
         }
-        (NodeSettings::Points(s), NodeData::Particles(particles)) => {
+        (NodeSettings::Points(s), Loaded::Data(NodeData::Particles(particles))) => {
             let input =
                 points::PointsInput { particles: &particles, node_to_world, color_by: desc.color_by.as_deref(), range: desc.color_range };
             points::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
@@ -264,6 +270,12 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
     let render = t.elapsed().as_secs_f64() - prepare;
     frame.stats.nodes.push(NodeTime { node: desc.name.clone(), renderer: frame.stats.renderer.clone(), load, prepare, render });
     Ok(Some(frame))
+}
+
+/// A node's data as its renderer takes it.
+enum Loaded {
+    Data(NodeData),
+    Terrain(TerrainData),
 }
 
 /// `f()`, its seconds added to `total`.

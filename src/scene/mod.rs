@@ -28,6 +28,8 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 use volterra_formats::png_height::PngHeightOptions;
 use volterra_formats::series::{self, TimeSeries};
+use volterra_formats::geotiff_rows::GeoTiffRows;
+use volterra_formats::heightfield::GridGeoref;
 use volterra_formats::{Dataset, Heightfield, Limits, LoadOptions, ParticleArrayNames, ParticleSet, Volume};
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -313,6 +315,41 @@ pub struct SceneFile {
     pub slices: Option<SliceViews>,
 }
 
+/// The heights of a heightfield node as a renderer takes them: the heightfield held, or
+/// its GeoTIFF read row by row, by windows of tiles or strips, into the renderer's store.
+#[derive(Clone)]
+pub enum TerrainData {
+    Held(Arc<Heightfield>),
+    Rows(Arc<GeoTiffRows>),
+}
+
+impl TerrainData {
+    /// Where the samples lie.
+    pub fn georef(&self) -> GridGeoref {
+        match self {
+            TerrainData::Held(hf) => hf.georef(),
+            TerrainData::Rows(rows) => rows.georef().clone(),
+        }
+    }
+
+    /// What identifies these heights while they are held (for caches of work on them).
+    pub fn address(&self) -> usize {
+        match self {
+            TerrainData::Held(hf) => Arc::as_ptr(hf) as usize,
+            TerrainData::Rows(rows) => Arc::as_ptr(rows) as usize,
+        }
+    }
+
+    /// The bilinear surface height at (x, y) metres east and north of the south-west
+    /// sample (see `Heightfield::surface_height`).
+    pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
+        match self {
+            TerrainData::Held(hf) => hf.surface_height(x, y),
+            TerrainData::Rows(rows) => rows.surface_height(x, y),
+        }
+    }
+}
+
 /// A node's data, loaded on first use.
 #[derive(Debug, Clone)]
 pub enum NodeData {
@@ -356,6 +393,8 @@ pub struct Scene {
     renderers: Vec<Option<(&'static RendererDecl, NodeSettings)>>,
     data: Vec<OnceLock<Result<NodeData, SharedError>>>,
     textures: Vec<OnceLock<Result<Arc<drape::Drape>, SharedError>>>,
+    /// A heightfield node's GeoTIFF opened to be read row by row (see `terrain_data`).
+    height_rows: Vec<OnceLock<Result<Arc<GeoTiffRows>, SharedError>>>,
     /// A volume node's value statistics, for its preset (computed on first use).
     stats: Vec<OnceLock<Arc<presets::ValueStats>>>,
     /// Each node's time series, where its `file` names one (found at load, no data read).
@@ -685,6 +724,7 @@ impl Scene {
             renderers,
             data: (0..n).map(|_| OnceLock::new()).collect(),
             textures: (0..n).map(|_| OnceLock::new()).collect(),
+            height_rows: (0..n).map(|_| OnceLock::new()).collect(),
             stats: (0..n).map(|_| OnceLock::new()).collect(),
             series: found,
             time: None,
@@ -736,6 +776,7 @@ impl Scene {
             renderers: self.renderers.clone(),
             data: (0..n).map(|_| OnceLock::new()).collect(),
             textures: (0..n).map(|_| OnceLock::new()).collect(),
+            height_rows: (0..n).map(|_| OnceLock::new()).collect(),
             stats: (0..n).map(|_| OnceLock::new()).collect(),
             series: self.series.clone(),
             time: Some(t),
@@ -753,6 +794,9 @@ impl Scene {
     fn carry_over(&self, from: usize, next: &Scene, to: usize, same_data: bool, same_texture: bool) {
         if let (true, Some(d)) = (same_data, self.data[from].get()) {
             let _ = next.data[to].set(d.clone());
+        }
+        if let (true, Some(r)) = (same_data, self.height_rows[from].get()) {
+            let _ = next.height_rows[to].set(r.clone());
         }
         if let (true, Some(s)) = (same_data, self.stats[from].get()) {
             let _ = next.stats[to].set(s.clone());
@@ -819,10 +863,12 @@ impl Scene {
         }
         if let Some(w) = &self.file.walk {
             let node = self.file.nodes.iter().position(|n| n.name == w.node).expect("checked at load");
-            let hf = self.heightfield(node)?;
+            // The heights as the GPU ray-caster reads them: a GeoTIFF is not read whole for
+            // the ground under one eye.
+            let heights = self.terrain_data(node)?;
             let m = self.world_transform(node);
             let local = m.inverse().transform_point3(DVec3::new(cam.position[0], cam.position[1], 0.0));
-            let ground = hf.surface_height(local.x, local.y).ok_or_else(|| {
+            let ground = heights.surface_height(local.x, local.y).ok_or_else(|| {
                 anyhow!(
                     "{}: walk: the eye at ({:.1}, {:.1}) is not over the terrain of node '{}' (outside it, or over NoData)",
                     self.source.display(),
@@ -855,7 +901,8 @@ impl Scene {
         cell.get_or_init(|| self.read_node(node).map_err(SharedError::new)).clone().map_err(anyhow::Error::new)
     }
 
-    fn read_node(&self, node: usize) -> Result<NodeData> {
+    /// The file node `node` reads (its series' step now, where it has one) and how.
+    fn load_plan(&self, node: usize) -> Result<(PathBuf, LoadOptions)> {
         let n = &self.file.nodes[node];
         let mut path = self.base_dir.join(n.file.as_ref().ok_or_else(|| anyhow!("node '{}' has no file", n.name))?);
         let mut opts = LoadOptions { limits: self.limits, ..LoadOptions::default() };
@@ -879,12 +926,45 @@ impl Scene {
         if let Some(a) = &n.arrays {
             opts.particles = a.clone();
         }
+        Ok((path, opts))
+    }
+
+    fn read_node(&self, node: usize) -> Result<NodeData> {
+        let n = &self.file.nodes[node];
+        let (path, opts) = self.load_plan(node)?;
         let d = volterra_formats::load(&path, &opts)?;
         let data = NodeData::from(d);
         if data.kind() != n.kind {
             bail!("{}: node '{}' is a {:?} node but the file holds other data", path.display(), n.name, n.kind);
         }
         Ok(data)
+    }
+
+    /// The heights of heightfield node `node` as its renderer takes them. The GPU
+    /// ray-caster copies them into textures of its own: for it a GeoTIFF is opened to be
+    /// read row by row (at the finest level whose window fits the memory limit at the
+    /// textures' bytes a sample), so the heights are held once, there, not twice. Held
+    /// otherwise: for other renderers, other files, and where the heightfield is held
+    /// already (read for another use).
+    pub fn terrain_data(&self, node: usize) -> Result<TerrainData> {
+        if let Some(Ok(NodeData::Heightfield(hf))) = self.data[node].get() {
+            return Ok(TerrainData::Held(hf.clone()));
+        }
+        let n = &self.file.nodes[node];
+        if n.kind != NodeKind::Heightfield {
+            bail!("node '{}' is not a heightfield", n.name);
+        }
+        let (path, opts) = self.load_plan(node)?;
+        let gpu = matches!(self.node_settings(node), Some(NodeSettings::Terrain(_)));
+        if !gpu || volterra_formats::detect(&path)? != volterra_formats::FileKind::GeoTiff {
+            return self.heightfield(node).map(TerrainData::Held);
+        }
+        let held_per_sample = crate::render::terrain::GPU_BYTES_PER_SAMPLE;
+        let rows = self.height_rows[node]
+            .get_or_init(|| GeoTiffRows::open(&path, &opts.geotiff, &self.limits, held_per_sample).map(Arc::new).map_err(|e| SharedError::new(e.into())))
+            .clone()
+            .map_err(anyhow::Error::new)?;
+        Ok(TerrainData::Rows(rows))
     }
 
     pub fn volume(&self, node: usize) -> Result<Arc<Volume>> {
@@ -1026,6 +1106,12 @@ impl Scene {
     /// The data read so far, node by node (for caches that keep work per data set).
     pub fn loaded_data(&self) -> impl Iterator<Item = NodeData> + '_ {
         self.data.iter().filter_map(|c| c.get().and_then(|r| r.as_ref().ok()).cloned())
+    }
+
+    /// The addresses of the GeoTIFFs opened to be read row by row (`terrain_data`), for the
+    /// same caches.
+    pub fn opened_height_rows(&self) -> impl Iterator<Item = usize> + '_ {
+        self.height_rows.iter().filter_map(|c| c.get().and_then(|r| r.as_ref().ok()).map(|r| Arc::as_ptr(r) as usize))
     }
 
     /// True if the node's data has been read (for tests of lazy loading).

@@ -632,6 +632,10 @@ impl GpuTerrain {
                 device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("uploading the heights: {e}"))?;
             }
         }
+        // A source read from a file says here whether every row was read.
+        if let Some(why) = grid.read_failure() {
+            bail!("{why}");
+        }
         let storage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING;
         let (pyramid_size, pyramid_mips) = tiling.pyramid_texture();
         let (pairs_east, packed_size) = tiling.pyramid_packing();

@@ -32,6 +32,27 @@ pub trait HeightRows: Send + Sync {
     /// Elevations (metres) of `out.len()` samples of row `row` (row 0 the northernmost, as
     /// in the file) from column `col`; NaN for NoData.
     fn read_row(&self, row: usize, col: usize, out: &mut [f32]);
+    /// Why rows could not be read (one line naming the source), once they have been: a
+    /// reader of a file reads a chunk that fails to decode as NoData and says so here.
+    fn failure(&self) -> Option<String> {
+        None
+    }
+}
+
+/// A GeoTIFF read by windows of tiles or strips, not held (see `GeoTiffRows`).
+impl HeightRows for volterra_formats::geotiff_rows::GeoTiffRows {
+    fn size(&self) -> [usize; 2] {
+        [self.georef().width, self.georef().height]
+    }
+    fn cell_size(&self) -> [f64; 2] {
+        self.georef().cell_size
+    }
+    fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+        volterra_formats::geotiff_rows::GeoTiffRows::read_row(self, row, col, out)
+    }
+    fn failure(&self) -> Option<String> {
+        volterra_formats::geotiff_rows::GeoTiffRows::failure(self)
+    }
 }
 
 /// Where a grid's heights are: a heightfield in memory, shared and not copied (a large
@@ -108,6 +129,9 @@ impl TerrainGrid {
                 range = Some(range.map_or((z, z), |(lo, hi)| (lo.min(z), hi.max(z))));
             }
         }
+        if let Some(why) = rows.failure() {
+            bail!("{why}");
+        }
         let cell = rows.cell_size();
         TerrainGrid::with_samples([nx, ny], cell, range, Samples::Rows(rows), node_to_world)
     }
@@ -162,6 +186,15 @@ impl TerrainGrid {
                     *z = if z.is_finite() { (*z as f64 - self.z_ref) as f32 } else { f32::NAN };
                 }
             }
+        }
+    }
+
+    /// Why the heights could not all be read, once they have been (see
+    /// `HeightRows::failure`); None for a heightfield held.
+    pub fn read_failure(&self) -> Option<String> {
+        match &self.samples {
+            Samples::Held(_) => None,
+            Samples::Rows(rows) => rows.failure(),
         }
     }
 

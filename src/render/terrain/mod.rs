@@ -20,8 +20,10 @@ use crate::scene::camera::RayGenerator;
 use crate::scene::drape::Drape;
 use crate::scene::Light;
 use crate::scene::NodeKind;
+use crate::scene::TerrainData;
 use anyhow::{bail, Result};
 use glam::DMat4;
+use volterra_formats::heightfield::GridGeoref;
 use volterra_formats::{Heightfield, Limits};
 
 crate::setting_choice! {
@@ -151,6 +153,10 @@ impl Settings {
     }
 }
 
+/// Bytes the GPU ray-caster holds per sample: the heights (4, up to 5 % more in tiles) and
+/// the pyramid of half floats (a sixth of that).
+pub const GPU_BYTES_PER_SAMPLE: u64 = 5;
+
 /// What the terrain renderers draw: one heightfield node.
 pub struct TerrainInput<'a> {
     pub heightfield: &'a Heightfield,
@@ -174,7 +180,7 @@ pub struct Prepared {
 /// s = s0 + s1·gx, t = t0 + t1·gy of grid point (gx, gy) (sample column gx, gy rows north
 /// of the southern row). A stretched drape spans the samples' extent; a georeferenced one
 /// lies where its georeferencing says, and must be in the heightfield's CRS and overlap it.
-pub fn drape_placement(hf: &Heightfield, drape: &Drape) -> Result<[f64; 4]> {
+pub fn drape_placement(hf: &GridGeoref, drape: &Drape) -> Result<[f64; 4]> {
     let (cx, cy) = ((hf.width - 1) as f64, (hf.height - 1) as f64);
     let Some(g) = &drape.georef else { return Ok([0.0, 1.0 / cx, 1.0, -1.0 / cy]) };
     if g.crs.epsg.is_none() || g.crs.epsg != hf.crs.epsg || g.crs.geographic != hf.crs.geographic {
@@ -204,23 +210,23 @@ pub fn drape_placement(hf: &Heightfield, drape: &Drape) -> Result<[f64; 4]> {
 }
 
 impl Prepared {
-    /// `heightfield` is shared, not copied.
-    pub fn new(
-        heightfield: std::sync::Arc<Heightfield>,
-        texture: Option<std::sync::Arc<Drape>>,
-        node_to_world: DMat4,
-        limits: &Limits,
-    ) -> Result<Prepared> {
+    /// `heights` are shared, not copied (a GeoTIFF read row by row is held only in the
+    /// GPU's textures, once they are built).
+    pub fn new(heights: &TerrainData, texture: Option<std::sync::Arc<Drape>>, node_to_world: DMat4, limits: &Limits) -> Result<Prepared> {
         // The GPU's textures, against the memory limit (on lavapipe they live in host memory,
         // allocated by Mesa outside this count; the grid shares the heights): 4 bytes a
         // sample of heights (up to 5 % more in tiles) and a pyramid of a sixth of that.
-        let samples = (heightfield.width * heightfield.height) as u64;
-        limits.check(std::path::Path::new("terrain"), "the height pyramid", &[samples, 5])?;
+        let georef = heights.georef();
+        let samples = (georef.width * georef.height) as u64;
+        limits.check(std::path::Path::new("terrain"), "the height pyramid", &[samples, GPU_BYTES_PER_SAMPLE])?;
         let placement = match &texture {
-            Some(t) => drape_placement(&heightfield, t)?,
+            Some(t) => drape_placement(&georef, t)?,
             None => [0.0; 4],
         };
-        let grid = grid::TerrainGrid::shared(heightfield, node_to_world)?;
+        let grid = match heights {
+            TerrainData::Held(hf) => grid::TerrainGrid::shared(hf.clone(), node_to_world)?,
+            TerrainData::Rows(rows) => grid::TerrainGrid::from_rows(rows.clone(), node_to_world)?,
+        };
         Ok(Prepared { grid, texture, placement, gpu: std::sync::OnceLock::new() })
     }
 
@@ -292,8 +298,8 @@ impl TerrainInput<'_> {
     /// A one-off preparation, within the memory available on this machine (a scene hands
     /// its own limits to [`Prepared::new`]).
     fn prepare(&self) -> Result<Prepared> {
-        let hf = std::sync::Arc::new(self.heightfield.clone());
-        Prepared::new(hf, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world, &Limits::default())
+        let hf = TerrainData::Held(std::sync::Arc::new(self.heightfield.clone()));
+        Prepared::new(&hf, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world, &Limits::default())
     }
 }
 

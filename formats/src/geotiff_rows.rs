@@ -1,0 +1,216 @@
+//! A GeoTIFF elevation raster read a row at a time, not held: for a renderer that copies
+//! the heights into its own store (the GPU terrain ray-caster's textures), so that a DEM
+//! is held once, there, rather than twice.
+//!
+//! Rows are decoded a row of chunks (tiles or strips) at a time, and of that row only the
+//! chunks that hold the columns asked for: reading the raster row by row, in either
+//! direction, and in column bands, decodes each chunk about once. The decoded chunks of
+//! one chunk row are kept (for a tiled raster, a tile's height times the columns asked
+//! for; for a stripped one, a strip).
+//!
+//! Samples are converted as `read_geotiff` converts them (vertical unit, the file's NoData
+//! value and values out of f32's range to NaN); a chunk that fails to decode reads as
+//! NaN, and the first failure is kept for the caller to report once the rows are read
+//! (`failure`): the readers that copy rows are hot loops that return no errors.
+
+use crate::error::{FormatError, Result};
+use crate::geotiff::{cell_size_metres, open_elevation, sample_f64, sample_metres, tiff_err, GeoTiffOptions, Opened};
+use crate::heightfield::{bilinear_height, GridGeoref};
+use crate::memory::Limits;
+use std::collections::HashMap;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use tiff::decoder::{Decoder, DecodingResult};
+use tiff::tags::Tag;
+
+pub struct GeoTiffRows {
+    path: PathBuf,
+    georef: GridGeoref,
+    /// The file's NoData value, where it declares one.
+    pub nodata_value: Option<f64>,
+    pub notes: Vec<String>,
+    /// What `info` shows of the file (as `Heightfield::attributes`).
+    pub attributes: Vec<(String, String)>,
+    /// The window's first column and row in the level read.
+    offset: [u32; 2],
+    /// The level's width (chunks are numbered across it) and a chunk's size.
+    level_width: u32,
+    chunk: [u32; 2],
+    nodata: Option<f64>,
+    vertical: f64,
+    held: Mutex<ChunkRow>,
+}
+
+/// The decoder and the decoded chunks of one row of chunks.
+struct ChunkRow {
+    d: Decoder<BufReader<std::fs::File>>,
+    /// The chunk row held, and its chunks by column of chunks: elevations in metres, row by
+    /// row, and the chunk's width in samples.
+    row: Option<u32>,
+    chunks: HashMap<u32, (Vec<f32>, usize)>,
+    /// The first decoding failure's one-line message (naming the file).
+    failure: Option<String>,
+}
+
+impl GeoTiffRows {
+    /// Opens the raster (of `opts.extent` only, where given) at the finest level — the full
+    /// raster or an overview — whose window fits the memory limit at `held_per_sample`
+    /// bytes a sample: what the caller keeps of each sample it reads.
+    pub fn open(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held_per_sample: u64) -> Result<GeoTiffRows> {
+        let mut o = open_elevation(path, opts, limits, Some(held_per_sample))?;
+        let (cw, ch) = crate::guard::third_party(path, "the TIFF decoder", || Ok(o.d.chunk_dimensions()))?;
+        if cw == 0 || ch == 0 {
+            return Err(FormatError::invalid(path, "TIFF tiles or strips of size 0"));
+        }
+        // At most one row of chunks across the level is held, decoded and in metres.
+        let across = o.level[0].div_ceil(cw) as u64 * cw as u64;
+        limits.check(path, "a row of the raster's tiles or strips", &[across, ch as u64, o.sample_bytes + 4])?;
+        let data_type = declared_type(path, &mut o.d, o.sample_bytes)?;
+        let attributes = o.attributes(data_type);
+        let (w, h) = o.size();
+        let Opened { d, level, win, origin, scale, crs, nodata_value, vertical, mut notes, .. } = o;
+        let cell_size = cell_size_metres(path, &crs, origin[1], h, scale, &mut notes)?;
+        Ok(GeoTiffRows {
+            path: path.to_path_buf(),
+            georef: GridGeoref { width: w as usize, height: h as usize, cell_size, cell_size_native: scale, origin, crs },
+            nodata_value,
+            notes,
+            attributes,
+            offset: [win[0], win[1]],
+            level_width: level[0],
+            chunk: [cw, ch],
+            nodata: nodata_value,
+            vertical,
+            held: Mutex::new(ChunkRow { d, row: None, chunks: HashMap::new(), failure: None }),
+        })
+    }
+
+    /// Where the samples lie (the window read, at the level read).
+    pub fn georef(&self) -> &GridGeoref {
+        &self.georef
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Elevations (metres; NaN for NoData) of `out.len()` samples of row `row` (0 the
+    /// northernmost) from column `col`, of the window read. Samples outside the raster,
+    /// and those of a chunk that fails to decode, read as NaN (see `failure`).
+    pub fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+        out.fill(f32::NAN);
+        if row >= self.georef.height || col >= self.georef.width {
+            return;
+        }
+        let n = out.len().min(self.georef.width - col);
+        let [cw, ch] = self.chunk.map(|c| c as usize);
+        let y = self.offset[1] as usize + row;
+        let x0 = self.offset[0] as usize + col;
+        let (chunk_row, y_in) = ((y / ch) as u32, y % ch);
+        let mut held = self.held.lock().unwrap_or_else(|p| p.into_inner());
+        if held.row != Some(chunk_row) {
+            held.chunks.clear();
+            held.row = Some(chunk_row);
+        }
+        let mut x = x0;
+        while x < x0 + n {
+            let tx = (x / cw) as u32;
+            if !held.chunks.contains_key(&tx) {
+                let decoded = self.decode(&mut held.d, chunk_row, tx);
+                match decoded {
+                    Ok(c) => {
+                        held.chunks.insert(tx, c);
+                    }
+                    Err(e) => {
+                        held.failure.get_or_insert(e.to_string());
+                        held.chunks.insert(tx, (Vec::new(), 0));
+                    }
+                }
+            }
+            let (samples, width) = &held.chunks[&tx];
+            let chunk_x0 = tx as usize * cw;
+            let end = (chunk_x0 + cw).min(x0 + n);
+            if *width > 0 {
+                let row_start = y_in * width;
+                for xx in x..end.min(chunk_x0 + width) {
+                    out[xx - x0] = samples.get(row_start + xx - chunk_x0).copied().unwrap_or(f32::NAN);
+                }
+            }
+            x = end;
+        }
+    }
+
+    /// Why a chunk failed to decode (one line naming the file), if one did.
+    pub fn failure(&self) -> Option<String> {
+        self.held.lock().unwrap_or_else(|p| p.into_inner()).failure.clone()
+    }
+
+    /// As `Heightfield::surface_height`: the bilinear elevation at (x, y) metres east and
+    /// north of the south-west sample's centre (two rows read).
+    pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
+        let g = &self.georef;
+        bilinear_height([g.width, g.height], g.cell_size, x, y, |col, row| {
+            let mut z = [0f32];
+            self.read_row(row, col, &mut z);
+            z[0].is_finite().then_some(z[0] as f64)
+        })
+    }
+
+    /// Chunk (`tx`, `ty`) of the level decoded into metres, row by row (its width second).
+    fn decode(&self, d: &mut Decoder<BufReader<std::fs::File>>, ty: u32, tx: u32) -> Result<(Vec<f32>, usize)> {
+        let path = &self.path;
+        let [cw, _] = self.chunk;
+        let index = ty
+            .checked_mul(self.level_width.div_ceil(cw))
+            .and_then(|i| i.checked_add(tx))
+            .ok_or_else(|| FormatError::invalid(path, "too many TIFF chunks"))?;
+        let (raw, (dw, dh)) = crate::guard::third_party(path, "the TIFF decoder", || {
+            let raw = crate::tiff_lzw::read_chunk(path, d, index)?;
+            Ok((raw, d.chunk_data_dimensions(index)))
+        })?;
+        let len = match &raw {
+            DecodingResult::U8(v) => v.len(),
+            DecodingResult::I8(v) => v.len(),
+            DecodingResult::U16(v) => v.len(),
+            DecodingResult::I16(v) => v.len(),
+            DecodingResult::U32(v) => v.len(),
+            DecodingResult::I32(v) => v.len(),
+            DecodingResult::F32(v) => v.len(),
+            DecodingResult::F64(v) => v.len(),
+            _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
+        };
+        let (dw, dh) = (dw as usize, dh as usize);
+        if dw == 0 || dh == 0 {
+            return Err(FormatError::invalid(path, format!("chunk {index} is empty")));
+        }
+        // Tiles at the right and bottom edges may be stored whole or clipped.
+        let stride = if len >= cw as usize * dh { cw as usize } else { dw };
+        if len < stride * (dh - 1) + dw {
+            return Err(FormatError::invalid(path, format!("chunk {index} holds {len} samples, fewer than its {dw}×{dh}")));
+        }
+        let mut out = Vec::with_capacity(dw * dh);
+        for r in 0..dh {
+            for c in 0..dw {
+                out.push(sample_metres(sample_f64(&raw, r * stride + c), self.nodata, self.vertical).unwrap_or(f32::NAN));
+            }
+        }
+        Ok((out, dw))
+    }
+}
+
+/// The sample type the file declares (SampleFormat and BitsPerSample), as GDAL names it.
+fn declared_type(path: &Path, d: &mut Decoder<BufReader<std::fs::File>>, sample_bytes: u64) -> Result<&'static str> {
+    let format = d.find_tag_unsigned::<u16>(Tag::SampleFormat).map_err(|e| tiff_err(path, e))?.unwrap_or(1);
+    Ok(match (format, sample_bytes) {
+        (1, 1) => "uint8",
+        (1, 2) => "uint16",
+        (1, 4) => "uint32",
+        (2, 1) => "int8",
+        (2, 2) => "int16",
+        (2, 4) => "int32",
+        (3, 4) => "float32",
+        (3, 8) => "float64",
+        _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
+    })
+}
