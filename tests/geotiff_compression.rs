@@ -112,3 +112,55 @@ fn compressed_geotiffs_read_as_their_uncompressed_copies() {
     // The workaround is exercised: were the crate mended, this would say so.
     assert!(lzw_failures_mended > 0, "the tiff crate now decodes every LZW file: tiff_lzw may be retired");
 }
+
+/// Drapes likewise: RGB, RGBA and one-band byte GeoTIFFs, tiled with LZW (with and without
+/// PREDICTOR=2), read as their uncompressed copies — every byte, where they lie.
+#[test]
+fn compressed_drapes_read_as_their_uncompressed_copies() {
+    use volterra_formats::geotiff::{read_geotiff_image, GeoPixels};
+    let Some(gdal) = gdal_translate() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    // Elevations of 150..450 m scaled to bytes, the flat corner included.
+    let hf = common::utm_heightfield(1001, 703, |c, r| {
+        let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
+        Some(if c > 800 && r > 500 { 200.0 } else { (300.0 + 150.0 * (x / 4000.0).sin() * (y / 3000.0).cos()) as f32 })
+    });
+    let source = dir.path().join("source.tif");
+    volterra_formats::geotiff::write_geotiff(&source, &hf).unwrap();
+    let bytes = |img: &volterra_formats::geotiff::GeoImage| match &img.pixels {
+        GeoPixels::Rgb8(v) | GeoPixels::Rgba8(v) => v.clone(),
+        GeoPixels::Values(v) => v.iter().map(|x| *x as u8).collect(),
+    };
+    let mut crate_fails = 0;
+    for (bands, photometric) in [
+        (vec!["-b", "1", "-b", "1", "-b", "1"], "RGB"),
+        (vec!["-b", "1", "-b", "1", "-b", "1", "-b", "1"], "RGB"),
+        (vec!["-b", "1"], "MINISBLACK"),
+    ] {
+        let mut common_args: Vec<&str> = ["-ot", "Byte", "-scale", "150", "450", "0", "255", "-co", "INTERLEAVE=PIXEL"]
+            .into_iter()
+            .chain(bands.iter().copied())
+            .collect();
+        if bands.len() / 2 == 4 {
+            common_args.extend(["-co", "ALPHA=YES"]);
+        }
+        let plain = dir.path().join(format!("{}.none.tif", bands.len() / 2));
+        translate(&gdal, &[common_args.clone(), vec!["-co", "COMPRESS=NONE"]].concat(), &source, &plain);
+        let expected = read_geotiff_image(&plain, &Limits::default()).unwrap();
+        for predictor in ["PREDICTOR=1", "PREDICTOR=2"] {
+            let file = dir.path().join(format!("{}.{predictor}.tif", bands.len() / 2));
+            let ph = format!("PHOTOMETRIC={photometric}");
+            let args = [common_args.clone(), vec!["-co", "TILED=YES", "-co", "COMPRESS=LZW", "-co", predictor, "-co", &ph]].concat();
+            translate(&gdal, &args, &source, &file);
+            crate_fails += usize::from(tiff::decoder::Decoder::new(std::fs::File::open(&file).unwrap()).unwrap().read_image().is_err());
+            let got =
+                read_geotiff_image(&file, &Limits::default()).unwrap_or_else(|e| panic!("{} bands, {predictor}: {e}", bands.len() / 2));
+            assert_eq!(
+                (got.width, got.height, got.origin, got.cell_size_native),
+                (expected.width, expected.height, expected.origin, expected.cell_size_native)
+            );
+            assert!(bytes(&got) == bytes(&expected), "{} bands, {predictor}: pixels differ", bands.len() / 2);
+        }
+    }
+    assert!(crate_fails > 0, "the tiff crate now decodes every drape here: tiff_lzw may be retired");
+}

@@ -386,7 +386,7 @@ pub fn read_geotiff_image(path: &Path, limits: &Limits) -> Result<GeoImage> {
     (geo.origin, geo.scale) = level_georeferencing(geo.origin, geo.scale, &images[0], &image);
     let mut d = at_level(path, d, (&images[0], &image), (spp, sample_bytes), bytes)?;
     let (w, h) = (image.width, image.height);
-    let raw = crate::guard::third_party(path, "the TIFF decoder", || d.read_image().map_err(|e| tiff_err(path, e)))?;
+    let raw = crate::guard::third_party(path, "the TIFF decoder", || crate::tiff_lzw::read_image(path, &mut d, (w, h), spp as usize))?;
     let n = w as usize * h as usize;
     let pixels = match (spp, raw) {
         (3 | 4, DecodingResult::U8(v)) => {

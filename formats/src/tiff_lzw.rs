@@ -34,6 +34,61 @@ pub(crate) fn read_chunk<R: Read + Seek>(path: &Path, d: &mut Decoder<R>, index:
     }
 }
 
+/// The decoder's whole `w` × `h` image of `spp` samples a pixel: by the tiff crate's
+/// `read_image`, or, where that fails on an LZW chunk, chunk by chunk (see `read_chunk`).
+pub(crate) fn read_image<R: Read + Seek>(path: &Path, d: &mut Decoder<R>, (w, h): (u32, u32), spp: usize) -> Result<DecodingResult> {
+    match d.read_image() {
+        Ok(raw) => return Ok(raw),
+        Err(e) if is_lzw_end_error(&e) => {}
+        Err(e) => return Err(tiff_err(path, e)),
+    }
+    let (cw, ch) = d.chunk_dimensions();
+    if cw == 0 || ch == 0 {
+        return Err(FormatError::invalid(path, "TIFF tiles or strips of size 0"));
+    }
+    let (across, down) = (w.div_ceil(cw), h.div_ceil(ch));
+    let row = w as usize * spp;
+    // Each chunk's rows copied to their place in the image (tiles at the right and bottom
+    // edges stored whole or clipped, as the crate returns them).
+    macro_rules! assemble {
+        ($($variant:ident),*) => {{
+            let mut image: Option<DecodingResult> = None;
+            for ty in 0..down {
+                for tx in 0..across {
+                    let index = ty * across + tx;
+                    let chunk = read_chunk(path, d, index)?;
+                    let (dw, dh) = d.chunk_data_dimensions(index);
+                    let (dw, dh) = (dw as usize * spp, dh as usize);
+                    match (&mut image, chunk) {
+                        $(
+                            (slot, DecodingResult::$variant(c)) => {
+                                if slot.is_none() {
+                                    *slot = Some(DecodingResult::$variant(vec![Default::default(); row * h as usize]));
+                                }
+                                let Some(DecodingResult::$variant(out)) = slot else {
+                                    return Err(FormatError::invalid(path, "chunks of different sample types"));
+                                };
+                                let stride = if c.len() >= cw as usize * spp * dh { cw as usize * spp } else { dw };
+                                if c.len() < stride * (dh - 1) + dw {
+                                    return Err(FormatError::invalid(path, format!("chunk {index} holds {} samples, fewer than its rows", c.len())));
+                                }
+                                let x0 = tx as usize * cw as usize * spp;
+                                for r in 0..dh {
+                                    let y = ty as usize * ch as usize + r;
+                                    out[y * row + x0..y * row + x0 + dw].copy_from_slice(&c[r * stride..r * stride + dw]);
+                                }
+                            }
+                        )*
+                        _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32/64, uint8/16/32/64, float32/64")),
+                    }
+                }
+            }
+            image.ok_or_else(|| FormatError::invalid(path, "the image has no tiles or strips"))
+        }};
+    }
+    assemble!(U8, I8, U16, I16, U32, I32, U64, I64, F32, F64)
+}
+
 /// Chunk `index`, an LZW chunk, decoded from its raw bytes.
 fn decode_lzw_chunk<R: Read + Seek>(path: &Path, d: &mut Decoder<R>, index: u32) -> Result<DecodingResult> {
     let err = |e: TiffError| tiff_err(path, e);
@@ -43,7 +98,8 @@ fn decode_lzw_chunk<R: Read + Seek>(path: &Path, d: &mut Decoder<R>, index: u32)
     let count = *d.get_tag_u64_vec(counts).map_err(err)?.get(index as usize).ok_or_else(|| missing(path, index))?;
     let spp = d.find_tag_unsigned::<u16>(Tag::SamplesPerPixel).map_err(err)?.unwrap_or(1) as usize;
     let bits = d.find_tag_unsigned_vec::<u16>(Tag::BitsPerSample).map_err(err)?.and_then(|b| b.first().copied()).unwrap_or(1);
-    let format = d.find_tag_unsigned::<u16>(Tag::SampleFormat).map_err(err)?.unwrap_or(1);
+    // One value per band (RGB files list three).
+    let format = d.find_tag_unsigned_vec::<u16>(Tag::SampleFormat).map_err(err)?.and_then(|f| f.first().copied()).unwrap_or(1);
     let predictor = d.find_tag_unsigned::<u16>(Tag::Predictor).map_err(err)?.unwrap_or(1);
     let planar = d.find_tag_unsigned::<u16>(Tag::PlanarConfiguration).map_err(err)?.unwrap_or(1);
     let big_endian = d.byte_order() == tiff::tags::ByteOrder::BigEndian;

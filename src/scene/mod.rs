@@ -26,10 +26,10 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
-use volterra_formats::png_height::PngHeightOptions;
-use volterra_formats::series::{self, TimeSeries};
 use volterra_formats::geotiff_rows::GeoTiffRows;
 use volterra_formats::heightfield::GridGeoref;
+use volterra_formats::png_height::PngHeightOptions;
+use volterra_formats::series::{self, TimeSeries};
 use volterra_formats::{Dataset, Heightfield, Limits, LoadOptions, ParticleArrayNames, ParticleSet, Volume};
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -961,7 +961,9 @@ impl Scene {
         }
         let held_per_sample = crate::render::terrain::GPU_BYTES_PER_SAMPLE;
         let rows = self.height_rows[node]
-            .get_or_init(|| GeoTiffRows::open(&path, &opts.geotiff, &self.limits, held_per_sample).map(Arc::new).map_err(|e| SharedError::new(e.into())))
+            .get_or_init(|| {
+                GeoTiffRows::open(&path, &opts.geotiff, &self.limits, held_per_sample).map(Arc::new).map_err(|e| SharedError::new(e.into()))
+            })
             .clone()
             .map_err(anyhow::Error::new)?;
         Ok(TerrainData::Rows(rows))
