@@ -109,6 +109,23 @@ fn compressed_geotiffs_read_as_their_uncompressed_copies() {
         }
     }
     eprintln!("{files} files read as their uncompressed copies; {lzw_failures_mended} of them the tiff crate fails alone");
+    // One the crate fails, with a tile's bytes overwritten: a one-line error naming the
+    // file, whole or by rows, never a panic.
+    let file = dir.path().join("Int16.LZW.2.9.LITTLE.tif");
+    let broken = dir.path().join("broken.tif");
+    let mut bytes = std::fs::read(&file).unwrap();
+    let (offset, count) = {
+        let mut d = tiff::decoder::Decoder::new(std::fs::File::open(&file).unwrap()).unwrap();
+        (d.get_tag_u64_vec(tiff::tags::Tag::TileOffsets).unwrap()[5], d.get_tag_u64_vec(tiff::tags::Tag::TileByteCounts).unwrap()[5])
+    };
+    bytes[offset as usize..(offset + count) as usize].fill(0xFF);
+    std::fs::write(&broken, &bytes).unwrap();
+    let e = read_geotiff(&broken, &Limits::default()).expect_err("a broken tile").to_string();
+    assert!(e.contains("broken.tif") && !e.contains('\n'), "{e}");
+    let rows = GeoTiffRows::open(&broken, &GeoTiffOptions::default(), &Limits::default(), 5).unwrap();
+    let mut row = vec![0f32; 1001];
+    (0..703).for_each(|r| rows.read_row(r, 0, &mut row));
+    assert!(rows.failure().is_some_and(|e| e.contains("broken.tif")));
     // The workaround is exercised: were the crate mended, this would say so.
     assert!(lzw_failures_mended > 0, "the tiff crate now decodes every LZW file: tiff_lzw may be retired");
 }

@@ -117,17 +117,23 @@ fn decode_lzw_chunk<R: Read + Seek>(path: &Path, d: &mut Decoder<R>, index: u32)
     let mut raw = vec![0u8; usize::try_from(count).map_err(|_| missing(path, index))?];
     let reader = d.inner();
     reader.seek(SeekFrom::Start(offset)).and_then(|_| reader.read_exact(&mut raw)).map_err(|e| FormatError::io(path, e))?;
-    let mut out = Vec::with_capacity(need);
-    let result = weezl::decode::Decoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8).into_vec(&mut out).decode_all(&raw);
-    if let Err(e) = result.status {
-        if out.len() < need {
-            return Err(FormatError::invalid(path, format!("LZW chunk {index}: {e}")));
+    // Decoded into the chunk's bytes and no further: a stream that would decode to more
+    // (LZW expands up to a few hundred times) allocates nothing beyond them.
+    let mut out = vec![0u8; need];
+    let mut decoder = weezl::decode::Decoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8);
+    let (mut read, mut written) = (0, 0);
+    while written < need {
+        let r = decoder.decode_bytes(&raw[read..], &mut out[written..]);
+        (read, written) = (read + r.consumed_in, written + r.consumed_out);
+        match r.status {
+            Ok(weezl::LzwStatus::Ok) if r.consumed_in + r.consumed_out > 0 => {}
+            Ok(_) => break,
+            Err(e) => return Err(FormatError::invalid(path, format!("LZW chunk {index}: {e}"))),
         }
     }
-    if out.len() < need {
-        return Err(FormatError::invalid(path, format!("LZW chunk {index} holds {} of its {need} bytes", out.len())));
+    if written < need {
+        return Err(FormatError::invalid(path, format!("LZW chunk {index} holds {written} of its {need} bytes")));
     }
-    out.truncate(need);
     let mut big_endian_values = big_endian;
     for row in out.chunks_exact_mut(row_bytes) {
         match predictor {
