@@ -242,6 +242,9 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 NodeSettings::TerrainReference(s) => prepared.render_reference(&scene.file.lights, &rays, &s.into())?,
                 _ => unreachable!(),
             };
+            // What the reader noted of the raster (an overview read for the memory limit,
+            // degrees converted to metres) is said with the frame.
+            frame.stats.notes.extend(heights.notes().iter().map(|n| format!("node '{}': {n}", desc.name)));
             // A colour-mapped drape gets its scalar bar in the PNG preview.
             if let (Some((colormap, range)), Some(path)) = (texture.as_ref().and_then(|t| t.scale), &desc.texture) {
                 let title = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();

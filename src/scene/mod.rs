@@ -340,6 +340,15 @@ impl TerrainData {
         }
     }
 
+    /// What the reader noted of the raster (an overview read instead of the full raster,
+    /// degrees converted to metres, …).
+    pub fn notes(&self) -> &[String] {
+        match self {
+            TerrainData::Held(hf) => &hf.notes,
+            TerrainData::Rows(rows) => &rows.notes,
+        }
+    }
+
     /// The bilinear surface height at (x, y) metres east and north of the south-west
     /// sample (see `Heightfield::surface_height`).
     pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
