@@ -227,7 +227,7 @@ pub fn fractal_dem(levels: u32, cell: f64, seed: u64) -> Heightfield {
         step = half;
     }
     let (lo, hi) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-    let mut nodata = vec![false; n * n];
+    let mut nodata = volterra_formats::NodataMask::new(n * n);
     let elevations: Vec<f32> = h
         .iter()
         .enumerate()
@@ -237,7 +237,7 @@ pub fn fractal_dem(levels: u32, cell: f64, seed: u64) -> Heightfield {
             let z = 2500.0 * t.powf(1.8);
             let (x, y) = ((i % n) as f64 / n as f64, (i / n) as f64 / n as f64);
             if (x - 0.12).powi(2) + (y - 0.85).powi(2) < 0.004 {
-                nodata[i] = true;
+                nodata.set(i, true);
                 f32::NAN
             } else {
                 z as f32

@@ -61,7 +61,7 @@ fn band_cells(path: &Path, dir: &Path, band: usize) -> (Vec<f32>, Vec<bool>) {
     run(Command::new("gdal_translate").args(["-q", "-ot", "Float32", "-b", &band.to_string()]).arg(path).arg(&f32_path));
     let hf = volterra_formats::geotiff::read_geotiff(&f32_path, &Default::default()).unwrap();
     let n = hf.elevations.len();
-    let nodata = if hf.nodata.is_empty() { vec![false; n] } else { hf.nodata.clone() };
+    let nodata: Vec<bool> = (0..n).map(|i| hf.nodata.get(i)).collect();
     (hf.elevations, nodata)
 }
 

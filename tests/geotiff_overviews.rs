@@ -67,7 +67,7 @@ fn assert_same_grid(ours: &Heightfield, gdal: &Heightfield, what: &str) {
         );
     }
     assert_eq!(ours.crs.epsg, gdal.crs.epsg, "{what}: CRS");
-    let nodata = |hf: &Heightfield, i: usize| !hf.nodata.is_empty() && hf.nodata[i];
+    let nodata = |hf: &Heightfield, i: usize| hf.nodata.get(i);
     let mut differ = 0;
     for i in 0..gdal.elevations.len() {
         let same = match (nodata(ours, i), nodata(gdal, i)) {

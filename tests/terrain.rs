@@ -30,7 +30,7 @@ fn field(w: usize, h: usize, cell: f64, f: impl Fn(usize, usize) -> f32) -> Heig
         origin: [0.0, 0.0],
         crs: Crs::local(),
         elevations,
-        nodata,
+        nodata: nodata.into_iter().collect(),
         nodata_value: None,
         notes: vec![],
         attributes: Vec::new(),

@@ -40,7 +40,7 @@ fn drape_grid(w: usize, h: usize, pixel: f64, origin: [f64; 2], crs: Crs) -> Hei
         origin,
         crs,
         elevations: vec![0.0; w * h],
-        nodata: vec![],
+        nodata: Default::default(),
         nodata_value: None,
         notes: vec![],
         attributes: vec![],

@@ -123,7 +123,7 @@ fn tifffile_reads_our_geotiff_with_its_georeferencing() {
     let nodata: f64 = r["nodata"].as_str().unwrap().parse().unwrap();
     let values = floats(&r["values"]);
     for (i, &z) in h.elevations.iter().enumerate() {
-        if h.nodata[i] {
+        if h.nodata.get(i) {
             assert_eq!(values[i], nodata);
         } else {
             assert_eq!(values[i], z as f64);

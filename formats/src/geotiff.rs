@@ -5,7 +5,7 @@
 
 use crate::atomic::write_bytes_atomically;
 use crate::error::{FormatError, Result};
-use crate::heightfield::{metres_per_degree, Crs, Heightfield};
+use crate::heightfield::{metres_per_degree, Crs, Heightfield, NodataMask};
 use crate::memory::{human_bytes, Limits};
 use std::io::{BufReader, Cursor};
 use std::path::Path;
@@ -448,7 +448,7 @@ struct Metres {
     nodata_value: Option<f64>,
     vertical: f64,
     n: usize,
-    nodata: Vec<bool>,
+    nodata: NodataMask,
     not_finite: usize,
 }
 
@@ -459,9 +459,9 @@ impl Metres {
             Err(declared) => {
                 self.not_finite += usize::from(!declared);
                 if self.nodata.is_empty() {
-                    self.nodata = vec![false; self.n];
+                    self.nodata = NodataMask::new(self.n);
                 }
-                self.nodata[i] = true;
+                self.nodata.set(i, true);
                 f32::NAN
             }
         }
@@ -740,7 +740,7 @@ pub fn read_geotiff_with(path: &Path, opts: &GeoTiffOptions, limits: &Limits) ->
     let mut o = open_elevation(path, opts, limits, None)?;
     let (w, h) = o.size();
     let n = w as usize * h as usize;
-    let mut conversion = Metres { nodata_value: o.nodata_value, vertical: o.vertical, n, nodata: Vec::new(), not_finite: 0 };
+    let mut conversion = Metres { nodata_value: o.nodata_value, vertical: o.vertical, n, nodata: NodataMask::default(), not_finite: 0 };
     if o.win != [0, 0, o.level[0] - 1, o.level[1] - 1] {
         // A window: only the chunks that hold it.
         let (elevations, data_type) = read_window(path, &mut o.d, o.level[0], o.win, &mut conversion)?;
@@ -859,12 +859,7 @@ pub(crate) fn cell_size_metres(path: &Path, crs: &Crs, oy: f64, h: u32, [sx, sy]
 /// tiepoint (PixelIsArea), EPSG code and NoData value. Written atomically.
 pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
     let nodata = hf.nodata_value.unwrap_or(-32768.0);
-    let data: Vec<f32> = hf
-        .elevations
-        .iter()
-        .enumerate()
-        .map(|(i, &z)| if hf.nodata.get(i).copied().unwrap_or(false) { nodata as f32 } else { z })
-        .collect();
+    let data: Vec<f32> = hf.elevations.iter().enumerate().map(|(i, &z)| if hf.nodata.get(i) { nodata as f32 } else { z }).collect();
     let declare = !hf.nodata.is_empty() || hf.nodata_value.is_some();
     write_band(path, hf, Band::F32(&data), declare.then_some(nodata), true)
 }

@@ -38,8 +38,8 @@ pub struct Heightfield {
     pub crs: Crs,
     /// Elevations in metres; NoData samples hold NaN and are flagged in `nodata`.
     pub elevations: Vec<f32>,
-    /// true where the sample is NoData. Empty when the raster has no NoData samples.
-    pub nodata: Vec<bool>,
+    /// Which samples are NoData. Empty when the raster has no NoData samples.
+    pub nodata: NodataMask,
     /// The file's NoData value, where it declares one.
     pub nodata_value: Option<f64>,
     pub notes: Vec<String>,
@@ -50,10 +50,10 @@ pub struct Heightfield {
 
 impl Heightfield {
     pub fn nodata_count(&self) -> usize {
-        self.nodata.iter().filter(|&&b| b).count()
+        self.nodata.count()
     }
     pub fn is_nodata(&self, col: usize, row: usize) -> bool {
-        !self.nodata.is_empty() && self.nodata[row * self.width + col]
+        self.nodata.get(row * self.width + col)
     }
     /// The elevation (metres) at a point of the heightfield's local frame — x east, y north
     /// in metres from the south-west sample's centre — bilinear between the four samples
@@ -82,12 +82,70 @@ impl Heightfield {
         let mut lo = f32::INFINITY;
         let mut hi = f32::NEG_INFINITY;
         for (i, &z) in self.elevations.iter().enumerate() {
-            if (self.nodata.is_empty() || !self.nodata[i]) && z.is_finite() {
+            if !self.nodata.get(i) && z.is_finite() {
                 lo = lo.min(z);
                 hi = hi.max(z);
             }
         }
         (lo <= hi).then_some((lo, hi))
+    }
+}
+
+/// Which samples of a raster are NoData, a bit each (a byte each was a quarter of the
+/// float32 elevations' memory). Empty — no bits at all — where none is.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct NodataMask {
+    len: usize,
+    words: Vec<u64>,
+}
+
+impl NodataMask {
+    /// `len` samples, none NoData.
+    pub fn new(len: usize) -> NodataMask {
+        NodataMask { len, words: vec![0; len.div_ceil(64)] }
+    }
+    /// Samples it holds a bit for (0: an empty mask, no sample NoData).
+    pub fn len(&self) -> usize {
+        self.len
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+    /// Whether sample `i` is NoData (false beyond the mask: an empty mask flags none).
+    #[inline]
+    pub fn get(&self, i: usize) -> bool {
+        i < self.len && self.words[i / 64] >> (i % 64) & 1 == 1
+    }
+    /// Flags sample `i` (`i` < `len`) NoData or not.
+    pub fn set(&mut self, i: usize, nodata: bool) {
+        let bit = 1u64 << (i % 64);
+        if nodata {
+            self.words[i / 64] |= bit;
+        } else {
+            self.words[i / 64] &= !bit;
+        }
+    }
+    /// NoData samples.
+    pub fn count(&self) -> usize {
+        self.words.iter().map(|w| w.count_ones() as usize).sum()
+    }
+    /// Every sample's flag in order.
+    pub fn iter(&self) -> impl Iterator<Item = bool> + '_ {
+        (0..self.len).map(|i| self.get(i))
+    }
+}
+
+impl FromIterator<bool> for NodataMask {
+    fn from_iter<I: IntoIterator<Item = bool>>(flags: I) -> NodataMask {
+        let mut mask = NodataMask::default();
+        for (i, nodata) in flags.into_iter().enumerate() {
+            if i % 64 == 0 {
+                mask.words.push(0);
+            }
+            mask.len = i + 1;
+            mask.set(i, nodata);
+        }
+        mask
     }
 }
 
@@ -143,4 +201,24 @@ pub fn metres_per_degree(lat_deg: f64) -> (f64, f64) {
     let n = A / w.sqrt();
     let m = A * (1.0 - e2) / w.powf(1.5);
     (n * phi.cos() * std::f64::consts::PI / 180.0, m * std::f64::consts::PI / 180.0)
+}
+
+#[cfg(test)]
+mod mask_tests {
+    use super::NodataMask;
+
+    #[test]
+    fn a_mask_holds_a_bit_per_sample_across_word_borders() {
+        let flags: Vec<bool> = (0..200).map(|i| i % 7 == 0 || i == 63 || i == 64 || i == 199).collect();
+        let mut mask: NodataMask = flags.iter().copied().collect();
+        assert_eq!((mask.len(), mask.count()), (200, flags.iter().filter(|&&b| b).count()));
+        assert_eq!(mask.iter().collect::<Vec<_>>(), flags);
+        assert!(!mask.get(200) && !mask.get(10_000), "beyond the mask: not NoData");
+        mask.set(64, false);
+        mask.set(65, true);
+        assert!(!mask.get(64) && mask.get(65) && mask.get(63));
+        let empty = NodataMask::default();
+        assert!(empty.is_empty() && !empty.get(0) && empty.count() == 0);
+        assert_eq!(NodataMask::new(130).count(), 0);
+    }
 }

@@ -3,7 +3,7 @@
 //! size comes from the scene (or the defaults below) and the origin is (0, 0).
 
 use crate::error::{FormatError, Result};
-use crate::heightfield::{Crs, Heightfield};
+use crate::heightfield::{Crs, Heightfield, NodataMask};
 use crate::image::decode_png;
 use crate::memory::Limits;
 use serde::{Deserialize, Serialize};
@@ -50,7 +50,7 @@ pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions, limits: &Limits)
     }
     let p = decode_png(path, limits)?;
     let n = p.width * p.height;
-    let mut nodata = Vec::new();
+    let mut nodata = NodataMask::default();
     let elevations: Vec<f32> = match opts.encoding {
         HeightEncoding::Grey => {
             if p.palette {
@@ -69,18 +69,12 @@ pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions, limits: &Limits)
             let grey = |i: usize| p.samples[i * p.channels];
             if let Some(nd) = opts.nodata {
                 nodata = (0..n).map(|i| grey(i) == nd).collect();
-                if !nodata.iter().any(|&b| b) {
-                    nodata.clear();
+                if nodata.count() == 0 {
+                    nodata = NodataMask::default();
                 }
             }
             (0..n)
-                .map(|i| {
-                    if !nodata.is_empty() && nodata[i] {
-                        f32::NAN
-                    } else {
-                        (opts.vertical_offset + opts.vertical_scale * grey(i) as f64) as f32
-                    }
-                })
+                .map(|i| if nodata.get(i) { f32::NAN } else { (opts.vertical_offset + opts.vertical_scale * grey(i) as f64) as f32 })
                 .collect()
         }
         enc => {
@@ -155,7 +149,7 @@ mod tests {
         let h = read_png_heightmap(&p, &opts, &Default::default()).unwrap();
         assert_eq!((h.width, h.height), (3, 2));
         assert_eq!(h.cell_size, [25.0, 25.0]);
-        assert_eq!(h.nodata, vec![true, false, false, false, false, true]);
+        assert_eq!(h.nodata.iter().collect::<Vec<_>>(), vec![true, false, false, false, false, true]);
         assert_eq!(h.elevations[1], -9.5);
         assert_eq!(h.elevations[3], 490.0);
         assert_eq!(h.elevations[4], (-10.0 + 0.5 * 65535.0) as f32);

@@ -402,7 +402,7 @@ mod tests {
             origin: [0.0, 0.0],
             crs: Crs::local(),
             elevations: (0..w * h).map(|i| f(i % w, i / w)).collect(),
-            nodata: vec![],
+            nodata: Default::default(),
             nodata_value: None,
             notes: vec![],
             attributes: vec![],

@@ -247,7 +247,7 @@ pub fn parse_palette(text: &str, hf: &Heightfield) -> Result<Vec<PaletteEntry>> 
     if text.lines().any(|l| l.starts_with('#') && l.contains("COLOR_MODEL")) {
         bail!("GMT .cpt palettes are not read (give 'value R G B' lines)");
     }
-    let valid = || (0..hf.elevations.len()).filter(|&i| !hf.nodata.get(i).copied().unwrap_or(false)).map(|i| hf.elevations[i] as f64);
+    let valid = || (0..hf.elevations.len()).filter(|&i| !hf.nodata.get(i)).map(|i| hf.elevations[i] as f64);
     let (lo, hi) = valid().filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     let mut entries = Vec::new();
     for line in text.lines() {
@@ -337,7 +337,7 @@ pub fn color_relief(hf: &Heightfield, palette: &[PaletteEntry], mode: ColorMode,
     let bands = if alpha { 4 } else { 3 };
     let mut out = Vec::with_capacity(hf.elevations.len() * bands);
     for (i, &z) in hf.elevations.iter().enumerate() {
-        let nodata = hf.nodata.get(i).copied().unwrap_or(false);
+        let nodata = hf.nodata.get(i);
         let v = if nodata { hf.nodata_value.unwrap_or(f64::NAN) } else { z as f64 };
         let c = palette_colour(palette, v, mode).unwrap_or([0; 4]);
         out.extend(c[..bands].iter().map(|&x| x.clamp(0, 255) as u8));
@@ -367,7 +367,7 @@ mod tests {
             origin: [500_000.0, 4_000_000.0],
             crs: Crs::local(),
             elevations,
-            nodata: vec![],
+            nodata: Default::default(),
             nodata_value: None,
             notes: vec![],
             attributes: vec![],

@@ -90,7 +90,7 @@ pub fn bench_dem(size: usize) -> Heightfield {
         for col in 0..size {
             let i = row * dem.width + col;
             elevations.push(dem.elevations[i] * 1.6);
-            nodata.push(dem.nodata[i]);
+            nodata.push(dem.nodata.get(i));
         }
     }
     Heightfield {
@@ -101,7 +101,7 @@ pub fn bench_dem(size: usize) -> Heightfield {
         origin: [0.0, 0.0],
         crs: Crs::local(),
         elevations,
-        nodata,
+        nodata: nodata.into_iter().collect(),
         nodata_value: None,
         notes: vec![],
         attributes: Vec::new(),
