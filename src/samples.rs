@@ -4,7 +4,8 @@
 //! - `fractal_dem.tif` (float32 GeoTIFF, UTM 10N), `fractal_dem.png` (16-bit) and
 //!   `fractal_dem_texture.png`: a fractal DEM with a colour texture;
 //! - `smoke_plume.vtp`: a rising smoke plume as SPH particles (and, written by
-//!   `volterra bench smoke` only, `smoke_plume_400k.vtp`: the same with 400k particles).
+//!   `volterra bench smoke` only, `smoke_plume_400k.vtp`: 400k particles, denser at the core
+//!   and thinner at the edge, h spread about 10×).
 
 use anyhow::{Context, Result};
 use std::path::Path;
@@ -316,12 +317,20 @@ pub fn write_smoke_plume(dir: &Path) -> Result<()> {
 /// of smoke must still render quickly (`volterra bench smoke` times it against Mitsuba).
 pub const LARGE_PLUME: usize = 400_000;
 
-/// The large built-in plume, `smoke_plume_400k.vtp` in `dir`: the same plume as
-/// [`write_smoke_plume`]'s with 400,000 particles (h spread 4.7×, from 0.0025 to 0.0118 m).
+/// The large built-in plume, `smoke_plume_400k.vtp` in `dir`: the plume of
+/// [`write_smoke_plume`] with 400,000 particles, thinning from a dense core to its edge as
+/// a simulation's does (a Gaussian across it, cut at 2.13 σ: a tenth of the core's density
+/// at the edge), so h spreads about 10× (tested), as in the simulation outputs issue 18 names (the
+/// uniform cross-section of the small plume spreads 4.7×).
 pub fn write_large_plume(dir: &Path) -> Result<()> {
-    let plume = smoke_plume(LARGE_PLUME, 5);
+    let plume = large_plume();
     volterra_formats::vtk::write_vtp(&dir.join("smoke_plume_400k.vtp"), &plume, &ParticleArrayNames::default())?;
     Ok(())
+}
+
+/// The particles of [`write_large_plume`].
+pub fn large_plume() -> ParticleSet {
+    plume_with(LARGE_PLUME, 5, CrossSection::Gaussian { cut: 2.13 })
 }
 
 /// A built-in time series: the plume as it rises, `steps` timesteps half a second apart,
@@ -365,6 +374,19 @@ pub fn write_plume_series(dir: &Path, steps: usize, count: usize) -> Result<()> 
 /// mass, density and smoothing length h set consistently: h from the local particle
 /// spacing, density from mass / h³ scaled to the emitted density of 1 kg/m³.
 pub fn smoke_plume(count: usize, seed: u64) -> ParticleSet {
+    plume_with(count, seed, CrossSection::Uniform)
+}
+
+/// How particles spread across the plume at each height.
+#[derive(Clone, Copy)]
+enum CrossSection {
+    /// Evenly over the disc.
+    Uniform,
+    /// A Gaussian about the axis cut at `cut` σ, the cut at the disc's edge.
+    Gaussian { cut: f64 },
+}
+
+fn plume_with(count: usize, seed: u64, section: CrossSection) -> ParticleSet {
     let mut rng = SplitMix64(seed);
     let total_mass = 0.01;
     let m = total_mass / count as f64;
@@ -378,12 +400,24 @@ pub fn smoke_plume(count: usize, seed: u64) -> ParticleSet {
         let radius = 0.04 + 0.16 * s * s;
         // A mushroom cap: wider near the top.
         let cap = if s > 0.8 { 1.0 + 2.5 * (s - 0.8) } else { 1.0 };
-        let r = radius * cap * rng.next_f64().sqrt();
+        let disc = radius * cap;
+        let u = rng.next_f64();
+        // The radius, and the disc's area per particle there over its mean (1: uniform).
+        let (r, area_ratio) = match section {
+            CrossSection::Uniform => (disc * u.sqrt(), 1.0),
+            CrossSection::Gaussian { cut } => {
+                let sigma = disc / cut;
+                let kept = 1.0 - (-0.5 * cut * cut).exp();
+                let r = sigma * (-2.0 * (1.0 - u * kept).ln()).sqrt();
+                // Areal density exp(−r²/2σ²) / (2πσ² · kept) against the mean 1 / (π disc²).
+                (r, 2.0 * sigma * sigma * kept / (disc * disc) * (0.5 * (r / sigma).powi(2)).exp())
+            }
+        };
         let swirl = 6.0 * s + rng.range(0.0, std::f64::consts::TAU);
         let x = 0.5 + r * swirl.cos() + 0.03 * (9.0 * z).sin();
         let y = 0.5 + r * swirl.sin();
         positions.push([x, y, z]);
-        let vol_per_particle = std::f64::consts::PI * (radius * cap).powi(2) * 0.85 / (count as f64 * (0.8 * s.max(0.05).powf(-0.2)));
+        let vol_per_particle = area_ratio * std::f64::consts::PI * disc.powi(2) * 0.85 / (count as f64 * (0.8 * s.max(0.05).powf(-0.2)));
         let spacing = vol_per_particle.cbrt();
         h.push((1.3 * spacing) as f32);
         density.push((m / vol_per_particle).min(5.0) as f32);

@@ -826,3 +826,26 @@ fn the_render_cache_keeps_the_smoke_preparation_between_frames() {
     assert_eq!(views(&volterra::render::render_view(&scene, &cam, (40, 40), &cache).unwrap()), 0.0, "one preparation per particle set");
     assert!(other.rgba != first.rgba);
 }
+
+/// The large built-in plume, which `volterra bench smoke` races against Mitsuba, is as
+/// uneven as the simulation outputs issue 18 names: h spreads about tenfold (a dense core,
+/// thin edges), where the small plume's uniform cross-section spreads it 4.7×; the same
+/// particle count per height and the same outer radius.
+#[test]
+fn the_large_built_in_plume_spreads_h_about_tenfold() {
+    let spread = |p: &volterra_formats::ParticleSet| {
+        let h = p.smoothing_length.as_ref().unwrap();
+        let (lo, hi) = h.iter().fold((f32::INFINITY, 0f32), |(a, b), &x| (a.min(x), b.max(x)));
+        hi / lo
+    };
+    let large = volterra::samples::large_plume();
+    assert_eq!(large.len(), volterra::samples::LARGE_PLUME);
+    let s = spread(&large);
+    eprintln!("the large plume's h spreads {s:.2}×");
+    assert!((9.0..=11.0).contains(&s), "h spread {s}");
+    let small = volterra::samples::smoke_plume(20_000, 3);
+    assert!((4.5..=5.0).contains(&spread(&small)), "the small plume's h spread {}", spread(&small));
+    // The particles fill the same box: the outer radius is the disc's either way.
+    let reach = |p: &volterra_formats::ParticleSet| p.positions.iter().map(|q| q[0]).fold(0f64, f64::max);
+    assert!((reach(&large) - reach(&small)).abs() < 0.02, "{} vs {}", reach(&large), reach(&small));
+}
