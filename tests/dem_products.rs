@@ -12,17 +12,8 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// gdaldem, or a skip (a failure under CI).
 fn gdaldem() -> Option<PathBuf> {
-    let p = PathBuf::from("/usr/bin/gdaldem");
-    if p.exists() {
-        return Some(p);
-    }
-    if common::under_ci() {
-        panic!("gdaldem missing under CI (tests/setup-system.sh installs gdal-bin)");
-    }
-    eprintln!("SKIPPED: gdaldem not installed (apt install gdal-bin)");
-    None
+    common::gdal_tool("gdaldem")
 }
 
 fn run(cmd: &mut Command) -> String {

@@ -7,24 +7,12 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use volterra_formats::geotiff::{read_geotiff, read_geotiff_with, GeoTiffOptions};
 use volterra_formats::geotiff_rows::GeoTiffRows;
 use volterra_formats::memory::Limits;
 use volterra_formats::Heightfield;
-
-fn gdal_translate() -> Option<PathBuf> {
-    let p = PathBuf::from("/usr/bin/gdal_translate");
-    if p.exists() {
-        return Some(p);
-    }
-    if common::under_ci() {
-        panic!("gdal_translate missing under CI (tests/setup-system.sh installs gdal-bin)");
-    }
-    eprintln!("SKIPPED: gdal_translate not installed (apt install gdal-bin)");
-    None
-}
 
 fn translate(gdal: &Path, args: &[&str], from: &Path, to: &Path) {
     let out = Command::new(gdal).arg("-q").args(args).arg(from).arg(to).output().unwrap();
@@ -43,7 +31,7 @@ fn differing(a: &Heightfield, b: &Heightfield) -> usize {
 
 #[test]
 fn compressed_geotiffs_read_as_their_uncompressed_copies() {
-    let Some(gdal) = gdal_translate() else { return };
+    let Some(gdal) = common::gdal_tool("gdal_translate") else { return };
     let dir = tempfile::tempdir().unwrap();
     // 1001 × 703 cells of 30 m: hills from 150 to 450 m (beyond a byte's range, clipped by
     // GDAL alike in both copies), a NoData hole, and a flat corner (tiles that compress to
@@ -135,7 +123,7 @@ fn compressed_geotiffs_read_as_their_uncompressed_copies() {
 #[test]
 fn compressed_drapes_read_as_their_uncompressed_copies() {
     use volterra_formats::geotiff::{read_geotiff_image, GeoPixels};
-    let Some(gdal) = gdal_translate() else { return };
+    let Some(gdal) = common::gdal_tool("gdal_translate") else { return };
     let dir = tempfile::tempdir().unwrap();
     // Elevations of 150..450 m scaled to bytes, the flat corner included.
     let hf = common::utm_heightfield(1001, 703, |c, r| {

@@ -14,17 +14,8 @@ use volterra_formats::geotiff::read_geotiff;
 use volterra_formats::memory::{human_bytes, in_use, Limits};
 use volterra_formats::Heightfield;
 
-/// gdal_translate, or a skip (a failure under CI).
 fn gdal() -> Option<PathBuf> {
-    let p = PathBuf::from("/usr/bin/gdal_translate");
-    if p.exists() {
-        return Some(p);
-    }
-    if common::under_ci() {
-        panic!("gdal_translate missing under CI (tests/setup-system.sh installs gdal-bin)");
-    }
-    eprintln!("SKIPPED: gdal_translate not installed (apt install gdal-bin)");
-    None
+    common::gdal_tool("gdal_translate")
 }
 
 /// The limits below are the heap in use plus a margin of a few hundred kB: tests of this

@@ -525,6 +525,52 @@ pub(crate) fn sample_f64(raw: &DecodingResult, k: usize) -> f64 {
     }
 }
 
+/// A decoded tile or strip: its samples, the data's width and rows (edge tiles hold fewer
+/// than a full tile's), and the samples between the starts of its rows.
+pub(crate) struct Chunk {
+    pub(crate) raw: DecodingResult,
+    pub(crate) width: usize,
+    pub(crate) rows: usize,
+    pub(crate) stride: usize,
+}
+
+/// Chunk (`tx`, `ty`) of the decoder's current image, chunks `cw` samples wide and
+/// `across` to a row, decoded (LZW chunks the tiff crate fails through `tiff_lzw`) and
+/// checked to hold its rows.
+pub(crate) fn read_chunk_at<R: std::io::Read + std::io::Seek>(
+    path: &Path,
+    d: &mut Decoder<R>,
+    (tx, ty): (u32, u32),
+    (cw, across): (u32, u32),
+) -> Result<Chunk> {
+    let index = ty.checked_mul(across).and_then(|i| i.checked_add(tx)).ok_or_else(|| FormatError::invalid(path, "too many TIFF chunks"))?;
+    let (raw, (dw, dh)) = crate::guard::third_party(path, "the TIFF decoder", || {
+        let raw = crate::tiff_lzw::read_chunk(path, d, index)?;
+        Ok((raw, d.chunk_data_dimensions(index)))
+    })?;
+    let len = match &raw {
+        DecodingResult::U8(v) => v.len(),
+        DecodingResult::I8(v) => v.len(),
+        DecodingResult::U16(v) => v.len(),
+        DecodingResult::I16(v) => v.len(),
+        DecodingResult::U32(v) => v.len(),
+        DecodingResult::I32(v) => v.len(),
+        DecodingResult::F32(v) => v.len(),
+        DecodingResult::F64(v) => v.len(),
+        _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
+    };
+    let (dw, dh) = (dw as usize, dh as usize);
+    if dw == 0 || dh == 0 {
+        return Err(FormatError::invalid(path, format!("chunk {index} is empty")));
+    }
+    // Tiles at the right and bottom edges may be stored whole or clipped.
+    let stride = if len >= cw as usize * dh { cw as usize } else { dw };
+    if len < stride * (dh - 1) + dw {
+        return Err(FormatError::invalid(path, format!("chunk {index} holds {len} samples, fewer than its {dw}×{dh}")));
+    }
+    Ok(Chunk { raw, width: dw, rows: dh, stride })
+}
+
 /// The samples of `window` ([c0, r0, c1, r1], inclusive) of the decoder's current w × h
 /// image in metres, decoding only the chunks (tiles or strips) that hold them.
 fn read_window(
@@ -549,30 +595,9 @@ fn read_window(
     let mut written = 0usize;
     for ty in r0 / ch..=r1 / ch {
         for tx in c0 / cw..=c1 / cw {
-            let index =
-                ty.checked_mul(across).and_then(|i| i.checked_add(tx)).ok_or_else(|| FormatError::invalid(path, "too many TIFF chunks"))?;
-            let raw = crate::guard::third_party(path, "the TIFF decoder", || crate::tiff_lzw::read_chunk(path, d, index))?;
-            let (dw, dh) = crate::guard::third_party(path, "the TIFF decoder", || Ok(d.chunk_data_dimensions(index)))?;
+            let Chunk { raw, width: dw, rows: dh, stride } = read_chunk_at(path, d, (tx, ty), (cw, across))?;
             data_type = type_name(&raw);
-            if dw == 0 || dh == 0 {
-                return Err(FormatError::invalid(path, format!("chunk {index} is empty")));
-            }
-            let len = match &raw {
-                DecodingResult::U8(v) => v.len(),
-                DecodingResult::I8(v) => v.len(),
-                DecodingResult::U16(v) => v.len(),
-                DecodingResult::I16(v) => v.len(),
-                DecodingResult::U32(v) => v.len(),
-                DecodingResult::I32(v) => v.len(),
-                DecodingResult::F32(v) => v.len(),
-                DecodingResult::F64(v) => v.len(),
-                _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
-            };
-            // Tiles at the right and bottom edges may be stored whole or clipped.
-            let stride = if len >= (cw * dh) as usize { cw as usize } else { dw as usize };
-            if len < stride * (dh as usize - 1) + dw as usize {
-                return Err(FormatError::invalid(path, format!("chunk {index} holds {len} samples, fewer than its {dw}×{dh}")));
-            }
+            let (dw, dh) = (dw as u32, dh as u32);
             let (x0, y0) = (tx * cw, ty * ch);
             for y in y0.max(r0)..y0.saturating_add(dh).min(r1 + 1) {
                 for x in x0.max(c0)..x0.saturating_add(dw).min(c1 + 1) {

@@ -14,14 +14,14 @@
 //! (`failure`): the readers that copy rows are hot loops that return no errors.
 
 use crate::error::{FormatError, Result};
-use crate::geotiff::{cell_size_metres, open_elevation, sample_f64, sample_metres, tiff_err, GeoTiffOptions, Opened};
+use crate::geotiff::{cell_size_metres, open_elevation, read_chunk_at, sample_f64, sample_metres, tiff_err, Chunk, GeoTiffOptions, Opened};
 use crate::heightfield::{bilinear_height, GridGeoref};
 use crate::memory::Limits;
 use std::collections::HashMap;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
-use tiff::decoder::{Decoder, DecodingResult};
+use tiff::decoder::Decoder;
 use tiff::tags::Tag;
 
 pub struct GeoTiffRows {
@@ -159,36 +159,8 @@ impl GeoTiffRows {
 
     /// Chunk (`tx`, `ty`) of the level decoded into metres, row by row (its width second).
     fn decode(&self, d: &mut Decoder<BufReader<std::fs::File>>, ty: u32, tx: u32) -> Result<(Vec<f32>, usize)> {
-        let path = &self.path;
         let [cw, _] = self.chunk;
-        let index = ty
-            .checked_mul(self.level_width.div_ceil(cw))
-            .and_then(|i| i.checked_add(tx))
-            .ok_or_else(|| FormatError::invalid(path, "too many TIFF chunks"))?;
-        let (raw, (dw, dh)) = crate::guard::third_party(path, "the TIFF decoder", || {
-            let raw = crate::tiff_lzw::read_chunk(path, d, index)?;
-            Ok((raw, d.chunk_data_dimensions(index)))
-        })?;
-        let len = match &raw {
-            DecodingResult::U8(v) => v.len(),
-            DecodingResult::I8(v) => v.len(),
-            DecodingResult::U16(v) => v.len(),
-            DecodingResult::I16(v) => v.len(),
-            DecodingResult::U32(v) => v.len(),
-            DecodingResult::I32(v) => v.len(),
-            DecodingResult::F32(v) => v.len(),
-            DecodingResult::F64(v) => v.len(),
-            _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
-        };
-        let (dw, dh) = (dw as usize, dh as usize);
-        if dw == 0 || dh == 0 {
-            return Err(FormatError::invalid(path, format!("chunk {index} is empty")));
-        }
-        // Tiles at the right and bottom edges may be stored whole or clipped.
-        let stride = if len >= cw as usize * dh { cw as usize } else { dw };
-        if len < stride * (dh - 1) + dw {
-            return Err(FormatError::invalid(path, format!("chunk {index} holds {len} samples, fewer than its {dw}×{dh}")));
-        }
+        let Chunk { raw, width: dw, rows: dh, stride } = read_chunk_at(&self.path, d, (tx, ty), (cw, self.level_width.div_ceil(cw)))?;
         let mut out = Vec::with_capacity(dw * dh);
         for r in 0..dh {
             for c in 0..dw {

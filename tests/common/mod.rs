@@ -127,3 +127,17 @@ pub fn utm_heightfield(w: usize, h: usize, elevation: impl Fn(usize, usize) -> O
         attributes: vec![],
     }
 }
+
+/// A GDAL command-line tool (`gdal_translate`, `gdaldem`, …) from Debian's gdal-bin, or a
+/// skip: None with a printed reason locally, a failure under CI.
+pub fn gdal_tool(name: &str) -> Option<PathBuf> {
+    let p = PathBuf::from("/usr/bin").join(name);
+    if p.exists() {
+        return Some(p);
+    }
+    if under_ci() {
+        panic!("{name} missing under CI (tests/setup-system.sh installs gdal-bin)");
+    }
+    eprintln!("SKIPPED: {name} not installed (apt install gdal-bin)");
+    None
+}
