@@ -456,3 +456,24 @@ fn a_geotiff_terrain_is_read_row_by_row_into_the_gpu_and_renders_as_the_raster_h
     let e = format!("{e:#}");
     assert!(e.contains("broken.tif"), "{e}");
 }
+
+/// An edited scene (the viewer's) keeps a node's data only while the keys that say what is
+/// read stay: a heightfield's `extent` is one of them — a new extent reads the new window,
+/// a moved camera reads nothing again.
+#[test]
+fn an_edited_extent_reads_the_new_window_and_a_moved_camera_reads_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra::samples::write_samples(dir.path()).unwrap();
+    let scene = Scene::load(&dir.path().join("terrain.toml"), &[]).unwrap();
+    let whole = scene.heightfield(0).unwrap();
+    let mut file = scene.file.clone();
+    file.camera.position[2] += 100.0;
+    let moved = scene.edited(file.clone()).unwrap();
+    assert!(moved.is_loaded(0) && std::sync::Arc::ptr_eq(&moved.heightfield(0).unwrap(), &whole), "the camera's move reads nothing");
+    let (ox, oy, cell) = (whole.origin[0], whole.origin[1], whole.cell_size_native[0]);
+    file.nodes[0].extent = Some([ox, oy - 99.0 * cell, ox + 49.0 * cell, oy]);
+    let windowed = scene.edited(file).unwrap();
+    assert!(!windowed.is_loaded(0), "a new extent is read anew");
+    let part = windowed.heightfield(0).unwrap();
+    assert_eq!((part.width, part.height), (50, 100));
+}

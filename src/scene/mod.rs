@@ -1029,8 +1029,8 @@ impl Scene {
         for (i, n) in next.file.nodes.iter().enumerate() {
             let Some(j) = self.node_index(&n.name) else { continue };
             let o = &self.file.nodes[j];
-            let same_data = (&o.kind, &o.file, &o.series, o.volume_index, o.resample, &o.png, &o.arrays)
-                == (&n.kind, &n.file, &n.series, n.volume_index, n.resample, &n.png, &n.arrays);
+            let same_data = (&o.kind, &o.file, &o.series, o.volume_index, o.resample, &o.png, &o.arrays, o.extent)
+                == (&n.kind, &n.file, &n.series, n.volume_index, n.resample, &n.png, &n.arrays, n.extent);
             self.carry_over(
                 j,
                 &next,
