@@ -339,3 +339,36 @@ fn dem_products_equal_gdaldem_on_a_projected_dem_with_nodata() {
     let p = p + compare_contour_polygons(&dem, dir.path(), "i20o7", &["-i", "20", "-off", "7"], &["--interval", "20", "--offset", "7"]);
     assert!(p > 20, "{p} polygons compared");
 }
+
+/// A GeoTIFF larger than the memory limit: its products are made at full resolution, a
+/// band of rows at a time (read whole, the raster would be its largest overview that fits,
+/// and the products that overview's), equal to gdaldem's, within the limit.
+#[test]
+fn dem_products_of_a_tiled_dem_larger_than_the_memory_limit_equal_gdaldem_at_full_resolution() {
+    if gdaldem().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // 2048 × 1536 float32 cells (12 MiB), tiled 256², with overviews; NoData holes across
+    // tile borders.
+    let hf = common::utm_heightfield(2048, 1536, |c, r| {
+        let (x, y) = (c as f64 * 30.0, r as f64 * 30.0);
+        let hole = ((c as f64 - 256.0).powi(2) + (r as f64 - 700.0).powi(2)) < 60.0 || (c > 1500 && c < 1530 && r > 250 && r < 260);
+        (!hole).then(|| (300.0 + 80.0 * (x / 4000.0).sin() * (y / 3000.0).cos() + 0.005 * x + 3.0 * (x / 97.0).sin()) as f32)
+    });
+    let strips = dir.path().join("strips.tif");
+    volterra_formats::geotiff::write_geotiff(&strips, &hf).unwrap();
+    let dem = dir.path().join("tiled.tif");
+    run(Command::new("gdal_translate").args(["-q", "-co", "TILED=YES", "-co", "COMPRESS=DEFLATE"]).arg(&strips).arg(&dem));
+    run(Command::new("gdaladdo").args(["-q"]).arg(&dem).args(["2", "4", "8"]));
+    let limit = ["--max-memory", "8M"];
+    // Read whole within the limit, the raster would be an overview.
+    let whole = volterra_formats::geotiff::read_geotiff(&dem, &volterra_formats::Limits::max(8 << 20)).unwrap();
+    assert_eq!(whole.width, 1024, "{:?}", whole.notes);
+    let n = compare_products(&dem, dir.path(), &[], &limit);
+    assert!(n > 18_000_000, "{n} cells compared");
+    let out =
+        Command::new(common::volterra_bin()).args(limit).args(["dem", "slope"]).arg(&dem).arg(dir.path().join("s.tif")).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && stderr.contains("memory: peak") && !stderr.contains("over the limit"), "{stderr}");
+}

@@ -121,7 +121,7 @@ fn an_rgb_geotiff_drape_lies_where_its_georeferencing_says() {
         })
         .collect();
     let path = dir.path().join("drape.tif");
-    volterra_formats::geotiff::write_band(&path, &grid, volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
+    volterra_formats::geotiff::write_band(&path, &grid.georef(), volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
     let drape = Drape::load(&path, None, &Default::default()).unwrap();
     let Some((gpu, reference, rays)) = top_down(&hf, Some(&drape)) else { return };
     let (plain, ..) = top_down(&hf, None).unwrap();
@@ -236,13 +236,13 @@ fn a_drape_in_another_crs_or_off_the_dem_is_refused() {
     let rgb = vec![128u8; 3 * 16];
     let other = drape_grid(4, 4, 30.0, hf.origin, utm(32611));
     let path = dir.path().join("other.tif");
-    volterra_formats::geotiff::write_band(&path, &other, volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
+    volterra_formats::geotiff::write_band(&path, &other.georef(), volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
     let drape = Drape::load(&path, None, &Default::default()).unwrap();
     let e = terrain::drape_placement(&hf.georef(), &drape).unwrap_err().to_string();
     assert!(e.contains("EPSG:32611") && e.contains("EPSG:32610") && e.contains("CRS"), "{e}");
     let away = drape_grid(4, 4, 30.0, [hf.origin[0] + 1e5, hf.origin[1]], utm(32610));
     let path = dir.path().join("away.tif");
-    volterra_formats::geotiff::write_band(&path, &away, volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
+    volterra_formats::geotiff::write_band(&path, &away.georef(), volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
     let drape = Drape::load(&path, None, &Default::default()).unwrap();
     let e = terrain::drape_placement(&hf.georef(), &drape).unwrap_err().to_string();
     assert!(e.contains("outside the heightfield"), "{e}");

@@ -892,7 +892,8 @@ fn cmd_dem(
     relief: &ReliefArgs,
     load: &LoadOptions,
 ) -> Result<()> {
-    use volterra::dem::{self, Product, Raster};
+    use formats::heightfield::HeightRows;
+    use volterra::dem::{self, Op, Product};
     // The palette first: a missing one is an error before the DEM is read.
     let palette = match product {
         DemProduct::ColorRelief => {
@@ -902,29 +903,43 @@ fn cmd_dem(
         }
         _ => None,
     };
-    let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
-        anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
+    // A GeoTIFF is read a band of rows at a time as its product is written (at full
+    // resolution whatever its size: the rows held are a few strips'); other DEMs whole.
+    let (src, grid, nodata_value): (Box<dyn HeightRows>, _, _) = if formats::detect(input)? == formats::FileKind::GeoTiff {
+        let rows = formats::geotiff_rows::GeoTiffRows::open(input, &load.geotiff, &load.limits, 0)?;
+        let (grid, nodata) = (rows.georef().clone(), rows.nodata_value);
+        (Box::new(rows), grid, nodata)
+    } else {
+        let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
+            anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
+        };
+        let (grid, nodata) = (hf.georef(), hf.nodata_value);
+        (Box::new(hf), grid, nodata)
     };
-    let product = match product {
-        DemProduct::Hillshade => Product::Hillshade,
-        DemProduct::Slope => Product::Slope,
-        DemProduct::Aspect => Product::Aspect,
+    let palette = match palette {
+        Some((path, text)) => {
+            Some(dem::parse_palette(&text, nodata_value, || dem::elevation_range(&*src)).with_context(|| path.display().to_string())?)
+        }
+        None => None,
+    };
+    let (op, what) = match product {
+        DemProduct::Hillshade => (Op::Product(Product::Hillshade, *options), "hillshade"),
+        DemProduct::Slope => (Op::Product(Product::Slope, *options), "slope"),
+        DemProduct::Aspect => (Op::Product(Product::Aspect, *options), "aspect"),
         DemProduct::ColorRelief => {
-            let (path, text) = palette.expect("read above");
-            let palette = dem::parse_palette(&text, &hf).with_context(|| path.display().to_string())?;
-            let cells = dem::color_relief(&hf, &palette, relief.mode, relief.alpha);
-            let band = if relief.alpha { formats::geotiff::Band::Rgba8(&cells) } else { formats::geotiff::Band::Rgb8(&cells) };
-            formats::geotiff::write_band(output, &hf, band, None, false)?;
-            return Ok(());
+            let palette = palette.as_deref().expect("read above");
+            (Op::Relief { palette, mode: relief.mode, alpha: relief.alpha, nodata_value }, "color-relief")
         }
         DemProduct::Contours => unreachable!("contours are drawn by cmd_contours"),
     };
-    let raster = dem::compute(&hf, product, options).with_context(|| input.display().to_string())?;
-    let band = match &raster {
-        Raster::F32(v) => formats::geotiff::Band::F32(v),
-        Raster::U8(v) => formats::geotiff::Band::U8(v),
-    };
-    formats::geotiff::write_band(output, &hf, band, Some(dem::nodata_value(product)), false)?;
+    op.check(src.size()).with_context(|| input.display().to_string())?;
+    let progress = progress::TerminalProgress::default();
+    use volterra::render::driver::Progress as _;
+    progress.begin(what, grid.height as u64);
+    let written = dem::write_product(&*src, &grid, &op, output, &load.limits, &|rows| progress.update(rows as u64));
+    progress.end();
+    written?;
+    eprintln!("wrote {} ({}×{})", output.display(), grid.width, grid.height);
     Ok(())
 }
 

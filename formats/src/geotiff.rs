@@ -3,21 +3,20 @@
 //! tags read here: ModelPixelScale + ModelTiepoint or ModelTransformation, the
 //! GeoKeyDirectory (EPSG code, raster type, vertical units) and GDAL_NODATA.
 
-use crate::atomic::write_bytes_atomically;
 use crate::error::{FormatError, Result};
 use crate::heightfield::{metres_per_degree, Crs, Heightfield, NodataMask};
 use crate::memory::{human_bytes, Limits};
-use std::io::{BufReader, Cursor};
+use std::io::BufReader;
 use std::path::Path;
 use tiff::decoder::{Decoder, DecodingResult};
 use tiff::tags::Tag;
 
-const KEY_MODEL_TYPE: u16 = 1024;
-const KEY_RASTER_TYPE: u16 = 1025;
-const KEY_CITATION: u16 = 1026;
-const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
-const KEY_PROJECTED_TYPE: u16 = 3072;
-const KEY_VERTICAL_UNITS: u16 = 4099;
+pub(crate) const KEY_MODEL_TYPE: u16 = 1024;
+pub(crate) const KEY_RASTER_TYPE: u16 = 1025;
+pub(crate) const KEY_CITATION: u16 = 1026;
+pub(crate) const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
+pub(crate) const KEY_PROJECTED_TYPE: u16 = 3072;
+pub(crate) const KEY_VERTICAL_UNITS: u16 = 4099;
 
 /// A decoded GeoKey value (double-valued keys are not needed and skipped).
 #[derive(Debug, Clone)]
@@ -879,95 +878,4 @@ pub(crate) fn cell_size_metres(path: &Path, crs: &Crs, oy: f64, h: u32, [sx, sy]
     Ok(cell_size)
 }
 
-/// Writes a float32 GeoTIFF (Deflate; the tiff crate's encoder has no floating-point
-/// predictor, so none is used) that keeps the pixel scale,
-/// tiepoint (PixelIsArea), EPSG code and NoData value. Written atomically.
-pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
-    let nodata = hf.nodata_value.unwrap_or(-32768.0);
-    let data: Vec<f32> = hf.elevations.iter().enumerate().map(|(i, &z)| if hf.nodata.get(i) { nodata as f32 } else { z }).collect();
-    let declare = !hf.nodata.is_empty() || hf.nodata_value.is_some();
-    write_band(path, hf, Band::F32(&data), declare.then_some(nodata), true)
-}
-
-/// The cells of a GeoTIFF, row by row from the north: one band of 32-bit floats or bytes,
-/// or RGB / RGBA bytes (interleaved).
-pub enum Band<'a> {
-    F32(&'a [f32]),
-    U8(&'a [u8]),
-    Rgb8(&'a [u8]),
-    Rgba8(&'a [u8]),
-}
-
-/// Writes `band` as a GeoTIFF on the grid and with the georeferencing of `grid` (size,
-/// pixel scale, the tiepoint at the north-west corner, PixelIsArea, its EPSG code) and
-/// `nodata` as GDAL_NODATA; `elevation`: the cells are elevations in metres (said as the
-/// vertical units; not for derived products such as slope). Deflate-compressed, atomically.
-pub fn write_band(path: &Path, grid: &Heightfield, band: Band, nodata: Option<f64>, elevation: bool) -> Result<()> {
-    use tiff::encoder::{colortype, Compression, TiffEncoder};
-    let err = |e: tiff::TiffError| FormatError::invalid(path, format!("cannot write TIFF: {e}"));
-    let n = grid.width * grid.height;
-    let len = match &band {
-        Band::F32(d) => d.len(),
-        Band::U8(d) => d.len(),
-        Band::Rgb8(d) => d.len() / 3,
-        Band::Rgba8(d) => d.len() / 4,
-    };
-    if len != n {
-        return Err(FormatError::invalid(path, format!("{len} cells for a {}×{} grid", grid.width, grid.height)));
-    }
-    let mut buf = Cursor::new(Vec::new());
-    {
-        let mut enc =
-            TiffEncoder::new(&mut buf).map_err(err)?.with_compression(Compression::Deflate(tiff::encoder::DeflateLevel::Balanced));
-        let georeference = |e: &mut tiff::encoder::DirectoryEncoder<'_, _, tiff::encoder::TiffKindStandard>| -> Result<()> {
-            let [sx, sy] = grid.cell_size_native;
-            let corner = [grid.origin[0] - 0.5 * sx, grid.origin[1] + 0.5 * sy];
-            e.write_tag(Tag::ModelPixelScaleTag, &[sx, sy, 0.0][..]).map_err(err)?;
-            e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..]).map_err(err)?;
-            let mut keys: Vec<u16> = vec![1, 1, 0, 0];
-            let mut push = |id: u16, v: u16| keys.extend_from_slice(&[id, 0, 1, v]);
-            if grid.crs != Crs::local() {
-                push(KEY_MODEL_TYPE, if grid.crs.geographic { 2 } else { 1 });
-            }
-            push(KEY_RASTER_TYPE, 1);
-            if let Some(c) = grid.crs.epsg {
-                push(if grid.crs.geographic { KEY_GEOGRAPHIC_TYPE } else { KEY_PROJECTED_TYPE }, c as u16);
-            }
-            if elevation {
-                push(KEY_VERTICAL_UNITS, 9001);
-            }
-            keys[3] = ((keys.len() - 4) / 4) as u16;
-            e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).map_err(err)?;
-            if let Some(v) = nodata {
-                e.write_tag(Tag::GdalNodata, &*format!("{v}")).map_err(err)?;
-            }
-            Ok(())
-        };
-        let (w, h) = (grid.width as u32, grid.height as u32);
-        match band {
-            Band::F32(d) => {
-                let mut img = enc.new_image::<colortype::Gray32Float>(w, h).map_err(err)?;
-                georeference(img.encoder())?;
-                img.write_data(d).map_err(err)?;
-            }
-            Band::U8(d) => {
-                let mut img = enc.new_image::<colortype::Gray8>(w, h).map_err(err)?;
-                georeference(img.encoder())?;
-                img.write_data(d).map_err(err)?;
-            }
-            Band::Rgb8(d) => {
-                let mut img = enc.new_image::<colortype::RGB8>(w, h).map_err(err)?;
-                georeference(img.encoder())?;
-                img.write_data(d).map_err(err)?;
-            }
-            Band::Rgba8(d) => {
-                let mut img = enc.new_image::<colortype::RGBA8>(w, h).map_err(err)?;
-                georeference(img.encoder())?;
-                // The fourth sample is unassociated alpha (GDAL reads it as the alpha band).
-                img.encoder().write_tag(Tag::ExtraSamples, 2u16).map_err(err)?;
-                img.write_data(d).map_err(err)?;
-            }
-        }
-    }
-    write_bytes_atomically(path, buf.get_ref())
-}
+pub use crate::geotiff_write::{write_band, write_geotiff, Band};

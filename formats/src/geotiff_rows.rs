@@ -15,7 +15,7 @@
 
 use crate::error::{FormatError, Result};
 use crate::geotiff::{cell_size_metres, open_elevation, read_chunk_at, sample_f64, sample_metres, tiff_err, Chunk, GeoTiffOptions, Opened};
-use crate::heightfield::{bilinear_height, GridGeoref};
+use crate::heightfield::{bilinear_height, GridGeoref, HeightRows};
 use crate::memory::Limits;
 use std::collections::HashMap;
 use std::io::BufReader;
@@ -185,4 +185,20 @@ fn declared_type(path: &Path, d: &mut Decoder<BufReader<std::fs::File>>, sample_
         (3, 8) => "float64",
         _ => return Err(FormatError::unsupported(path, "sample type is not one of int8/16/32, uint8/16/32, float32/64")),
     })
+}
+
+/// A GeoTIFF read by windows of tiles or strips, not held.
+impl HeightRows for GeoTiffRows {
+    fn size(&self) -> [usize; 2] {
+        [self.georef.width, self.georef.height]
+    }
+    fn cell_size(&self) -> [f64; 2] {
+        self.georef.cell_size
+    }
+    fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+        GeoTiffRows::read_row(self, row, col, out)
+    }
+    fn failure(&self) -> Option<String> {
+        GeoTiffRows::failure(self)
+    }
 }

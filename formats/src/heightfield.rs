@@ -149,6 +149,46 @@ impl FromIterator<bool> for NodataMask {
     }
 }
 
+/// Heights read a row at a time, for a heightfield that is not held in memory as a whole
+/// (`GeoTiffRows`) or one that is: the GPU ray-caster reads each sample once (the samples
+/// tiles share, twice), a tile at a time in bands of rows, into its textures, so a DEM near
+/// the size of the host's memory is held only there (on a software adapter the textures
+/// are host memory: `volterra bench terrain --large` measures a 40000² DEM so); the DEM
+/// products (`volterra dem`) read the rows of a band of output rows and write it, so a
+/// hillshade of a DEM larger than memory is made in the memory of a few rows.
+pub trait HeightRows: Send + Sync {
+    /// Samples east-west and north-south.
+    fn size(&self) -> [usize; 2];
+    /// Metres between samples east-west and north-south.
+    fn cell_size(&self) -> [f64; 2];
+    /// Elevations (metres) of `out.len()` samples of row `row` (row 0 the northernmost, as
+    /// in the file) from column `col`; NaN for NoData.
+    fn read_row(&self, row: usize, col: usize, out: &mut [f32]);
+    /// Why rows could not be read (one line naming the source), once they have been: a
+    /// reader of a file reads a chunk that fails to decode as NoData and says so here.
+    fn failure(&self) -> Option<String> {
+        None
+    }
+}
+
+/// A heightfield held: its rows copied out (NoData samples hold NaN already).
+impl HeightRows for Heightfield {
+    fn size(&self) -> [usize; 2] {
+        [self.width, self.height]
+    }
+    fn cell_size(&self) -> [f64; 2] {
+        self.cell_size
+    }
+    fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+        out.fill(f32::NAN);
+        if row < self.height && col < self.width {
+            let n = out.len().min(self.width - col);
+            let at = row * self.width + col;
+            out[..n].copy_from_slice(&self.elevations[at..at + n]);
+        }
+    }
+}
+
 /// Where a heightfield's samples lie — their number and georeferencing, as in
 /// [`Heightfield`] — for a raster whose samples are read as needed, not held.
 #[derive(Debug, Clone, PartialEq)]

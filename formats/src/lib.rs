@@ -15,6 +15,7 @@ pub mod exr_io;
 pub mod geojson;
 pub mod geotiff;
 pub mod geotiff_rows;
+pub mod geotiff_write;
 pub mod guard;
 pub mod heightfield;
 pub mod image;

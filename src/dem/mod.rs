@@ -23,7 +23,10 @@
 pub mod contours;
 
 use anyhow::{bail, Result};
-use volterra_formats::heightfield::Heightfield;
+use std::path::Path;
+use volterra_formats::geotiff_write::{default_rows_per_strip, write_band_strips, writer_bytes, BandKind, StripMut};
+use volterra_formats::heightfield::{GridGeoref, HeightRows, Heightfield};
+use volterra_formats::memory::Limits;
 
 /// Which product.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -74,82 +77,299 @@ pub fn nodata_value(p: Product) -> f64 {
     }
 }
 
-/// The product of `hf` (elevations as read; NoData cells flagged).
-pub fn compute(hf: &Heightfield, product: Product, o: &Options) -> Result<Raster> {
-    let (w, h) = (hf.width, hf.height);
-    if w < 3 || h < 3 {
-        bail!("a {w}×{h} raster has no 3×3 window");
-    }
-    for (name, v) in [("z", o.z), ("scale", o.scale), ("azimuth", o.azimuth), ("altitude", o.altitude)] {
-        if !v.is_finite() {
-            bail!("{name} {v} must be finite");
+/// What is made of each cell: a product of its 3 × 3 window, or its colour (color-relief,
+/// with the NoData value of the DEM the cell's value where it is NoData).
+pub enum Op<'a> {
+    Product(Product, Options),
+    Relief { palette: &'a [PaletteEntry], mode: ColorMode, alpha: bool, nodata_value: Option<f64> },
+}
+
+impl Op<'_> {
+    /// The output's band.
+    pub fn band(&self) -> BandKind {
+        match self {
+            Op::Product(Product::Hillshade, _) => BandKind::U8,
+            Op::Product(..) => BandKind::F32,
+            Op::Relief { alpha: true, .. } => BandKind::Rgba8,
+            Op::Relief { .. } => BandKind::Rgb8,
         }
     }
-    if o.scale == 0.0 {
-        bail!("scale must not be 0");
+
+    /// The output's NoData value (color-relief has none: NoData cells are coloured).
+    pub fn nodata(&self) -> Option<f64> {
+        match self {
+            Op::Product(p, _) => Some(nodata_value(*p)),
+            Op::Relief { .. } => None,
+        }
     }
-    let (ewres, nsres) = (hf.cell_size_native[0], -hf.cell_size_native[1]);
+
+    /// Refuses options gdaldem refuses, and a raster too small for a window.
+    pub fn check(&self, [w, h]: [usize; 2]) -> Result<()> {
+        let Op::Product(_, o) = self else { return Ok(()) };
+        if w < 3 || h < 3 {
+            bail!("a {w}×{h} raster has no 3×3 window");
+        }
+        for (name, v) in [("z", o.z), ("scale", o.scale), ("azimuth", o.azimuth), ("altitude", o.altitude)] {
+            if !v.is_finite() {
+                bail!("{name} {v} must be finite");
+            }
+        }
+        if o.scale == 0.0 {
+            bail!("scale must not be 0");
+        }
+        Ok(())
+    }
+}
+
+/// The product of `hf` (elevations as read; NoData cells flagged), in memory.
+pub fn compute(hf: &Heightfield, product: Product, o: &Options) -> Result<Raster> {
+    let op = Op::Product(product, *o);
+    op.check([hf.width, hf.height])?;
+    let rows = InputRows::all(hf);
+    Ok(match op.band() {
+        BandKind::F32 => {
+            let mut out = vec![0f32; hf.width * hf.height];
+            fill_rows(&rows, hf.cell_size_native, hf.height, &op, 0, StripMut::F32(&mut out));
+            Raster::F32(out)
+        }
+        _ => {
+            let mut out = vec![0u8; hf.width * hf.height];
+            fill_rows(&rows, hf.cell_size_native, hf.height, &op, 0, StripMut::U8(&mut out));
+            Raster::U8(out)
+        }
+    })
+}
+
+/// gdaldem color-relief of `hf`, in memory: each cell's colour from `palette` (NoData
+/// cells looked up by the NoData value, so an "nv" entry colours them and otherwise they
+/// take the palette's lowest colour, as in GDAL), RGB or, with `alpha`, RGBA bytes.
+pub fn color_relief(hf: &Heightfield, palette: &[PaletteEntry], mode: ColorMode, alpha: bool) -> Vec<u8> {
+    let op = Op::Relief { palette, mode, alpha, nodata_value: hf.nodata_value };
+    let mut out = vec![0u8; hf.width * hf.height * op.band().samples()];
+    fill_rows(&InputRows::all(hf), hf.cell_size_native, hf.height, &op, 0, StripMut::U8(&mut out));
+    out
+}
+
+/// Writes the product of the rows of `src` (on `grid`, whose NoData cells read as NaN) as
+/// a GeoTIFF on that grid, a strip at a time: the rows each strip needs (its own and one
+/// either side) are read in order, held only while needed, and its cells computed in
+/// parallel, so a DEM of any size takes the memory of a few strips' rows. `rows_done` is
+/// told how many output rows are written. What a band holds is checked against `limits`
+/// first. A chunk of the input that fails to decode stops the write with its one-line
+/// error (no output is left).
+pub fn write_product(
+    src: &dyn HeightRows,
+    grid: &GridGeoref,
+    op: &Op,
+    output: &Path,
+    limits: &Limits,
+    rows_done: &dyn Fn(usize),
+) -> Result<()> {
+    let [w, _] = src.size();
+    let kind = op.band();
+    let rows_per_strip = default_rows_per_strip(w, kind);
+    // The input rows of a strip and its neighbours', and the writer's strips.
+    let held = (rows_per_strip as u64 + 2) * w as u64 * 4 + writer_bytes(w, kind, rows_per_strip);
+    limits.check(output, "the rows and strips of a band of the product", &[held])?;
+    write_product_strips(src, grid, op, output, rows_per_strip, rows_done)
+}
+
+/// `write_product` in strips of `rows_per_strip` rows.
+fn write_product_strips(
+    src: &dyn HeightRows,
+    grid: &GridGeoref,
+    op: &Op,
+    output: &Path,
+    rows_per_strip: usize,
+    rows_done: &dyn Fn(usize),
+) -> Result<()> {
+    let [w, h] = src.size();
+    op.check([w, h])?;
+    let kind = op.band();
+    let mut input = InputRows { first: 0, n: 0, w, cells: std::borrow::Cow::Owned(Vec::new()) };
+    write_band_strips(output, grid, kind, op.nodata(), false, rows_per_strip, |first, strip| -> Result<()> {
+        let n = match &strip {
+            StripMut::F32(s) => s.len(),
+            StripMut::U8(s) => s.len(),
+        } / (w * kind.samples());
+        input.hold(src, first.saturating_sub(1), (first + n + 1).min(h));
+        if let Some(why) = src.failure() {
+            bail!("{why}");
+        }
+        fill_rows(&input, grid.cell_size_native, h, op, first, strip);
+        rows_done(first + n);
+        Ok(())
+    })
+}
+
+/// The lowest and highest valid elevation of the rows of `src`, read one by one.
+pub fn elevation_range(src: &dyn HeightRows) -> Option<(f64, f64)> {
+    let [w, h] = src.size();
+    let mut row = vec![0f32; w];
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for r in 0..h {
+        src.read_row(r, 0, &mut row);
+        for &z in row.iter().filter(|z| z.is_finite()) {
+            lo = lo.min(z);
+            hi = hi.max(z);
+        }
+    }
+    (lo <= hi).then_some((lo as f64, hi as f64))
+}
+
+/// Rows [first, first + n) of a raster `w` samples wide (NaN for NoData), read in order.
+struct InputRows<'a> {
+    first: usize,
+    n: usize,
+    w: usize,
+    cells: std::borrow::Cow<'a, [f32]>,
+}
+
+impl InputRows<'_> {
+    /// Every row of a heightfield held (its NoData cells hold NaN), not copied.
+    fn all(hf: &Heightfield) -> InputRows<'_> {
+        InputRows { first: 0, n: hf.height, w: hf.width, cells: std::borrow::Cow::Borrowed(&hf.elevations) }
+    }
+
+    /// Holds rows [lo, hi): those it holds already moved to the front, the rest read.
+    /// Rows are asked for in order, so each is read once.
+    fn hold(&mut self, src: &dyn HeightRows, lo: usize, hi: usize) {
+        let w = self.w;
+        let keep_from = lo.max(self.first).min(self.first + self.n);
+        let kept = (self.first + self.n).min(hi).saturating_sub(keep_from);
+        let cells = self.cells.to_mut();
+        cells.copy_within((keep_from - self.first) * w..(keep_from - self.first + kept) * w, 0);
+        let start = if kept > 0 { keep_from } else { lo };
+        cells.resize((hi - start) * w, f32::NAN);
+        for r in start + kept..hi {
+            let at = (r - start) * w;
+            src.read_row(r, 0, &mut cells[at..at + w]);
+        }
+        self.first = start;
+        self.n = hi - start;
+    }
+
+    fn at(&self, c: usize, r: usize) -> f32 {
+        self.cells[(r - self.first) * self.w + c]
+    }
+}
+
+/// Fills `strip` with output rows from `first` (as many as it holds), computed in parallel
+/// from `input`, which holds them and their neighbours; `cell_size` in CRS units (east,
+/// north), `h` the raster's rows.
+fn fill_rows(input: &InputRows, cell_size: [f64; 2], h: usize, op: &Op, first: usize, strip: StripMut) {
+    use rayon::prelude::*;
+    let row_len = input.w * op.band().samples();
+    match strip {
+        StripMut::F32(s) => s.par_chunks_mut(row_len).enumerate().for_each(|(i, row)| {
+            row_values(input, cell_size, h, op, first + i, |k, v| row[k] = v as f32);
+        }),
+        // GDAL writes its float results into a byte band rounded half up (GDALCopyWords:
+        // the value plus 0.5, truncated; a libm round() per cell was a sixth of the time).
+        StripMut::U8(s) => s.par_chunks_mut(row_len).enumerate().for_each(|(i, row)| {
+            row_values(input, cell_size, h, op, first + i, |k, v| row[k] = (v.clamp(0.0, 255.0) + 0.5) as u8);
+        }),
+    }
+}
+
+/// Row `r` of the output, sample by sample through `out(index in the row, value)`.
+fn row_values(input: &InputRows, cell_size: [f64; 2], h: usize, op: &Op, r: usize, mut out: impl FnMut(usize, f64)) {
+    match op {
+        Op::Product(product, o) => product_row(input, cell_size, h, *product, o, r, &mut out),
+        Op::Relief { palette, mode, nodata_value, alpha } => {
+            let spp = if *alpha { 4 } else { 3 };
+            for c in 0..input.w {
+                let z = input.at(c, r);
+                let v = if z.is_nan() { nodata_value.unwrap_or(f64::NAN) } else { z as f64 };
+                let rgba = palette_colour(palette, v, *mode).unwrap_or([0; 4]);
+                for (k, &x) in rgba[..spp].iter().enumerate() {
+                    out(c * spp + k, x as f64);
+                }
+            }
+        }
+    }
+}
+
+/// Row `r` of a window product, cell by cell through `out(column, value)`.
+fn product_row(
+    input: &InputRows,
+    cell_size: [f64; 2],
+    h: usize,
+    product: Product,
+    o: &Options,
+    r: usize,
+    out: &mut impl FnMut(usize, f64),
+) {
+    let w = input.w;
+    let (ewres, nsres) = (cell_size[0], -cell_size[1]);
     let (inv_ew, inv_ns) = (1.0 / (ewres * o.scale), 1.0 / (nsres * o.scale));
-    let nodata = |c: usize, r: usize| hf.is_nodata(c, r) || !hf.elevations[r * w + c].is_finite();
+    let nodata = |c: usize, r: usize| !input.at(c, r).is_finite();
     // Window sums in f32, in GDAL's order (it sums a float raster's window in float and an
     // integer one's in int32, which f32 matches exactly below 2^24): the same cells give
     // the same bits.
-    let at = |c: usize, r: usize| hf.elevations[r * w + c];
+    let at = |c: usize, r: usize| input.at(c, r);
     let (sin_alt, cos_alt) = o.altitude.to_radians().sin_cos();
     let (sin_az, cos_az) = o.azimuth.to_radians().sin_cos();
     let zf = 1.0 / 8.0;
     let out_nodata = nodata_value(product);
-    let mut values = vec![out_nodata; w * h];
-    for r in 0..h {
-        for c in 0..w {
-            let Some(win) = window(c, r, w, h, &nodata, &at, o.compute_edges) else { continue };
-            let west_minus_east = ((win[0] + win[3] + win[3] + win[6]) - (win[2] + win[5] + win[5] + win[8])) as f64;
-            let south_minus_north = ((win[6] + win[7] + win[7] + win[8]) - (win[0] + win[1] + win[1] + win[2])) as f64;
-            let (x, y) = (west_minus_east * o.z * inv_ew, south_minus_north * o.z * inv_ns);
-            values[r * w + c] = match product {
-                Product::Slope => {
-                    let g = (x * x + y * y).sqrt() * zf;
-                    if o.percent {
-                        100.0 * g
+    // Inside the raster the window is its three rows' cells, where all are valid; at the
+    // edges and next to NoData, `window`'s rules.
+    let row = |r: usize| &input.cells[(r - input.first) * w..(r - input.first + 1) * w];
+    let rows = (r >= 1 && r + 1 < h).then(|| (row(r - 1), row(r), row(r + 1)));
+    for c in 0..w {
+        let inner = match rows {
+            Some((n, m, s)) if c >= 1 && c + 1 < w => {
+                let win = [n[c - 1], n[c], n[c + 1], m[c - 1], m[c], m[c + 1], s[c - 1], s[c], s[c + 1]];
+                win.iter().all(|v| v.is_finite()).then_some(win)
+            }
+            _ => None,
+        };
+        let Some(win) = inner.or_else(|| window(c, r, w, h, &nodata, &at, o.compute_edges)) else {
+            out(c, out_nodata);
+            continue;
+        };
+        let west_minus_east = ((win[0] + win[3] + win[3] + win[6]) - (win[2] + win[5] + win[5] + win[8])) as f64;
+        let south_minus_north = ((win[6] + win[7] + win[7] + win[8]) - (win[0] + win[1] + win[1] + win[2])) as f64;
+        let (x, y) = (west_minus_east * o.z * inv_ew, south_minus_north * o.z * inv_ns);
+        let v = match product {
+            Product::Slope => {
+                let g = (x * x + y * y).sqrt() * zf;
+                if o.percent {
+                    100.0 * g
+                } else {
+                    g.atan().to_degrees()
+                }
+            }
+            Product::Aspect => {
+                let (dx, dy) = (((win[2] + win[5] + win[5] + win[8]) - (win[0] + win[3] + win[3] + win[6])) as f64, south_minus_north);
+                if dx == 0.0 && dy == 0.0 {
+                    if o.zero_for_flat {
+                        0.0
                     } else {
-                        g.atan().to_degrees()
+                        out_nodata
+                    }
+                } else {
+                    // As GDAL: in f32, the angle from east counter-clockwise made an azimuth.
+                    let a = (dy.atan2(-dx).to_degrees()) as f32;
+                    let a = if a > 90.0 { 450.0 - a } else { 90.0 - a };
+                    if a == 360.0 {
+                        0.0
+                    } else {
+                        a as f64
                     }
                 }
-                Product::Aspect => {
-                    let (dx, dy) = (((win[2] + win[5] + win[5] + win[8]) - (win[0] + win[3] + win[3] + win[6])) as f64, south_minus_north);
-                    if dx == 0.0 && dy == 0.0 {
-                        if o.zero_for_flat {
-                            0.0
-                        } else {
-                            out_nodata
-                        }
-                    } else {
-                        // As GDAL: in f32, the angle from east counter-clockwise made an azimuth.
-                        let a = (dy.atan2(-dx).to_degrees()) as f32;
-                        let a = if a > 90.0 { 450.0 - a } else { 90.0 - a };
-                        if a == 360.0 {
-                            0.0
-                        } else {
-                            a as f64
-                        }
-                    }
+            }
+            Product::Hillshade => {
+                let cang = (sin_alt - (y * cos_az - x * sin_az) * cos_alt * zf) / (1.0 + zf * zf * (x * x + y * y)).sqrt();
+                if cang <= 0.0 {
+                    1.0
+                } else {
+                    1.0 + 254.0 * cang
                 }
-                Product::Hillshade => {
-                    let cang = (sin_alt - (y * cos_az - x * sin_az) * cos_alt * zf) / (1.0 + zf * zf * (x * x + y * y)).sqrt();
-                    if cang <= 0.0 {
-                        1.0
-                    } else {
-                        1.0 + 254.0 * cang
-                    }
-                }
-            };
-        }
+            }
+        };
+        out(c, v);
     }
-    Ok(match product {
-        // GDAL writes its float results into the byte band rounded to the nearest.
-        Product::Hillshade => Raster::U8(values.iter().map(|v| v.round().clamp(0.0, 255.0) as u8).collect()),
-        _ => Raster::F32(values.iter().map(|&v| v as f32).collect()),
-    })
 }
 
 /// The 3 × 3 window about (c, r), or None where the output is NoData there.
@@ -241,14 +461,19 @@ const NAMED_COLOURS: [(&str, [f32; 3]); 16] = [
 /// A gdaldem colour file: lines "value R G B [A]" or "value name [A]" (tokens split by
 /// spaces, tabs, commas or colons; # and / start comments); the value may be "nv" (the
 /// DEM's NoData value; ignored where it has none) or a percentage of the DEM's range of
-/// valid elevations. Sorted by value (stably, as GDAL sorts). GMT .cpt palettes are not
-/// read.
-pub fn parse_palette(text: &str, hf: &Heightfield) -> Result<Vec<PaletteEntry>> {
+/// valid elevations, `range()` (asked for only where a percentage is given: a DEM read by
+/// rows is read once more for it). Sorted by value (stably, as GDAL sorts). GMT .cpt
+/// palettes are not read.
+pub fn parse_palette(text: &str, nodata_value: Option<f64>, range: impl FnOnce() -> Option<(f64, f64)>) -> Result<Vec<PaletteEntry>> {
     if text.lines().any(|l| l.starts_with('#') && l.contains("COLOR_MODEL")) {
         bail!("GMT .cpt palettes are not read (give 'value R G B' lines)");
     }
-    let valid = || (0..hf.elevations.len()).filter(|&i| !hf.nodata.get(i)).map(|i| hf.elevations[i] as f64);
-    let (lo, hi) = valid().filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let mut range = Some(range);
+    let mut lo_hi = None;
+    let mut percent_of = |pct: f64| {
+        let (lo, hi) = *lo_hi.get_or_insert_with(|| range.take().and_then(|r| r()).unwrap_or((f64::INFINITY, f64::NEG_INFINITY)));
+        lo + pct / 100.0 * (hi - lo)
+    };
     let mut entries = Vec::new();
     for line in text.lines() {
         let tokens: Vec<&str> = line.split([' ', '\t', ',', ':']).filter(|t| !t.is_empty()).collect();
@@ -256,7 +481,7 @@ pub fn parse_palette(text: &str, hf: &Heightfield) -> Result<Vec<PaletteEntry>> 
             continue;
         }
         let value = if tokens[0].eq_ignore_ascii_case("nv") {
-            match hf.nodata_value {
+            match nodata_value {
                 Some(v) => v,
                 None => continue, // as gdaldem: a warning, the entry ignored
             }
@@ -265,7 +490,7 @@ pub fn parse_palette(text: &str, hf: &Heightfield) -> Result<Vec<PaletteEntry>> 
             if !(0.0..=100.0).contains(&pct) {
                 bail!("wrong value for a percentage: {}", tokens[0]);
             }
-            lo + pct / 100.0 * (hi - lo)
+            percent_of(pct)
         } else {
             tokens[0].parse().map_err(|_| anyhow::anyhow!("'{}' is not a value", tokens[0]))?
         };
@@ -328,21 +553,6 @@ fn palette_colour(p: &[PaletteEntry], v: f64, mode: ColorMode) -> Option<[i32; 4
             Some(std::array::from_fn(|k| ((0.45 + a.rgba[k] as f64 + t * (b.rgba[k] - a.rgba[k]) as f64) as i32).clamp(0, 255)))
         }
     }
-}
-
-/// gdaldem color-relief: each cell's colour from `palette` (NoData cells looked up by the
-/// NoData value, so an "nv" entry colours them and otherwise they take the palette's
-/// lowest colour, as in GDAL), RGB or, with `alpha`, RGBA bytes, cell by cell.
-pub fn color_relief(hf: &Heightfield, palette: &[PaletteEntry], mode: ColorMode, alpha: bool) -> Vec<u8> {
-    let bands = if alpha { 4 } else { 3 };
-    let mut out = Vec::with_capacity(hf.elevations.len() * bands);
-    for (i, &z) in hf.elevations.iter().enumerate() {
-        let nodata = hf.nodata.get(i);
-        let v = if nodata { hf.nodata_value.unwrap_or(f64::NAN) } else { z as f64 };
-        let c = palette_colour(palette, v, mode).unwrap_or([0; 4]);
-        out.extend(c[..bands].iter().map(|&x| x.clamp(0, 255) as u8));
-    }
-    out
 }
 
 #[cfg(test)]
@@ -413,13 +623,113 @@ mod tests {
         assert_eq!(hs[0], 0.0);
     }
 
+    /// A heightfield read row by row that counts each row's reads, and can fail.
+    struct Counted<'a> {
+        hf: &'a Heightfield,
+        reads: Vec<std::sync::atomic::AtomicUsize>,
+        fail_at: Option<usize>,
+    }
+
+    impl HeightRows for Counted<'_> {
+        fn size(&self) -> [usize; 2] {
+            self.hf.size()
+        }
+        fn cell_size(&self) -> [f64; 2] {
+            self.hf.cell_size
+        }
+        fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+            self.reads[row].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.hf.read_row(row, col, out)
+        }
+        fn failure(&self) -> Option<String> {
+            let read = |r: usize| self.reads[r].load(std::sync::atomic::Ordering::Relaxed) > 0;
+            self.fail_at.filter(|&r| read(r)).map(|r| format!("dem.tif: tile of row {r} is corrupt"))
+        }
+    }
+
+    /// A bumpy 41 × 23 DEM with NoData holes inside and on the edges.
+    fn bumpy() -> Heightfield {
+        let mut hf = plane(0.0, 0.0);
+        let (w, h) = (41, 23);
+        hf.width = w;
+        hf.height = h;
+        hf.elevations = (0..w * h).map(|i| ((i % w) as f32 * 0.7).sin() * 40.0 + ((i / w) as f32 * 0.45).cos() * 25.0 + 100.0).collect();
+        let holes = |i: usize| [5 * w + 7, 5 * w + 8, 11 * w, 17 * w + 40, 22 * w + 20, 9 * w + 30].contains(&i);
+        hf.nodata = (0..w * h).map(holes).collect();
+        for (i, z) in hf.elevations.iter_mut().enumerate() {
+            if holes(i) {
+                *z = f32::NAN;
+            }
+        }
+        hf.nodata_value = Some(-5.0);
+        hf
+    }
+
+    #[test]
+    fn products_written_strip_by_strip_equal_those_made_whole_and_read_each_row_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let hf = bumpy();
+        let palette = parse_palette("nv 9 9 9\n0% blue\n60 green 200\n100% white\n", hf.nodata_value, || elevation_range(&hf)).unwrap();
+        let edges = Options { compute_edges: true, ..Default::default() };
+        let ops = [
+            Op::Product(Product::Hillshade, Options::default()),
+            Op::Product(Product::Slope, edges),
+            Op::Product(Product::Aspect, edges),
+            Op::Relief { palette: &palette, mode: ColorMode::Interpolate, alpha: true, nodata_value: hf.nodata_value },
+        ];
+        for (k, op) in ops.iter().enumerate() {
+            // Strips of 1, 2 and 4 rows: windows reaching into the strip before and after.
+            for rows_per_strip in [1, 2, 4] {
+                let src = Counted { hf: &hf, reads: (0..hf.height).map(|_| Default::default()).collect(), fail_at: None };
+                let out = dir.path().join(format!("{k}_{rows_per_strip}.tif"));
+                write_product_strips(&src, &hf.georef(), op, &out, rows_per_strip, &|_| ()).unwrap();
+                assert!(src.reads.iter().all(|n| n.load(std::sync::atomic::Ordering::Relaxed) == 1), "each row read once");
+                let written = volterra_formats::geotiff::read_geotiff_image(&out, &Default::default()).unwrap();
+                let whole: Vec<f64> = match op {
+                    Op::Product(p, o) => f32s(compute(&hf, *p, o).unwrap()).into_iter().map(f64::from).collect(),
+                    Op::Relief { .. } => color_relief(&hf, &palette, ColorMode::Interpolate, true).into_iter().map(f64::from).collect(),
+                };
+                let read: Vec<f64> = match written.pixels {
+                    volterra_formats::geotiff::GeoPixels::Values(v) => v,
+                    volterra_formats::geotiff::GeoPixels::Rgba8(v) => v.into_iter().map(f64::from).collect(),
+                    volterra_formats::geotiff::GeoPixels::Rgb8(_) => panic!("RGBA written"),
+                };
+                // NoData reads as NaN from the image reader: compared as the NoData value.
+                let nodata = op.nodata().unwrap_or(f64::NAN);
+                let read: Vec<f64> = read.into_iter().map(|v| if v.is_nan() { nodata } else { v }).collect();
+                assert_eq!(read, whole, "op {k}, strips of {rows_per_strip}");
+            }
+        }
+        // NoData where a window reaches past the edge (124 cells) or holds a hole: the pair
+        // inside (12 more), the hole inside (9), those on an edge (3 each).
+        let hs = f32s(compute(&hf, Product::Hillshade, &Options::default()).unwrap());
+        assert_eq!(hs.iter().filter(|&&v| v == 0.0).count(), 124 + 12 + 9 + 3 * 3);
+    }
+
+    #[test]
+    fn a_row_that_fails_to_read_stops_the_product_with_its_error_and_leaves_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let hf = bumpy();
+        let src = Counted { hf: &hf, reads: (0..hf.height).map(|_| Default::default()).collect(), fail_at: Some(13) };
+        let out = dir.path().join("hs.tif");
+        let op = Op::Product(Product::Hillshade, Options::default());
+        let e = write_product_strips(&src, &hf.georef(), &op, &out, 4, &|_| ()).unwrap_err();
+        assert_eq!(e.to_string(), "dem.tif: tile of row 13 is corrupt");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no output, no temporary file");
+        let tiny = Heightfield { width: 2, elevations: vec![0.0; 2 * 23], ..bumpy() };
+        assert!(op.check(tiny.size()).unwrap_err().to_string().contains("no 3×3 window"));
+    }
+
     #[test]
     fn palettes_parse_as_gdaldem_reads_them_and_exact_entries_match_only_themselves() {
         let mut hf = plane(0.0, 0.0);
         hf.elevations = (0..30).map(|i| i as f32 * 10.0).collect();
         hf.nodata = (0..30).map(|i| i == 29).collect();
+        hf.elevations[29] = f32::NAN; // as a reader holds NoData
         hf.nodata_value = Some(-1.0);
-        let p = parse_palette("# c\n/ also a comment\nnv 1 2 3 4\n50% red 128\n0:0,0,0\n100 white\n", &hf).unwrap();
+        let p =
+            parse_palette("# c\n/ also a comment\nnv 1 2 3 4\n50% red 128\n0:0,0,0\n100 white\n", hf.nodata_value, || elevation_range(&hf))
+                .unwrap();
         // Sorted: nv (−1), 0, 100, the middle of the valid range (0 … 280: 140).
         let values: Vec<f64> = p.iter().map(|e| e.value).collect();
         assert_eq!(values, [-1.0, 0.0, 100.0, 140.0]);
@@ -430,8 +740,8 @@ mod tests {
         let exact = color_relief(&hf, &p, ColorMode::Exact, false);
         assert_eq!(&exact[3 * 10..3 * 11], &[255, 255, 255], "100 is an entry");
         assert_eq!(&exact[3 * 5..3 * 6], &[0, 0, 0], "50 is none");
-        assert!(parse_palette("10 mauve\n", &hf).unwrap_err().to_string().contains("unknown colour: mauve"));
-        assert!(parse_palette("120% red\n", &hf).unwrap_err().to_string().contains("percentage"));
-        assert!(parse_palette("# COLOR_MODEL = RGB\n", &hf).is_err());
+        assert!(parse_palette("10 mauve\n", None, || None).unwrap_err().to_string().contains("unknown colour: mauve"));
+        assert!(parse_palette("120% red\n", None, || None).unwrap_err().to_string().contains("percentage"));
+        assert!(parse_palette("# COLOR_MODEL = RGB\n", None, || None).is_err());
     }
 }

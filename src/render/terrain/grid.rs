@@ -17,43 +17,7 @@ use volterra_formats::Heightfield;
 /// Lid-map value of a patch that touches a NoData sample: lower than any ray.
 pub const HOLE: f32 = -3.0e38;
 
-/// Heights read a row at a time, for a heightfield that is not held in memory as a whole:
-/// the GPU ray-caster reads each sample once (the samples tiles share, twice), a tile at a
-/// time in bands of rows, into its textures, so a DEM near the size of the host's memory
-/// is held only there (on a software adapter the textures are host memory: `volterra bench
-/// terrain --large` measures a 40000² DEM so). The elevation range takes one more pass;
-/// the f64 reference reads sample by sample (meant for generators and windowed readers:
-/// correct, not fast).
-pub trait HeightRows: Send + Sync {
-    /// Samples east-west and north-south.
-    fn size(&self) -> [usize; 2];
-    /// Metres between samples east-west and north-south.
-    fn cell_size(&self) -> [f64; 2];
-    /// Elevations (metres) of `out.len()` samples of row `row` (row 0 the northernmost, as
-    /// in the file) from column `col`; NaN for NoData.
-    fn read_row(&self, row: usize, col: usize, out: &mut [f32]);
-    /// Why rows could not be read (one line naming the source), once they have been: a
-    /// reader of a file reads a chunk that fails to decode as NoData and says so here.
-    fn failure(&self) -> Option<String> {
-        None
-    }
-}
-
-/// A GeoTIFF read by windows of tiles or strips, not held (see `GeoTiffRows`).
-impl HeightRows for volterra_formats::geotiff_rows::GeoTiffRows {
-    fn size(&self) -> [usize; 2] {
-        [self.georef().width, self.georef().height]
-    }
-    fn cell_size(&self) -> [f64; 2] {
-        self.georef().cell_size
-    }
-    fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
-        volterra_formats::geotiff_rows::GeoTiffRows::read_row(self, row, col, out)
-    }
-    fn failure(&self) -> Option<String> {
-        volterra_formats::geotiff_rows::GeoTiffRows::failure(self)
-    }
-}
+pub use volterra_formats::heightfield::HeightRows;
 
 /// Where a grid's heights are: a heightfield in memory, shared and not copied (a large
 /// DEM is most of the memory a render holds), or a source read row by row.

@@ -1,0 +1,397 @@
+//! GeoTIFF output, written a strip at a time: a product of a DEM larger than memory (a
+//! hillshade of a 40000² raster) is computed and written in bands of rows, never held
+//! whole, as gdaldem writes it.
+//!
+//! The tiff crate's `ImageEncoder` compresses strips one after another on the calling
+//! thread, and has no floating-point predictor; here each batch of strips is compressed in
+//! parallel (zlib, as TIFF's Deflate) and written through the crate's directory encoder,
+//! with the horizontal predictor for bytes and the floating-point predictor (3) for
+//! floats, as GDAL writes `PREDICTOR=2` and `PREDICTOR=3`. A raster whose uncompressed
+//! samples pass 4 GiB is written as BigTIFF (as GDAL's `BIGTIFF=IF_NEEDED`).
+
+use crate::atomic::write_atomically;
+use crate::error::{FormatError, Result};
+use crate::geotiff::{KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_TYPE, KEY_RASTER_TYPE, KEY_VERTICAL_UNITS};
+use crate::heightfield::{Crs, GridGeoref, Heightfield};
+use rayon::prelude::*;
+use std::io::{Seek, Write};
+use std::path::Path;
+use tiff::encoder::{DirectoryEncoder, TiffEncoder, TiffKind};
+use tiff::tags::Tag;
+
+/// The cells of a GeoTIFF, row by row from the north: one band of 32-bit floats or bytes,
+/// or RGB / RGBA bytes (interleaved).
+pub enum Band<'a> {
+    F32(&'a [f32]),
+    U8(&'a [u8]),
+    Rgb8(&'a [u8]),
+    Rgba8(&'a [u8]),
+}
+
+/// What a band's cells are: the sample type and the samples of a cell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BandKind {
+    F32,
+    U8,
+    Rgb8,
+    Rgba8,
+}
+
+impl BandKind {
+    /// Samples a cell.
+    pub fn samples(self) -> usize {
+        match self {
+            BandKind::F32 | BandKind::U8 => 1,
+            BandKind::Rgb8 => 3,
+            BandKind::Rgba8 => 4,
+        }
+    }
+    fn sample_bytes(self) -> usize {
+        match self {
+            BandKind::F32 => 4,
+            _ => 1,
+        }
+    }
+}
+
+/// A strip being filled: its cells, row by row (a cell's samples interleaved).
+pub enum StripMut<'a> {
+    F32(&'a mut [f32]),
+    U8(&'a mut [u8]),
+}
+
+/// Writes a float32 GeoTIFF of the heightfield's elevations (NoData cells as its NoData
+/// value, −32768 where it declares none), with its pixel scale, tiepoint (PixelIsArea),
+/// EPSG code and NoData value. Written atomically.
+pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
+    let nodata = hf.nodata_value.unwrap_or(-32768.0);
+    let declare = !hf.nodata.is_empty() || hf.nodata_value.is_some();
+    let w = hf.width;
+    let fill = |first: usize, strip: StripMut| -> Result<()> {
+        let StripMut::F32(cells) = strip else { unreachable!("a float band") };
+        for (k, z) in cells.iter_mut().enumerate() {
+            let i = first * w + k;
+            *z = if hf.nodata.get(i) { nodata as f32 } else { hf.elevations[i] };
+        }
+        Ok(())
+    };
+    write_band_strips(path, &hf.georef(), BandKind::F32, declare.then_some(nodata), true, default_rows_per_strip(w, BandKind::F32), fill)
+}
+
+/// Writes `band` as a GeoTIFF on the grid and with the georeferencing of `grid` (size,
+/// pixel scale, the tiepoint at the north-west corner, PixelIsArea, its EPSG code) and
+/// `nodata` as GDAL_NODATA; `elevation`: the cells are elevations in metres (said as the
+/// vertical units; not for derived products such as slope). Deflate-compressed, atomically.
+pub fn write_band(path: &Path, grid: &GridGeoref, band: Band, nodata: Option<f64>, elevation: bool) -> Result<()> {
+    let (kind, len) = match &band {
+        Band::F32(d) => (BandKind::F32, d.len()),
+        Band::U8(d) => (BandKind::U8, d.len()),
+        Band::Rgb8(d) => (BandKind::Rgb8, d.len()),
+        Band::Rgba8(d) => (BandKind::Rgba8, d.len()),
+    };
+    let n = grid.width * grid.height * kind.samples();
+    if len != n {
+        return Err(FormatError::invalid(path, format!("{len} samples for a {}×{} grid of {kind:?}", grid.width, grid.height)));
+    }
+    let row = grid.width * kind.samples();
+    let fill = |first: usize, strip: StripMut| -> Result<()> {
+        let at = first * row;
+        match (strip, &band) {
+            (StripMut::F32(s), Band::F32(d)) => s.copy_from_slice(&d[at..at + s.len()]),
+            (StripMut::U8(s), Band::U8(d) | Band::Rgb8(d) | Band::Rgba8(d)) => s.copy_from_slice(&d[at..at + s.len()]),
+            _ => unreachable!("the strip's type is the band's"),
+        }
+        Ok(())
+    };
+    write_band_strips(path, grid, kind, nodata, elevation, default_rows_per_strip(grid.width, kind), fill)
+}
+
+/// Rows a strip: about 256 KiB of samples (at least one row), so that a batch of strips
+/// keeps every core compressing while little is held.
+pub fn default_rows_per_strip(width: usize, kind: BandKind) -> usize {
+    ((256 << 10) / (width * kind.samples() * kind.sample_bytes()).max(1)).max(1)
+}
+
+/// Strips filled before a batch is compressed in parallel: two a thread.
+fn strips_in_flight() -> usize {
+    2 * rayon::current_num_threads().max(1)
+}
+
+/// What `write_band_strips` holds at most, for a limit check: its batch of strips, each
+/// filled, predicted and compressed (zlib's output at most about the size of its input).
+pub fn writer_bytes(width: usize, kind: BandKind, rows_per_strip: usize) -> u64 {
+    (strips_in_flight() * 3 * rows_per_strip * width * kind.samples() * kind.sample_bytes()) as u64
+}
+
+/// Whether a raster of `raw_bytes` uncompressed samples is written as BigTIFF: where its
+/// strips, compressed, could end past 4 GiB (zlib adds at most a few bytes in a thousand
+/// to data it cannot compress, and the directory and strip tables take a little more).
+pub fn needs_bigtiff(raw_bytes: u64) -> bool {
+    raw_bytes + raw_bytes / 64 + (16 << 20) >= 1 << 32
+}
+
+/// Writes a GeoTIFF as `write_band` does, its cells handed over a strip at a time:
+/// `fill(first_row, strip)` fills the rows from `first_row` (`rows_per_strip` of them, the
+/// last strip fewer), strips in order from the north. Strips are compressed in parallel, a
+/// batch of them at a time, so that at most a few strips per core are held. An error from
+/// `fill` stops the write (no output is left) and is returned as it is.
+pub fn write_band_strips<E: From<FormatError>>(
+    path: &Path,
+    grid: &GridGeoref,
+    kind: BandKind,
+    nodata: Option<f64>,
+    elevation: bool,
+    rows_per_strip: usize,
+    mut fill: impl FnMut(usize, StripMut) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    if grid.width == 0 || grid.height == 0 || grid.width > u32::MAX as usize || grid.height > u32::MAX as usize {
+        return Err(FormatError::invalid(path, format!("cannot write a {}×{} raster", grid.width, grid.height)).into());
+    }
+    let rows_per_strip = rows_per_strip.clamp(1, grid.height);
+    let raw = (grid.width * grid.height * kind.samples() * kind.sample_bytes()) as u64;
+    let layout = Layout { grid, kind, nodata, elevation, rows_per_strip };
+    // The error `fill` returned, kept while the writer's own error unwinds the write.
+    let mut failed: Option<E> = None;
+    let written = write_atomically(path, |w| {
+        let mut stop_on_error = |first: usize, strip: StripMut| {
+            fill(first, strip).map_err(|e| {
+                failed = Some(e);
+                FormatError::invalid(path, "the write was stopped")
+            })
+        };
+        let err = |e: tiff::TiffError| FormatError::invalid(path, format!("cannot write TIFF: {e}"));
+        if needs_bigtiff(raw) {
+            write_strips(&mut TiffEncoder::new_big(w).map_err(err)?, path, &layout, &mut stop_on_error)
+        } else {
+            write_strips(&mut TiffEncoder::new(w).map_err(err)?, path, &layout, &mut stop_on_error)
+        }
+    });
+    match failed {
+        Some(e) => Err(e),
+        None => written.map_err(E::from),
+    }
+}
+
+/// What `write_strips` writes.
+struct Layout<'a> {
+    grid: &'a GridGeoref,
+    kind: BandKind,
+    nodata: Option<f64>,
+    elevation: bool,
+    rows_per_strip: usize,
+}
+
+/// One strip filled and compressed: its samples are kept to be refilled.
+struct Strip {
+    f32s: Vec<f32>,
+    bytes: Vec<u8>,
+    compressed: Vec<u8>,
+}
+
+fn write_strips<W: Write + Seek, K: TiffKind>(
+    enc: &mut TiffEncoder<W, K>,
+    path: &Path,
+    l: &Layout,
+    fill: &mut dyn FnMut(usize, StripMut) -> Result<()>,
+) -> Result<()> {
+    let err = |e: tiff::TiffError| FormatError::invalid(path, format!("cannot write TIFF: {e}"));
+    let (w, h) = (l.grid.width, l.grid.height);
+    let row_samples = w * l.kind.samples();
+    let strips = h.div_ceil(l.rows_per_strip);
+    let batch = strips_in_flight();
+    let mut dir = enc.image_directory().map_err(err)?;
+    let mut offsets: Vec<u64> = Vec::with_capacity(strips);
+    let mut counts: Vec<u64> = Vec::with_capacity(strips);
+    let mut pool: Vec<Strip> =
+        (0..batch.min(strips)).map(|_| Strip { f32s: Vec::new(), bytes: Vec::new(), compressed: Vec::new() }).collect();
+    for first_strip in (0..strips).step_by(batch) {
+        let in_batch = batch.min(strips - first_strip);
+        // Filled in order (a reader of rows reads them in order), compressed in parallel.
+        for (k, s) in pool[..in_batch].iter_mut().enumerate() {
+            let first = (first_strip + k) * l.rows_per_strip;
+            let n = (h - first).min(l.rows_per_strip) * row_samples;
+            match l.kind {
+                BandKind::F32 => {
+                    s.f32s.resize(n, 0.0);
+                    fill(first, StripMut::F32(&mut s.f32s))?;
+                }
+                _ => {
+                    s.bytes.resize(n, 0);
+                    fill(first, StripMut::U8(&mut s.bytes))?;
+                }
+            }
+        }
+        pool[..in_batch].par_iter_mut().for_each(|s| compress(s, l.kind, row_samples));
+        for s in &pool[..in_batch] {
+            offsets.push(dir.write_data(&s.compressed[..]).map_err(err)?);
+            counts.push(s.compressed.len() as u64);
+        }
+    }
+    write_tags(&mut dir, l, &offsets, &counts).map_err(err)?;
+    dir.finish().map_err(err)
+}
+
+/// Predicts and compresses a strip's samples into `s.compressed`: bytes by differences
+/// along the row between a cell's sample and the previous cell's (TIFF predictor 2);
+/// floats by their bytes split into planes, most significant first, then differenced along
+/// the row (predictor 3, as GDAL and libtiff write it).
+fn compress(s: &mut Strip, kind: BandKind, row_samples: usize) {
+    use std::io::Write as _;
+    let spp = kind.samples();
+    let mut predicted: Vec<u8> = Vec::new();
+    let data: &[u8] = match kind {
+        BandKind::F32 => {
+            let row_bytes = row_samples * 4;
+            predicted.resize(s.f32s.len() * 4, 0);
+            for (row, out) in s.f32s.chunks_exact(row_samples).zip(predicted.chunks_exact_mut(row_bytes)) {
+                for (i, v) in row.iter().enumerate() {
+                    let b = v.to_be_bytes();
+                    for (plane, byte) in b.iter().enumerate() {
+                        out[plane * row_samples + i] = *byte;
+                    }
+                }
+                for i in (1..row_bytes).rev() {
+                    out[i] = out[i].wrapping_sub(out[i - 1]);
+                }
+            }
+            &predicted
+        }
+        _ => {
+            predicted.extend_from_slice(&s.bytes);
+            for out in predicted.chunks_exact_mut(row_samples) {
+                for i in (spp..row_samples).rev() {
+                    out[i] = out[i].wrapping_sub(out[i - spp]);
+                }
+            }
+            &predicted
+        }
+    };
+    s.compressed.clear();
+    let mut z = flate2::write::ZlibEncoder::new(std::mem::take(&mut s.compressed), flate2::Compression::new(6));
+    z.write_all(data).expect("writing to memory");
+    s.compressed = z.finish().expect("writing to memory");
+}
+
+/// The image's tags: layout, compression, predictor, strips, and the georeferencing.
+fn write_tags<W: Write + Seek, K: TiffKind>(
+    dir: &mut DirectoryEncoder<'_, W, K>,
+    l: &Layout,
+    offsets: &[u64],
+    counts: &[u64],
+) -> tiff::TiffResult<()> {
+    let grid = l.grid;
+    let spp = l.kind.samples() as u16;
+    let bits = (8 * l.kind.sample_bytes()) as u16;
+    dir.write_tag(Tag::ImageWidth, grid.width as u32)?;
+    dir.write_tag(Tag::ImageLength, grid.height as u32)?;
+    dir.write_tag(Tag::BitsPerSample, &vec![bits; spp as usize][..])?;
+    dir.write_tag(Tag::Compression, 8u16)?;
+    dir.write_tag(Tag::PhotometricInterpretation, if spp >= 3 { 2u16 } else { 1u16 })?;
+    dir.write_tag(Tag::SamplesPerPixel, spp)?;
+    dir.write_tag(Tag::RowsPerStrip, l.rows_per_strip as u32)?;
+    dir.write_tag(Tag::PlanarConfiguration, 1u16)?;
+    dir.write_tag(Tag::Predictor, if l.kind == BandKind::F32 { 3u16 } else { 2u16 })?;
+    dir.write_tag(Tag::SampleFormat, &vec![if l.kind == BandKind::F32 { 3u16 } else { 1u16 }; spp as usize][..])?;
+    if l.kind == BandKind::Rgba8 {
+        // The fourth sample is unassociated alpha (GDAL reads it as the alpha band).
+        dir.write_tag(Tag::ExtraSamples, 2u16)?;
+    }
+    let offsets: Vec<K::OffsetType> = offsets.iter().map(|&o| K::convert_offset(o)).collect::<tiff::TiffResult<_>>()?;
+    let counts: Vec<K::OffsetType> = counts.iter().map(|&c| K::convert_offset(c)).collect::<tiff::TiffResult<_>>()?;
+    dir.write_tag(Tag::StripOffsets, K::convert_slice(&offsets))?;
+    dir.write_tag(Tag::StripByteCounts, K::convert_slice(&counts))?;
+    let [sx, sy] = grid.cell_size_native;
+    let corner = [grid.origin[0] - 0.5 * sx, grid.origin[1] + 0.5 * sy];
+    dir.write_tag(Tag::ModelPixelScaleTag, &[sx, sy, 0.0][..])?;
+    dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..])?;
+    let mut keys: Vec<u16> = vec![1, 1, 0, 0];
+    let mut push = |id: u16, v: u16| keys.extend_from_slice(&[id, 0, 1, v]);
+    if grid.crs != Crs::local() {
+        push(KEY_MODEL_TYPE, if grid.crs.geographic { 2 } else { 1 });
+    }
+    push(KEY_RASTER_TYPE, 1);
+    if let Some(c) = grid.crs.epsg {
+        push(if grid.crs.geographic { KEY_GEOGRAPHIC_TYPE } else { KEY_PROJECTED_TYPE }, c as u16);
+    }
+    if l.elevation {
+        push(KEY_VERTICAL_UNITS, 9001);
+    }
+    keys[3] = ((keys.len() - 4) / 4) as u16;
+    dir.write_tag(Tag::GeoKeyDirectoryTag, &keys[..])?;
+    if let Some(v) = l.nodata {
+        dir.write_tag(Tag::GdalNodata, &*format!("{v}"))?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(w: usize, h: usize) -> GridGeoref {
+        GridGeoref {
+            width: w,
+            height: h,
+            cell_size: [30.0, 30.0],
+            cell_size_native: [30.0, 30.0],
+            origin: [500_015.0, 4_199_985.0],
+            crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
+        }
+    }
+
+    #[test]
+    fn strips_of_every_kind_read_back_as_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let g = grid(37, 23);
+        let floats: Vec<f32> = (0..37 * 23).map(|i| (i as f32 * 0.37).sin() * 1000.0 - 20.0).collect();
+        let path = dir.path().join("f.tif");
+        // A strip of 5 rows: the last one of 3; values negative and positive, across bytes.
+        write_band_strips::<FormatError>(&path, &g, BandKind::F32, Some(-9999.0), true, 5, |first, s| {
+            let StripMut::F32(s) = s else { unreachable!() };
+            s.copy_from_slice(&floats[first * 37..first * 37 + s.len()]);
+            Ok(())
+        })
+        .unwrap();
+        let hf = crate::geotiff::read_geotiff(&path, &Default::default()).unwrap();
+        assert_eq!((hf.width, hf.height), (37, 23));
+        assert_eq!(hf.elevations, floats);
+        assert_eq!(hf.nodata_value, Some(-9999.0));
+        assert_eq!(hf.origin, g.origin);
+        assert_eq!(hf.crs.epsg, Some(32610));
+        let rgb: Vec<u8> = (0..37 * 23 * 3).map(|i| (i * 7 % 251) as u8).collect();
+        let path = dir.path().join("rgb.tif");
+        write_band(&path, &g, Band::Rgb8(&rgb), None, false).unwrap();
+        let img = crate::geotiff::read_geotiff_image(&path, &Default::default()).unwrap();
+        let crate::geotiff::GeoPixels::Rgb8(px) = &img.pixels else { panic!("not RGB") };
+        assert_eq!(px, &rgb);
+    }
+
+    #[test]
+    fn an_error_while_filling_leaves_no_file_and_is_returned_as_it_was() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("stopped.tif");
+        #[derive(Debug, PartialEq)]
+        struct Stopped(String);
+        impl From<FormatError> for Stopped {
+            fn from(e: FormatError) -> Stopped {
+                Stopped(e.to_string())
+            }
+        }
+        let r = write_band_strips(&path, &grid(10, 40), BandKind::U8, None, false, 4, |first, _| {
+            if first >= 20 {
+                Err(Stopped("row 20 failed".into()))
+            } else {
+                Ok(())
+            }
+        });
+        assert_eq!(r.unwrap_err(), Stopped("row 20 failed".into()));
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no output, no temporary file");
+    }
+
+    #[test]
+    fn rasters_past_4_gib_are_bigtiff() {
+        assert!(!needs_bigtiff(40_000 * 40_000), "a 1.6 GB byte hillshade of a 40000² DEM");
+        assert!(needs_bigtiff(40_000 * 40_000 * 4), "its 6.4 GB float slope");
+        assert!(needs_bigtiff((1 << 32) - (32 << 20)), "within what zlib and the tables may add");
+    }
+}
