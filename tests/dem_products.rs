@@ -342,7 +342,8 @@ fn dem_products_equal_gdaldem_on_a_projected_dem_with_nodata() {
 
 /// A GeoTIFF larger than the memory limit: its products are made at full resolution, a
 /// band of rows at a time (read whole, the raster would be its largest overview that fits,
-/// and the products that overview's), equal to gdaldem's, within the limit.
+/// and the products that overview's), equal to gdaldem's and gdal_contour's, within the
+/// limit.
 #[test]
 fn dem_products_of_a_tiled_dem_larger_than_the_memory_limit_equal_gdaldem_at_full_resolution() {
     if gdaldem().is_none() {
@@ -367,6 +368,11 @@ fn dem_products_of_a_tiled_dem_larger_than_the_memory_limit_equal_gdaldem_at_ful
     assert_eq!(whole.width, 1024, "{:?}", whole.notes);
     let n = compare_products(&dem, dir.path(), &[], &limit);
     assert!(n > 18_000_000, "{n} cells compared");
+    // Contours too: read by rows, lines and band polygons as gdal_contour draws them.
+    let v = compare_contours(&dem, dir.path(), "tiled_i20", &["-i", "20"], &["--interval", "20", limit[0], limit[1]]);
+    assert!(v > 50_000, "{v} vertices compared");
+    let p = compare_contour_polygons(&dem, dir.path(), "tiled_i40", &["-i", "40"], &["--interval", "40", limit[0], limit[1]]);
+    assert!(p > 5, "{p} polygons compared");
     let out =
         Command::new(common::volterra_bin()).args(limit).args(["dem", "slope"]).arg(&dem).arg(dir.path().join("s.tif")).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);

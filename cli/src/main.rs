@@ -892,7 +892,6 @@ fn cmd_dem(
     relief: &ReliefArgs,
     load: &LoadOptions,
 ) -> Result<()> {
-    use formats::heightfield::HeightRows;
     use volterra::dem::{self, Op, Product};
     // The palette first: a missing one is an error before the DEM is read.
     let palette = match product {
@@ -903,19 +902,7 @@ fn cmd_dem(
         }
         _ => None,
     };
-    // A GeoTIFF is read a band of rows at a time as its product is written (at full
-    // resolution whatever its size: the rows held are a few strips'); other DEMs whole.
-    let (src, grid, nodata_value): (Box<dyn HeightRows>, _, _) = if formats::detect(input)? == formats::FileKind::GeoTiff {
-        let rows = formats::geotiff_rows::GeoTiffRows::open(input, &load.geotiff, &load.limits, 0)?;
-        let (grid, nodata) = (rows.georef().clone(), rows.nodata_value);
-        (Box::new(rows), grid, nodata)
-    } else {
-        let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
-            anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
-        };
-        let (grid, nodata) = (hf.georef(), hf.nodata_value);
-        (Box::new(hf), grid, nodata)
-    };
+    let (src, grid, nodata_value) = dem_source(input, load)?;
     let palette = match palette {
         Some((path, text)) => {
             Some(dem::parse_palette(&text, nodata_value, || dem::elevation_range(&*src)).with_context(|| path.display().to_string())?)
@@ -943,6 +930,25 @@ fn cmd_dem(
     Ok(())
 }
 
+/// A DEM's rows as the products read them: a GeoTIFF a band of rows at a time (at full
+/// resolution whatever its size: what is held is a few rows), other DEMs whole; where
+/// they lie, and the NoData value the file declares.
+fn dem_source(
+    input: &Path,
+    load: &LoadOptions,
+) -> Result<(Box<dyn formats::heightfield::HeightRows>, formats::heightfield::GridGeoref, Option<f64>)> {
+    if formats::detect(input)? == formats::FileKind::GeoTiff {
+        let rows = formats::geotiff_rows::GeoTiffRows::open(input, &load.geotiff, &load.limits, 0)?;
+        let (grid, nodata) = (rows.georef().clone(), rows.nodata_value);
+        return Ok((Box::new(rows), grid, nodata));
+    }
+    let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
+        anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
+    };
+    let (grid, nodata) = (hf.georef(), hf.nodata_value);
+    Ok((Box::new(hf), grid, nodata))
+}
+
 /// What `dem contours` writes: lines (gdal_contour's default) or band polygons (-p).
 enum ContourOutput<'a> {
     Lines { attribute: &'a str, three_d: bool },
@@ -960,21 +966,19 @@ fn cmd_contours(
     if ext != "geojson" && ext != "json" {
         anyhow::bail!("{}: contours are written as GeoJSON; name the output .geojson", output.display());
     }
-    let formats::Dataset::Heightfield(hf) = formats::load(input, load)? else {
-        anyhow::bail!("{}: not a heightfield (a GeoTIFF or PNG DEM)", input.display());
-    };
+    let (src, grid, _) = dem_source(input, load)?;
     match kind {
         ContourOutput::Lines { attribute, three_d } => {
-            let lines = volterra::dem::contours::contours(&hf, levels).with_context(|| input.display().to_string())?;
+            let lines = volterra::dem::contours::contours(&*src, &grid, levels).with_context(|| input.display().to_string())?;
             let features = lines.iter().map(|l| formats::geojson::LineFeature { points: &l.points, value: l.level });
-            formats::geojson::write_lines(output, "contour", &hf.crs, attribute, three_d, features)?;
+            formats::geojson::write_lines(output, "contour", &grid.crs, attribute, three_d, features)?;
             let vertices: usize = lines.iter().map(|l| l.points.len()).sum();
             eprintln!("wrote {} ({} lines, {vertices} vertices)", output.display(), lines.len());
         }
         ContourOutput::Polygons { min, max } => {
-            let bands = volterra::dem::contours::contour_polygons(&hf, levels).with_context(|| input.display().to_string())?;
+            let bands = volterra::dem::contours::contour_polygons(&*src, &grid, levels).with_context(|| input.display().to_string())?;
             let features = bands.iter().map(|b| formats::geojson::PolygonFeature { polygons: &b.polygons, min: b.min, max: b.max });
-            formats::geojson::write_polygons(output, "contour", &hf.crs, (min, max), features)?;
+            formats::geojson::write_polygons(output, "contour", &grid.crs, (min, max), features)?;
             let polygons: usize = bands.iter().map(|b| b.polygons.len()).sum();
             eprintln!("wrote {} ({} bands, {polygons} polygons)", output.display(), bands.len());
         }

@@ -23,7 +23,7 @@
 use std::collections::HashMap;
 
 use anyhow::{bail, Result};
-use volterra_formats::heightfield::Heightfield;
+use volterra_formats::heightfield::{GridGeoref, HeightRows};
 
 /// Which levels to draw.
 #[derive(Debug, Clone, PartialEq)]
@@ -231,8 +231,8 @@ fn level_value(levels: &Levels, k: i64) -> f64 {
 }
 
 /// `levels` checked and put in order (fixed levels sorted, repeats dropped), refused where
-/// `hf` would cross more than `MAX_LEVELS` of them.
-fn checked_levels(hf: &Heightfield, levels: &Levels) -> Result<Levels> {
+/// elevations over `range` (the raster's valid ones) would cross more than `MAX_LEVELS`.
+fn checked_levels(range: Option<(f64, f64)>, levels: &Levels) -> Result<Levels> {
     let levels = match levels {
         Levels::Interval { interval, offset } => {
             if !(interval.is_finite() && *interval > 0.0 && offset.is_finite()) {
@@ -251,7 +251,7 @@ fn checked_levels(hf: &Heightfield, levels: &Levels) -> Result<Levels> {
         }
     };
     if let Levels::Interval { interval, offset } = &levels {
-        if let Some((lo, hi)) = valid_range(hf) {
+        if let Some((lo, hi)) = range {
             if ((hi - offset) / interval).floor() - ((lo - offset) / interval).ceil() > MAX_LEVELS as f64 {
                 bail!("an interval of {interval} over elevations {lo}…{hi} gives more than {MAX_LEVELS} levels");
             }
@@ -260,30 +260,29 @@ fn checked_levels(hf: &Heightfield, levels: &Levels) -> Result<Levels> {
     Ok(levels)
 }
 
-/// The lowest and highest valid elevation (None: none is valid).
-fn valid_range(hf: &Heightfield) -> Option<(f64, f64)> {
-    let (lo, hi) = hf
-        .elevations
-        .iter()
-        .enumerate()
-        .filter(|&(i, v)| v.is_finite() && !hf.is_nodata(i % hf.width, i / hf.width))
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (_, &v)| (lo.min(v as f64), hi.max(v as f64)));
-    (lo <= hi).then_some((lo, hi))
-}
-
 /// Calls `visit` with every NoData-free square of the raster framed by a ring of NoData
 /// (squares between rows row − 1 and row, columns col and col + 1), or with the quarters
 /// of a square that has one to three NoData corners, as GDAL's marching squares visit
-/// them, with the square's column and row (rows in order, each left to right).
-fn for_each_square(hf: &Heightfield, mut visit: impl FnMut(&Square, i64, i64)) {
-    let (w, h) = (hf.width, hf.height);
-    let value = |col: i64, row: i64| -> f64 {
-        if col < 0 || row < 0 || col >= w as i64 || row >= h as i64 || hf.is_nodata(col as usize, row as usize) {
-            return f64::NAN;
-        }
-        hf.elevations[row as usize * w + col as usize] as f64
-    };
+/// them, with the square's column and row (rows in order, each left to right). Reads each
+/// row of `src` once, in order, holding two.
+fn for_each_square(src: &dyn HeightRows, mut visit: impl FnMut(&Square, i64, i64)) {
+    let [w, h] = src.size();
+    // Corner rows row − 1 and row (NaN beyond the raster and for NoData).
+    let (mut above, mut below) = (vec![f32::NAN; w], vec![f32::NAN; w]);
     for row in 0..=h as i64 {
+        std::mem::swap(&mut above, &mut below);
+        if (row as usize) < h {
+            src.read_row(row as usize, 0, &mut below);
+        } else {
+            below.fill(f32::NAN);
+        }
+        let value = |col: i64, r: i64| -> f64 {
+            let cells = if r < row { &above } else { &below };
+            if col < 0 || col >= w as i64 {
+                return f64::NAN;
+            }
+            cells[col as usize] as f64
+        };
         for col in -1..w as i64 {
             let corner = |c: i64, r: i64| Corner { x: c as f64 + 0.5, y: r as f64 + 0.5, v: value(c, r) };
             let sq = Square {
@@ -304,18 +303,21 @@ fn for_each_square(hf: &Heightfield, mut visit: impl FnMut(&Square, i64, i64)) {
 
 /// Pixel space (x east, y south, in cells from the raster's north-west corner) to the
 /// raster's map coordinates.
-fn to_map(hf: &Heightfield) -> impl Fn([f64; 2]) -> [f64; 2] {
-    let [sx, sy] = hf.cell_size_native;
-    let corner = [hf.origin[0] - 0.5 * sx, hf.origin[1] + 0.5 * sy];
+fn to_map(grid: &GridGeoref) -> impl Fn([f64; 2]) -> [f64; 2] {
+    let [sx, sy] = grid.cell_size_native;
+    let corner = [grid.origin[0] - 0.5 * sx, grid.origin[1] + 0.5 * sy];
     move |p: [f64; 2]| [corner[0] + p[0] * sx, corner[1] - p[1] * sy]
 }
 
-/// The contour lines of `hf` at `levels`, in map coordinates.
-pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
-    let levels = checked_levels(hf, levels)?;
+/// The contour lines of the rows of `src` (on `grid`; NoData as NaN) at `levels`, in map
+/// coordinates. The rows are read twice, in order: for the elevation range (to refuse an
+/// interval that would draw more than `MAX_LEVELS` levels), then to draw; a DEM of any
+/// size takes the memory of two rows and its lines.
+pub fn contours(src: &dyn HeightRows, grid: &GridGeoref, levels: &Levels) -> Result<Vec<ContourLine>> {
+    let levels = checked_levels(range_for(src, levels), levels)?;
     // Segments per level index, in pixel space.
     let mut segments: HashMap<i64, Vec<[[f64; 2]; 2]>> = HashMap::new();
-    for_each_square(hf, |sq, _, _| {
+    for_each_square(src, |sq, _, _| {
         let (min, max) = sq.value_range();
         for k in level_range(&levels, min, max) {
             let level = level_value(&levels, k);
@@ -326,7 +328,10 @@ pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
             });
         }
     });
-    let to_map = to_map(hf);
+    if let Some(why) = src.failure() {
+        bail!("{why}");
+    }
+    let to_map = to_map(grid);
     let mut keys: Vec<i64> = segments.keys().copied().collect();
     keys.sort_unstable();
     let mut lines = Vec::new();
@@ -337,6 +342,11 @@ pub fn contours(hf: &Heightfield, levels: &Levels) -> Result<Vec<ContourLine>> {
         }
     }
     Ok(lines)
+}
+
+/// The valid elevations' range where `levels` needs it (an interval), None otherwise.
+fn range_for(src: &dyn HeightRows, levels: &Levels) -> Option<(f64, f64)> {
+    matches!(levels, Levels::Interval { .. }).then(|| super::elevation_range(src)).flatten()
 }
 
 mod polygons;
@@ -391,7 +401,7 @@ fn join_segments(segs: &[[[f64; 2]; 2]]) -> Vec<Vec<[f64; 2]>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use volterra_formats::heightfield::Crs;
+    use volterra_formats::heightfield::{Crs, Heightfield};
 
     fn grid(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
         Heightfield {
@@ -415,7 +425,7 @@ mod tests {
     fn a_cone_gives_one_closed_ring_per_level() {
         let (n, c) = (41, 20.0);
         let hf = grid(n, n, |x, y| 100.0 - ((x as f32 - c).powi(2) + (y as f32 - c).powi(2)).sqrt());
-        let lines = contours(&hf, &Levels::Interval { interval: 5.0, offset: 0.0 }).unwrap();
+        let lines = contours(&hf, &hf.georef(), &Levels::Interval { interval: 5.0, offset: 0.0 }).unwrap();
         // Levels 85…95 lie wholly inside the raster (radius 15…5 < 20).
         for level in [85.0, 90.0, 95.0] {
             let rings: Vec<_> = lines.iter().filter(|l| l.level == level).collect();
@@ -435,7 +445,7 @@ mod tests {
     #[test]
     fn a_ramp_gives_straight_lines_to_the_raster_edge() {
         let hf = grid(6, 4, |x, _| x as f32 * 10.0);
-        let lines = contours(&hf, &Levels::Fixed(vec![15.0, 20.0])).unwrap();
+        let lines = contours(&hf, &hf.georef(), &Levels::Fixed(vec![15.0, 20.0])).unwrap();
         assert_eq!(lines.len(), 2);
         let l15 = lines.iter().find(|l| l.level == 15.0).unwrap();
         assert!(!l15.is_closed());
@@ -456,14 +466,14 @@ mod tests {
         let mut hf = grid(5, 5, |x, _| x as f32);
         hf.nodata = (0..25).map(|i| i % 5 == 4 && i / 5 == 2).collect();
         hf.elevations[14] = f32::NAN;
-        let lines = contours(&hf, &Levels::Fixed(vec![2.5])).unwrap();
+        let lines = contours(&hf, &hf.georef(), &Levels::Fixed(vec![2.5])).unwrap();
         assert_eq!(lines.len(), 1, "2.5 lies between columns 2 and 3, away from the hole");
-        let lines = contours(&hf, &Levels::Fixed(vec![3.5])).unwrap();
+        let lines = contours(&hf, &hf.georef(), &Levels::Fixed(vec![3.5])).unwrap();
         assert_eq!(lines.len(), 2, "3.5 is cut by the NoData cell at column 4: {lines:?}");
-        assert!(contours(&hf, &Levels::Fixed(vec![50.0])).unwrap().is_empty());
-        assert!(contours(&hf, &Levels::Interval { interval: 0.0, offset: 0.0 }).is_err());
-        assert!(contours(&hf, &Levels::Interval { interval: 1e-9, offset: 0.0 }).is_err());
-        assert!(contours(&hf, &Levels::Fixed(vec![f64::NAN])).is_err());
+        assert!(contours(&hf, &hf.georef(), &Levels::Fixed(vec![50.0])).unwrap().is_empty());
+        assert!(contours(&hf, &hf.georef(), &Levels::Interval { interval: 0.0, offset: 0.0 }).is_err());
+        assert!(contours(&hf, &hf.georef(), &Levels::Interval { interval: 1e-9, offset: 0.0 }).is_err());
+        assert!(contours(&hf, &hf.georef(), &Levels::Fixed(vec![f64::NAN])).is_err());
     }
 
     /// Twice a ring's signed area about its first vertex.
@@ -494,7 +504,7 @@ mod tests {
         ];
         for (n, (mut hf, levels)) in cases.into_iter().enumerate() {
             hf.origin = [5.0e5, 4.2e6];
-            let bands = contour_polygons(&hf, &levels).unwrap();
+            let bands = contour_polygons(&hf, &hf.georef(), &levels).unwrap();
             let total: f64 = bands.iter().map(band_area).sum();
             let extent = (hf.width * hf.height) as f64;
             assert!((total - extent).abs() < 1e-6 * extent, "case {n}: the bands cover {total}, the raster {extent}");
@@ -509,19 +519,19 @@ mod tests {
         }
         // The cone: the band 85…90 is an annulus between radii 10 and 15 cells.
         let hf = grid(41, 41, |x, y| 100.0 - ((x as f32 - 20.0).powi(2) + (y as f32 - 20.0).powi(2)).sqrt());
-        let bands = contour_polygons(&hf, &Levels::Interval { interval: 5.0, offset: 0.0 }).unwrap();
+        let bands = contour_polygons(&hf, &hf.georef(), &Levels::Interval { interval: 5.0, offset: 0.0 }).unwrap();
         let annulus = bands.iter().find(|b| b.min == 85.0).unwrap();
         assert_eq!((annulus.max, annulus.polygons.len(), annulus.polygons[0].len()), (90.0, 1, 2), "one polygon with one hole");
         let want = std::f64::consts::PI * (15.0f64.powi(2) - 10.0f64.powi(2));
         assert!((band_area(annulus) - want).abs() < 0.01 * want, "annulus area {} against {want}", band_area(annulus));
         // The ends: the lowest band starts at the lowest elevation, a fixed list's highest
         // ends at the highest.
-        let bands = contour_polygons(&hf, &Levels::Fixed(vec![90.0])).unwrap();
+        let bands = contour_polygons(&hf, &hf.georef(), &Levels::Fixed(vec![90.0])).unwrap();
         let lowest = hf.elevations.iter().fold(f32::INFINITY, |a, &b| a.min(b)) as f64;
         assert_eq!((bands[0].min, bands[0].max, bands[1].min, bands[1].max), (lowest, 90.0, 90.0, 100.0));
         // The centre equal to a level: a tiny diamond in the band above, a hole below.
         let hf = grid(7, 6, |x, y| if (x, y) == (3, 2) { 180.0 } else { 170.0 + x as f32 });
-        let bands = contour_polygons(&hf, &Levels::Interval { interval: 10.0, offset: 0.0 }).unwrap();
+        let bands = contour_polygons(&hf, &hf.georef(), &Levels::Interval { interval: 10.0, offset: 0.0 }).unwrap();
         let top = bands.iter().find(|b| b.min == 180.0).unwrap();
         assert_eq!(top.polygons.len(), 1);
         assert!(band_area(top) > 0.0 && band_area(top) < 1e-12, "{}", band_area(top));

@@ -20,10 +20,10 @@
 
 use std::collections::{HashMap, HashSet};
 
-use anyhow::Result;
-use volterra_formats::heightfield::Heightfield;
+use anyhow::{bail, Result};
+use volterra_formats::heightfield::{GridGeoref, HeightRows};
 
-use super::{checked_levels, for_each_square, level_range, level_value, to_map, valid_range, Corner, Levels, Side, Square};
+use super::{checked_levels, for_each_square, level_range, level_value, to_map, Corner, Levels, Side, Square};
 
 /// One band between two levels: its polygons in map coordinates, each an outer ring and
 /// its holes, every ring closed (first vertex repeated last), outer rings
@@ -189,38 +189,45 @@ fn split_square(sq: &Square, levels: &Levels, edges: &mut Edges) {
 
 /// Which full squares have four corners in one band, for a sliding window of rows.
 struct WholeRows<'a> {
-    hf: &'a Heightfield,
+    src: &'a dyn HeightRows,
     levels: &'a Levels,
     /// Squares of rows row − 1, row, row + 1 (columns −1..width): their band, or None.
     rows: [Vec<Option<i64>>; 3],
     row: i64,
+    /// The bands of the last corner row read (row + 1), and a row's elevations.
+    corners: Vec<Option<i64>>,
+    cells: Vec<f32>,
 }
 
 impl<'a> WholeRows<'a> {
-    fn new(hf: &'a Heightfield, levels: &'a Levels) -> Self {
-        let mut w = WholeRows { hf, levels, rows: Default::default(), row: 0 };
-        w.rows = [w.square_row(-1), w.square_row(0), w.square_row(1)];
-        w
+    fn new(src: &'a dyn HeightRows, levels: &'a Levels) -> Self {
+        let w = src.size()[0];
+        let mut whole = WholeRows { src, levels, rows: Default::default(), row: 0, corners: vec![None; w + 2], cells: vec![0.0; w] };
+        whole.corners = whole.corner_row(-2);
+        whole.rows = [whole.square_row(-1), whole.square_row(0), whole.square_row(1)];
+        whole
     }
 
     /// The bands of corner row `row`, columns −1..=width (None: NoData or outside).
-    fn corner_row(&self, row: i64) -> Vec<Option<i64>> {
-        let (w, h) = (self.hf.width as i64, self.hf.height as i64);
-        (-1..=w)
-            .map(|col| {
-                if col < 0 || row < 0 || col >= w || row >= h || self.hf.is_nodata(col as usize, row as usize) {
-                    return None;
-                }
-                let v = self.hf.elevations[(row * w + col) as usize] as f64;
-                v.is_finite().then(|| band_of(self.levels, v))
-            })
-            .collect()
+    fn corner_row(&mut self, row: i64) -> Vec<Option<i64>> {
+        let [w, h] = self.src.size();
+        if row < 0 || row >= h as i64 {
+            return vec![None; w + 2];
+        }
+        self.src.read_row(row as usize, 0, &mut self.cells);
+        let mut bands = Vec::with_capacity(w + 2);
+        bands.push(None);
+        bands.extend(self.cells.iter().map(|&v| v.is_finite().then(|| band_of(self.levels, v as f64))));
+        bands.push(None);
+        bands
     }
 
-    /// Squares between corner rows row − 1 and row, columns −1..width.
-    fn square_row(&self, row: i64) -> Vec<Option<i64>> {
-        let (above, here) = (self.corner_row(row - 1), self.corner_row(row));
-        (0..=self.hf.width)
+    /// Squares between corner rows row − 1 (the last read) and row, columns −1..width.
+    fn square_row(&mut self, row: i64) -> Vec<Option<i64>> {
+        let here = self.corner_row(row);
+        let above = std::mem::replace(&mut self.corners, here);
+        let here = &self.corners;
+        (0..above.len() - 1)
             .map(|i| {
                 let b = above[i]?;
                 (above[i + 1]? == b && here[i]? == b && here[i + 1]? == b).then_some(b)
@@ -239,20 +246,23 @@ impl<'a> WholeRows<'a> {
 
     /// The band of square (col, row − 1 + dr) where its corners share one.
     fn at(&self, col: i64, dr: usize) -> Option<i64> {
-        if col < -1 || col >= self.hf.width as i64 {
+        if col < -1 || col >= self.src.size()[0] as i64 {
             return None;
         }
         self.rows[dr][(col + 1) as usize]
     }
 }
 
-/// The contour polygons of `hf` between `levels`, lowest band first, in map coordinates.
-pub fn contour_polygons(hf: &Heightfield, levels: &Levels) -> Result<Vec<Band>> {
-    let levels = checked_levels(hf, levels)?;
-    let Some((lo, hi)) = valid_range(hf) else { return Ok(vec![]) };
-    let mut whole = WholeRows::new(hf, &levels);
+/// The contour polygons of the rows of `src` (on `grid`; NoData as NaN) between `levels`,
+/// lowest band first, in map coordinates. The rows are read three times, in order: for
+/// the elevation range, and by the squares and the whole-square bands a row apart.
+pub fn contour_polygons(src: &dyn HeightRows, grid: &GridGeoref, levels: &Levels) -> Result<Vec<Band>> {
+    let range = crate::dem::elevation_range(src);
+    let levels = checked_levels(range, levels)?;
+    let Some((lo, hi)) = range else { return Ok(vec![]) };
+    let mut whole = WholeRows::new(src, &levels);
     let mut edges = Edges::default();
-    for_each_square(hf, |sq, col, row| {
+    for_each_square(src, |sq, col, row| {
         whole.advance_to(row);
         let band = if sq.quarter { None } else { whole.at(col, 1) };
         let Some(band) = band else {
@@ -272,7 +282,10 @@ pub fn contour_polygons(hf: &Heightfield, levels: &Levels) -> Result<Vec<Band>> 
             edges.add(band, [m.x, m.y], [b.x, b.y]);
         }
     });
-    let to_map = to_map(hf);
+    if let Some(why) = src.failure() {
+        bail!("{why}");
+    }
+    let to_map = to_map(grid);
     let mut by_band: HashMap<i64, Vec<Edge>> = HashMap::new();
     for ((band, _, _), e) in edges.edges {
         by_band.entry(band).or_default().push(e);
