@@ -5,9 +5,12 @@
 //! The tiff crate's `ImageEncoder` compresses strips one after another on the calling
 //! thread, and has no floating-point predictor; here each batch of strips is compressed in
 //! parallel (zlib, as TIFF's Deflate) and written through the crate's directory encoder,
-//! with the horizontal predictor for bytes and the floating-point predictor (3) for
-//! floats, as GDAL writes `PREDICTOR=2` and `PREDICTOR=3`. A raster whose uncompressed
-//! samples pass 4 GiB is written as BigTIFF (as GDAL's `BIGTIFF=IF_NEEDED`).
+//! with the horizontal predictor for bytes (`PREDICTOR=2`) and the floating-point
+//! predictor for elevations (`PREDICTOR=3`), as GDAL writes them. Products such as slope
+//! are written without a predictor: on the real pysheds DEM predictor 3 makes its
+//! elevations 0.56× as large but its slope 1.8× (GDAL's own writer alike; the slope of a
+//! 16384 × 8800 DEM: 274 MB against 119 MB). A raster whose uncompressed samples pass
+//! 4 GiB is written as BigTIFF (as GDAL's `BIGTIFF=IF_NEEDED`).
 
 use crate::atomic::write_atomically;
 use crate::error::{FormatError, Result};
@@ -181,6 +184,17 @@ struct Layout<'a> {
     rows_per_strip: usize,
 }
 
+impl Layout<'_> {
+    /// The TIFF predictor: 2 for bytes, 3 for elevations, none for other floats.
+    fn predictor(&self) -> u16 {
+        match (self.kind, self.elevation) {
+            (BandKind::F32, true) => 3,
+            (BandKind::F32, false) => 1,
+            _ => 2,
+        }
+    }
+}
+
 /// One strip filled and compressed: its samples are kept to be refilled.
 struct Strip {
     f32s: Vec<f32>,
@@ -221,7 +235,8 @@ fn write_strips<W: Write + Seek, K: TiffKind>(
                 }
             }
         }
-        pool[..in_batch].par_iter_mut().for_each(|s| compress(s, l.kind, row_samples));
+        let predictor = l.predictor();
+        pool[..in_batch].par_iter_mut().for_each(|s| compress(s, l.kind, predictor, row_samples));
         for s in &pool[..in_batch] {
             offsets.push(dir.write_data(&s.compressed[..]).map_err(err)?);
             counts.push(s.compressed.len() as u64);
@@ -234,12 +249,13 @@ fn write_strips<W: Write + Seek, K: TiffKind>(
 /// Predicts and compresses a strip's samples into `s.compressed`: bytes by differences
 /// along the row between a cell's sample and the previous cell's (TIFF predictor 2);
 /// floats by their bytes split into planes, most significant first, then differenced along
-/// the row (predictor 3, as GDAL and libtiff write it).
-fn compress(s: &mut Strip, kind: BandKind, row_samples: usize) {
+/// the row (predictor 3, as GDAL and libtiff write it), or as they are (predictor 1).
+fn compress(s: &mut Strip, kind: BandKind, predictor: u16, row_samples: usize) {
     use std::io::Write as _;
     let spp = kind.samples();
     let mut predicted: Vec<u8> = Vec::new();
     let data: &[u8] = match kind {
+        BandKind::F32 if predictor == 1 => bytemuck::cast_slice(&s.f32s),
         BandKind::F32 => {
             let row_bytes = row_samples * 4;
             predicted.resize(s.f32s.len() * 4, 0);
@@ -267,7 +283,10 @@ fn compress(s: &mut Strip, kind: BandKind, row_samples: usize) {
         }
     };
     s.compressed.clear();
-    let mut z = flate2::write::ZlibEncoder::new(std::mem::take(&mut s.compressed), flate2::Compression::new(6));
+    // Level 3, not GDAL's default 6: the products of a 16384 × 8800 DEM were written 1.6×
+    // as fast (slope 4.5 s against 7.3 s on 2 cores) for 3–11 % more bytes (level 1 gave
+    // 1.8× the bytes).
+    let mut z = flate2::write::ZlibEncoder::new(std::mem::take(&mut s.compressed), flate2::Compression::new(3));
     z.write_all(data).expect("writing to memory");
     s.compressed = z.finish().expect("writing to memory");
 }
@@ -290,7 +309,7 @@ fn write_tags<W: Write + Seek, K: TiffKind>(
     dir.write_tag(Tag::SamplesPerPixel, spp)?;
     dir.write_tag(Tag::RowsPerStrip, l.rows_per_strip as u32)?;
     dir.write_tag(Tag::PlanarConfiguration, 1u16)?;
-    dir.write_tag(Tag::Predictor, if l.kind == BandKind::F32 { 3u16 } else { 2u16 })?;
+    dir.write_tag(Tag::Predictor, l.predictor())?;
     dir.write_tag(Tag::SampleFormat, &vec![if l.kind == BandKind::F32 { 3u16 } else { 1u16 }; spp as usize][..])?;
     if l.kind == BandKind::Rgba8 {
         // The fourth sample is unassociated alpha (GDAL reads it as the alpha band).
@@ -344,20 +363,23 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let g = grid(37, 23);
         let floats: Vec<f32> = (0..37 * 23).map(|i| (i as f32 * 0.37).sin() * 1000.0 - 20.0).collect();
-        let path = dir.path().join("f.tif");
-        // A strip of 5 rows: the last one of 3; values negative and positive, across bytes.
-        write_band_strips::<FormatError>(&path, &g, BandKind::F32, Some(-9999.0), true, 5, |first, s| {
-            let StripMut::F32(s) = s else { unreachable!() };
-            s.copy_from_slice(&floats[first * 37..first * 37 + s.len()]);
-            Ok(())
-        })
-        .unwrap();
-        let hf = crate::geotiff::read_geotiff(&path, &Default::default()).unwrap();
-        assert_eq!((hf.width, hf.height), (37, 23));
-        assert_eq!(hf.elevations, floats);
-        assert_eq!(hf.nodata_value, Some(-9999.0));
-        assert_eq!(hf.origin, g.origin);
-        assert_eq!(hf.crs.epsg, Some(32610));
+        // Elevations (predictor 3) and a product (none).
+        for elevation in [true, false] {
+            let path = dir.path().join(format!("f{elevation}.tif"));
+            // A strip of 5 rows: the last one of 3; values negative and positive.
+            write_band_strips::<FormatError>(&path, &g, BandKind::F32, Some(-9999.0), elevation, 5, |first, s| {
+                let StripMut::F32(s) = s else { unreachable!() };
+                s.copy_from_slice(&floats[first * 37..first * 37 + s.len()]);
+                Ok(())
+            })
+            .unwrap();
+            let hf = crate::geotiff::read_geotiff(&path, &Default::default()).unwrap();
+            assert_eq!((hf.width, hf.height), (37, 23));
+            assert_eq!(hf.elevations, floats);
+            assert_eq!(hf.nodata_value, Some(-9999.0));
+            assert_eq!(hf.origin, g.origin);
+            assert_eq!(hf.crs.epsg, Some(32610));
+        }
         let rgb: Vec<u8> = (0..37 * 23 * 3).map(|i| (i * 7 % 251) as u8).collect();
         let path = dir.path().join("rgb.tif");
         write_band(&path, &g, Band::Rgb8(&rgb), None, false).unwrap();
