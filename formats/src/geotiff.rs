@@ -318,6 +318,17 @@ fn at_level(
     ready(path, d, bytes)
 }
 
+/// Another decoder of the image at `index` (a level `open_elevation` chose), for decoding
+/// its chunks on another thread.
+pub(crate) fn reopen(path: &Path, index: usize, bytes: usize) -> Result<Decoder<BufReader<std::fs::File>>> {
+    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
+    let mut d = Decoder::new(BufReader::new(file)).map_err(|e| tiff_err(path, e))?;
+    if index > 0 {
+        d.seek_to_image(index).map_err(|e| tiff_err(path, e))?;
+    }
+    ready(path, d, bytes)
+}
+
 /// An overview's georeferencing (centre of its north-west sample, cell size) from the full
 /// raster's, as GDAL places it: the same outer corner, cells scaled by the size ratio.
 fn level_georeferencing(origin: [f64; 2], scale: [f64; 2], full: &Image, level: &Image) -> ([f64; 2], [f64; 2]) {
@@ -626,6 +637,9 @@ pub fn read_geotiff(path: &Path, limits: &Limits) -> Result<Heightfield> {
 /// settled; nothing decoded yet.
 pub(crate) struct Opened {
     pub(crate) d: Decoder<BufReader<std::fs::File>>,
+    /// The level's directory and the decoder's buffer limit: for `reopen`.
+    pub(crate) image_index: usize,
+    pub(crate) decoder_bytes: usize,
     /// The level's size in samples (its chunks are numbered across it).
     pub(crate) level: [u32; 2],
     /// Columns and rows [c0, r0, c1, r1] (inclusive) of the level read.
@@ -745,6 +759,8 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
     };
     Ok(Opened {
         d,
+        image_index: image.index,
+        decoder_bytes: bytes,
         level: [image.width, image.height],
         win,
         origin,

@@ -39,12 +39,18 @@ pub struct GeoTiffRows {
     chunk: [u32; 2],
     nodata: Option<f64>,
     vertical: f64,
+    /// The level's directory and the decoder's buffer limit, to open more decoders.
+    image_index: usize,
+    decoder_bytes: usize,
     held: Mutex<ChunkRow>,
 }
 
-/// The decoder and the decoded chunks of one row of chunks.
+/// The decoders and the decoded chunks of one row of chunks.
 struct ChunkRow {
     d: Decoder<BufReader<std::fs::File>>,
+    /// More decoders of the same level, opened when a row's chunks are first decoded on
+    /// several threads (one decoder reads one chunk at a time).
+    spare: Vec<Decoder<BufReader<std::fs::File>>>,
     /// The chunk row held, and its chunks by column of chunks: elevations in metres, row by
     /// row, and the chunk's width in samples.
     row: Option<u32>,
@@ -69,7 +75,7 @@ impl GeoTiffRows {
         let data_type = declared_type(path, &mut o.d, o.sample_bytes)?;
         let attributes = o.attributes(data_type);
         let (w, h) = o.size();
-        let Opened { d, level, win, origin, scale, crs, nodata_value, vertical, mut notes, .. } = o;
+        let Opened { d, level, win, origin, scale, crs, nodata_value, vertical, mut notes, image_index, decoder_bytes, .. } = o;
         let cell_size = cell_size_metres(path, &crs, origin[1], h, scale, &mut notes)?;
         Ok(GeoTiffRows {
             path: path.to_path_buf(),
@@ -82,7 +88,9 @@ impl GeoTiffRows {
             chunk: [cw, ch],
             nodata: nodata_value,
             vertical,
-            held: Mutex::new(ChunkRow { d, row: None, chunks: HashMap::new(), failure: None }),
+            image_index,
+            decoder_bytes,
+            held: Mutex::new(ChunkRow { d, spare: Vec::new(), row: None, chunks: HashMap::new(), failure: None }),
         })
     }
 
@@ -113,31 +121,58 @@ impl GeoTiffRows {
             held.chunks.clear();
             held.row = Some(chunk_row);
         }
+        let (first, last) = ((x0 / cw) as u32, ((x0 + n - 1) / cw) as u32);
+        let missing: Vec<u32> = (first..=last).filter(|tx| !held.chunks.contains_key(tx)).collect();
+        if !missing.is_empty() {
+            self.decode_chunks(&mut held, chunk_row, &missing);
+        }
         let mut x = x0;
         while x < x0 + n {
             let tx = (x / cw) as u32;
-            if !held.chunks.contains_key(&tx) {
-                let decoded = self.decode(&mut held.d, chunk_row, tx);
-                match decoded {
-                    Ok(c) => {
-                        held.chunks.insert(tx, c);
-                    }
-                    Err(e) => {
-                        held.failure.get_or_insert(e.to_string());
-                        held.chunks.insert(tx, (Vec::new(), 0));
-                    }
-                }
-            }
             let (samples, width) = &held.chunks[&tx];
             let chunk_x0 = tx as usize * cw;
             let end = (chunk_x0 + cw).min(x0 + n);
-            if *width > 0 {
-                let row_start = y_in * width;
-                for xx in x..end.min(chunk_x0 + width) {
-                    out[xx - x0] = samples.get(row_start + xx - chunk_x0).copied().unwrap_or(f32::NAN);
-                }
+            let stop = end.min(chunk_x0 + width);
+            let row_start = y_in * width;
+            if let Some(cells) = samples.get(row_start + x - chunk_x0..row_start + stop.max(x) - chunk_x0) {
+                out[x - x0..x - x0 + cells.len()].copy_from_slice(cells);
             }
             x = end;
+        }
+    }
+
+    /// Decodes chunks `txs` of chunk row `ty` into `held` — on as many threads as there are
+    /// chunks, up to rayon's, each with its own decoder — keeping the first failure.
+    fn decode_chunks(&self, held: &mut ChunkRow, ty: u32, txs: &[u32]) {
+        use rayon::prelude::*;
+        let threads = rayon::current_num_threads().min(txs.len()).max(1);
+        while held.spare.len() + 1 < threads {
+            match crate::geotiff::reopen(&self.path, self.image_index, self.decoder_bytes) {
+                Ok(d) => held.spare.push(d),
+                Err(_) => break, // fewer threads, not a failure
+            }
+        }
+        let ChunkRow { d, spare, chunks, failure, .. } = held;
+        let mut decoders: Vec<&mut Decoder<BufReader<std::fs::File>>> = std::iter::once(d).chain(spare.iter_mut()).collect();
+        let k = decoders.len();
+        let decoded: Vec<Vec<(u32, Result<(Vec<f32>, usize)>)>> = decoders
+            .par_iter_mut()
+            .enumerate()
+            .map(|(i, d)| txs.iter().skip(i).step_by(k).map(|&tx| (tx, self.decode(d, ty, tx))).collect())
+            .collect();
+        // In column order, so that the failure kept is the same whatever the threads.
+        let mut decoded: Vec<_> = decoded.into_iter().flatten().collect();
+        decoded.sort_by_key(|(tx, _)| *tx);
+        for (tx, r) in decoded {
+            match r {
+                Ok(c) => {
+                    chunks.insert(tx, c);
+                }
+                Err(e) => {
+                    failure.get_or_insert(e.to_string());
+                    chunks.insert(tx, (Vec::new(), 0));
+                }
+            }
         }
     }
 

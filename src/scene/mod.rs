@@ -349,6 +349,14 @@ impl TerrainData {
         }
     }
 
+    /// Why rows could not be read (a chunk of the GeoTIFF that failed to decode), if so.
+    pub fn failure(&self) -> Option<String> {
+        match self {
+            TerrainData::Held(_) => None,
+            TerrainData::Rows(rows) => rows.failure(),
+        }
+    }
+
     /// The bilinear surface height at (x, y) metres east and north of the south-west
     /// sample (see `Heightfield::surface_height`).
     pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
@@ -878,6 +886,10 @@ impl Scene {
             let m = self.world_transform(node);
             let local = m.inverse().transform_point3(DVec3::new(cam.position[0], cam.position[1], 0.0));
             let ground = heights.surface_height(local.x, local.y).ok_or_else(|| {
+                // The ground's rows may be those of a chunk that failed to decode.
+                if let Some(why) = heights.failure() {
+                    return anyhow!("{}: walk: the ground under the eye could not be read: {why}", self.source.display());
+                }
                 anyhow!(
                     "{}: walk: the eye at ({:.1}, {:.1}) is not over the terrain of node '{}' (outside it, or over NoData)",
                     self.source.display(),
