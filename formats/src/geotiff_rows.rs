@@ -45,6 +45,9 @@ pub struct GeoTiffRows {
     held: Mutex<ChunkRow>,
 }
 
+/// A chunk decoded: its elevations in metres, row by row, and its width in samples.
+type DecodedChunk = (Vec<f32>, usize);
+
 /// The decoders and the decoded chunks of one row of chunks.
 struct ChunkRow {
     d: Decoder<BufReader<std::fs::File>>,
@@ -155,7 +158,7 @@ impl GeoTiffRows {
         let ChunkRow { d, spare, chunks, failure, .. } = held;
         let mut decoders: Vec<&mut Decoder<BufReader<std::fs::File>>> = std::iter::once(d).chain(spare.iter_mut()).collect();
         let k = decoders.len();
-        let decoded: Vec<Vec<(u32, Result<(Vec<f32>, usize)>)>> = decoders
+        let decoded: Vec<Vec<(u32, Result<DecodedChunk>)>> = decoders
             .par_iter_mut()
             .enumerate()
             .map(|(i, d)| txs.iter().skip(i).step_by(k).map(|&tx| (tx, self.decode(d, ty, tx))).collect())
