@@ -169,12 +169,29 @@ pub trait HeightRows: Send + Sync {
     fn failure(&self) -> Option<String> {
         None
     }
+    /// (min, max) elevation over valid samples, reading every row once in order.
+    fn elevation_range(&self) -> Option<(f32, f32)> {
+        let [w, h] = self.size();
+        let mut row = vec![0f32; w];
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for r in 0..h {
+            self.read_row(r, 0, &mut row);
+            for &z in row.iter().filter(|z| z.is_finite()) {
+                lo = lo.min(z);
+                hi = hi.max(z);
+            }
+        }
+        (lo <= hi).then_some((lo, hi))
+    }
 }
 
 /// A heightfield held: its rows copied out (NoData samples hold NaN already).
 impl HeightRows for Heightfield {
     fn size(&self) -> [usize; 2] {
         [self.width, self.height]
+    }
+    fn elevation_range(&self) -> Option<(f32, f32)> {
+        self.range()
     }
     fn cell_size(&self) -> [f64; 2] {
         self.cell_size

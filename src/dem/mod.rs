@@ -202,19 +202,9 @@ fn write_product_strips(
     })
 }
 
-/// The lowest and highest valid elevation of the rows of `src`, read one by one.
+/// The lowest and highest valid elevation of the rows of `src` (`HeightRows::elevation_range`).
 pub fn elevation_range(src: &dyn HeightRows) -> Option<(f64, f64)> {
-    let [w, h] = src.size();
-    let mut row = vec![0f32; w];
-    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-    for r in 0..h {
-        src.read_row(r, 0, &mut row);
-        for &z in row.iter().filter(|z| z.is_finite()) {
-            lo = lo.min(z);
-            hi = hi.max(z);
-        }
-    }
-    (lo <= hi).then_some((lo as f64, hi as f64))
+    src.elevation_range().map(|(lo, hi)| (lo as f64, hi as f64))
 }
 
 /// Rows [first, first + n) of a raster `w` samples wide (NaN for NoData), read in order.

@@ -85,14 +85,7 @@ impl TerrainGrid {
     /// reading every row once).
     pub fn from_rows(rows: Arc<dyn HeightRows>, node_to_world: DMat4) -> Result<TerrainGrid> {
         let [nx, ny] = rows.size();
-        let mut range: Option<(f32, f32)> = None;
-        let mut row = vec![0f32; nx];
-        for r in 0..ny {
-            rows.read_row(r, 0, &mut row);
-            for &z in row.iter().filter(|z| z.is_finite()) {
-                range = Some(range.map_or((z, z), |(lo, hi)| (lo.min(z), hi.max(z))));
-            }
-        }
+        let range = rows.elevation_range();
         if let Some(why) = rows.failure() {
             bail!("{why}");
         }
