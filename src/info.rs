@@ -1,6 +1,8 @@
 //! `volterra info`: what a reader made of a file, as text or as one JSON object.
 
 use serde_json::{json, Value};
+use volterra_formats::geotiff_rows::{GeoTiffRows, RowsSummary};
+use volterra_formats::heightfield::GridGeoref;
 use volterra_formats::{dicom, Dataset, Heightfield, ParticleArrayNames, ParticleSet, Volume};
 
 /// A number as people read it: integers without decimals, others to 6 significant digits
@@ -44,10 +46,10 @@ pub fn orientation(affine: &[[f64; 4]; 4]) -> String {
 
 /// The raster's outer corners in CRS units (gdalinfo's Upper Left … Lower Right, and the
 /// centre): sample centres are `origin + (col, −row) · cell`, so the edges lie half a cell out.
-pub fn corners(h: &Heightfield) -> [(&'static str, [f64; 2]); 5] {
-    let [sx, sy] = h.cell_size_native;
-    let (west, north) = (h.origin[0] - 0.5 * sx, h.origin[1] + 0.5 * sy);
-    let (east, south) = (west + h.width as f64 * sx, north - h.height as f64 * sy);
+pub fn corners(g: &GridGeoref) -> [(&'static str, [f64; 2]); 5] {
+    let [sx, sy] = g.cell_size_native;
+    let (west, north) = (g.origin[0] - 0.5 * sx, g.origin[1] + 0.5 * sy);
+    let (east, south) = (west + g.width as f64 * sx, north - g.height as f64 * sy);
     [
         ("upper left", [west, north]),
         ("lower left", [west, south]),
@@ -55,6 +57,43 @@ pub fn corners(h: &Heightfield) -> [(&'static str, [f64; 2]); 5] {
         ("lower right", [east, south]),
         ("centre", [0.5 * (west + east), 0.5 * (north + south)]),
     ]
+}
+
+/// What `info` shows of an elevation raster, whether held (`Heightfield`) or read by rows
+/// (`GeoTiffRows`, which finds the range and NoData count in one pass over its rows).
+pub struct GridSummary<'a> {
+    pub georef: GridGeoref,
+    pub attributes: &'a [(String, String)],
+    pub nodata_value: Option<f64>,
+    pub notes: &'a [String],
+    /// (min, max) elevation in metres over valid samples.
+    pub range: Option<(f32, f32)>,
+    pub nodata_count: usize,
+}
+
+impl<'a> GridSummary<'a> {
+    pub fn of_heightfield(h: &'a Heightfield) -> GridSummary<'a> {
+        GridSummary {
+            georef: h.georef(),
+            attributes: &h.attributes,
+            nodata_value: h.nodata_value,
+            notes: &h.notes,
+            range: h.range(),
+            nodata_count: h.nodata_count(),
+        }
+    }
+    /// Reads every row of the raster the first time (see `GeoTiffRows::summary`).
+    pub fn of_rows(r: &'a GeoTiffRows) -> GridSummary<'a> {
+        let RowsSummary { range, nodata } = r.summary();
+        GridSummary {
+            georef: r.georef().clone(),
+            attributes: &r.attributes,
+            nodata_value: r.nodata_value,
+            notes: &r.notes,
+            range,
+            nodata_count: nodata,
+        }
+    }
 }
 
 fn attributes_json(a: &[(String, String)]) -> Value {
@@ -83,24 +122,29 @@ pub fn volume_json(v: &Volume) -> Value {
 }
 
 pub fn heightfield_json(h: &Heightfield) -> Value {
-    let (min, max) = h.range().map(|(a, b)| (a as f64, b as f64)).unwrap_or((f64::NAN, f64::NAN));
-    let corner_map: serde_json::Map<String, Value> = corners(h).iter().map(|(n, c)| (n.replace(' ', "_"), json!(c))).collect();
+    grid_json(&GridSummary::of_heightfield(h))
+}
+
+pub fn grid_json(s: &GridSummary) -> Value {
+    let g = &s.georef;
+    let (min, max) = s.range.map(|(a, b)| (a as f64, b as f64)).unwrap_or((f64::NAN, f64::NAN));
+    let corner_map: serde_json::Map<String, Value> = corners(g).iter().map(|(n, c)| (n.replace(' ', "_"), json!(c))).collect();
     json!({
         "kind": "heightfield",
-        "attributes": attributes_json(&h.attributes),
+        "attributes": attributes_json(s.attributes),
         "corners": corner_map,
-        "dims": [h.width, h.height],
-        "cell_size": h.cell_size,
-        "cell_size_native": h.cell_size_native,
-        "origin": h.origin,
-        "crs": h.crs.description,
-        "epsg": h.crs.epsg,
-        "geographic": h.crs.geographic,
-        "nodata_value": h.nodata_value,
-        "nodata_count": h.nodata_count(),
+        "dims": [g.width, g.height],
+        "cell_size": g.cell_size,
+        "cell_size_native": g.cell_size_native,
+        "origin": g.origin,
+        "crs": g.crs.description,
+        "epsg": g.crs.epsg,
+        "geographic": g.crs.geographic,
+        "nodata_value": s.nodata_value,
+        "nodata_count": s.nodata_count,
         "min": min,
         "max": max,
-        "notes": h.notes,
+        "notes": s.notes,
     })
 }
 
@@ -129,6 +173,39 @@ pub fn series_json(list: &[dicom::SeriesSummary]) -> Value {
 
 fn fmt3(v: [f64; 3]) -> String {
     format!("{} × {} × {}", num(v[0]), num(v[1]), num(v[2]))
+}
+
+pub fn grid_text(sm: &GridSummary) -> String {
+    let g = &sm.georef;
+    let mut s = String::new();
+    let (min, max) = sm.range.unwrap_or((f32::NAN, f32::NAN));
+    s += &format!("heightfield {} × {} samples\n", g.width, g.height);
+    s += &format!("cell size   {} m × {} m", num(g.cell_size[0]), num(g.cell_size[1]));
+    if g.crs.geographic {
+        s += &format!(" (from {}° × {}°)", num(g.cell_size_native[0]), num(g.cell_size_native[1]));
+    }
+    s += "\n";
+    s += &format!("origin      {}, {} (centre of the north-west sample, CRS units)\n", num(g.origin[0]), num(g.origin[1]));
+    s += &format!("crs         {}\n", g.crs.description);
+    attributes_text(&mut s, sm.attributes);
+    let c = corners(g);
+    s += &format!(
+        "bounds      west {}, south {}, east {}, north {} (CRS units)\n",
+        num(c[0].1[0]),
+        num(c[3].1[1]),
+        num(c[3].1[0]),
+        num(c[0].1[1])
+    );
+    for (name, [x, y]) in c {
+        s += &format!("{:<11} {}, {}\n", name, num(x), num(y));
+    }
+    s += &format!("elevation   {} .. {} m\n", num(min as f64), num(max as f64));
+    let value = sm.nodata_value.map(num).unwrap_or_else(|| "none declared".into());
+    s += &format!("nodata      {} samples (value {value})\n", sm.nodata_count);
+    for n in sm.notes {
+        s += &format!("note        {n}\n");
+    }
+    s
 }
 
 fn attributes_text(s: &mut String, a: &[(String, String)]) {
@@ -161,35 +238,7 @@ pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
                 s += &format!("note        {n}\n");
             }
         }
-        Dataset::Heightfield(h) => {
-            let (min, max) = h.range().unwrap_or((f32::NAN, f32::NAN));
-            s += &format!("heightfield {} × {} samples\n", h.width, h.height);
-            s += &format!("cell size   {} m × {} m", num(h.cell_size[0]), num(h.cell_size[1]));
-            if h.crs.geographic {
-                s += &format!(" (from {}° × {}°)", num(h.cell_size_native[0]), num(h.cell_size_native[1]));
-            }
-            s += "\n";
-            s += &format!("origin      {}, {} (centre of the north-west sample, CRS units)\n", num(h.origin[0]), num(h.origin[1]));
-            s += &format!("crs         {}\n", h.crs.description);
-            attributes_text(&mut s, &h.attributes);
-            let c = corners(h);
-            s += &format!(
-                "bounds      west {}, south {}, east {}, north {} (CRS units)\n",
-                num(c[0].1[0]),
-                num(c[3].1[1]),
-                num(c[3].1[0]),
-                num(c[0].1[1])
-            );
-            for (name, [x, y]) in c {
-                s += &format!("{:<11} {}, {}\n", name, num(x), num(y));
-            }
-            s += &format!("elevation   {} .. {} m\n", num(min as f64), num(max as f64));
-            let value = h.nodata_value.map(num).unwrap_or_else(|| "none declared".into());
-            s += &format!("nodata      {} samples (value {value})\n", h.nodata_count());
-            for n in &h.notes {
-                s += &format!("note        {n}\n");
-            }
-        }
+        Dataset::Heightfield(h) => s += &grid_text(&GridSummary::of_heightfield(h)),
         Dataset::Particles(p) => {
             s += &format!("particles   {}\n", p.len());
             s += &format!("arrays      {}\n", p.array_names(names).join(", "));

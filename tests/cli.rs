@@ -193,3 +193,48 @@ fn exposure_scales_the_png_preview_and_not_the_exr() {
         volterra(&["render", scene.to_str().unwrap(), "-o", dir.path().join("x.exr").to_str().unwrap(), "--set", "image.exposure=99"]);
     assert!(String::from_utf8_lossy(&bad.stderr).contains("exposure 99 must be a number of stops"));
 }
+
+/// `info` reads a GeoTIFF by rows (never held, so a DEM larger than memory is described at
+/// full resolution): every GeoTIFF elevation fixture and the real DEMs describe themselves
+/// exactly as the raster read whole does — dims, georeferencing, corners, range, NoData
+/// count, attributes, notes — in JSON and in text.
+#[test]
+fn info_of_a_geotiff_read_by_rows_equals_the_raster_read_whole() {
+    let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(repo_path("tests/fixtures/geotiff"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "tif"))
+        .collect();
+    if let Some(shared) = common::shared_data() {
+        files.extend(
+            std::fs::read_dir(shared.join("terrain"))
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.extension().is_some_and(|e| e == "tif")),
+        );
+    }
+    files.sort();
+    let limits = volterra_formats::Limits::default();
+    let (mut compared, mut with_nodata) = (0, 0);
+    for file in &files {
+        let name = file.display().to_string();
+        // Drapes (RGB) and the like are refused by both; only elevation rasters compare.
+        let Ok(whole) = volterra_formats::geotiff::read_geotiff(file, &limits) else {
+            let out = volterra(&["info", "--json", &name]);
+            assert!(!out.status.success(), "{name}: refused whole, described by rows");
+            continue;
+        };
+        let out = volterra(&["info", "--json", &name]);
+        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        let by_rows: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        // Through JSON text on both sides, so NaN and float formatting match.
+        let held: serde_json::Value = serde_json::from_str(&volterra::info::heightfield_json(&whole).to_string()).unwrap();
+        assert_eq!(by_rows, held, "{name}: JSON");
+        let text = volterra(&["info", &name]);
+        let held_text = volterra::info::dataset_text(&volterra_formats::Dataset::Heightfield(whole.clone()), &Default::default());
+        assert_eq!(String::from_utf8_lossy(&text.stdout), held_text, "{name}: text");
+        compared += 1;
+        with_nodata += usize::from(whole.nodata_count() > 0);
+    }
+    assert!(compared >= 10 && with_nodata >= 2, "{compared} rasters compared, {with_nodata} with NoData");
+}

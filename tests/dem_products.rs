@@ -377,4 +377,22 @@ fn dem_products_of_a_tiled_dem_larger_than_the_memory_limit_equal_gdaldem_at_ful
         Command::new(common::volterra_bin()).args(limit).args(["dem", "slope"]).arg(&dem).arg(dir.path().join("s.tif")).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success() && stderr.contains("memory: peak") && !stderr.contains("over the limit"), "{stderr}");
+    // `info` reads it by rows too: the full raster described (not the overview), its range
+    // and NoData count those of the raster held, within the limit.
+    let out = Command::new(common::volterra_bin()).args(limit).args(["info", "--json"]).arg(&dem).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && !stderr.contains("over the limit"), "{stderr}");
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let (lo, hi) = hf.range().unwrap();
+    assert_eq!(info["dims"], serde_json::json!([2048, 1536]));
+    assert_eq!((info["min"].as_f64(), info["max"].as_f64()), (Some(lo as f64), Some(hi as f64)));
+    assert_eq!(info["nodata_count"].as_u64(), Some(hf.nodata_count() as u64));
+    // `convert` likewise: the full raster, strip by strip, the file the raster held gives.
+    let converted = dir.path().join("converted.tif");
+    let out = Command::new(common::volterra_bin()).args(limit).arg("convert").arg(&dem).arg(&converted).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && !stderr.contains("over the limit"), "{stderr}");
+    let held = dir.path().join("held.tif");
+    volterra_formats::geotiff::write_geotiff(&held, &hf).unwrap();
+    assert!(std::fs::read(&converted).unwrap() == std::fs::read(&held).unwrap(), "converted by rows: not the file the raster held gives");
 }

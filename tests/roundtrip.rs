@@ -60,7 +60,14 @@ fn volumes_round_trip_through_nifti_exactly() {
 fn heightfields_round_trip_through_geotiff_and_exr() {
     let dir = tempfile::tempdir().unwrap();
     let fx = repo_path("tests/fixtures");
-    for src in ["geotiff/i16_none_strips.tif", "geotiff/f32_transform_point_geographic.tif", "geotiff/f64_packbits.tif"] {
+    let mut sources: Vec<String> = std::fs::read_dir(fx.join("geotiff"))
+        .unwrap()
+        .map(|e| format!("geotiff/{}", e.unwrap().file_name().to_string_lossy()))
+        .filter(|n| n.ends_with(".tif") && load(&fx.join(n), &LoadOptions::default()).is_ok())
+        .collect();
+    sources.sort();
+    assert!(sources.len() >= 8 && sources.iter().any(|s| s == "geotiff/f64_packbits.tif"), "{sources:?}");
+    for src in &sources {
         let Dataset::Heightfield(a) = read(&fx.join(src)) else { panic!() };
         let tif = dir.path().join("out.tif");
         convert(&fx.join(src), &tif);
@@ -73,6 +80,11 @@ fn heightfields_round_trip_through_geotiff_and_exr() {
         assert_eq!(a.nodata, b.nodata, "{src}");
         let same = a.elevations.iter().zip(&b.elevations).all(|(x, y)| x == y || (x.is_nan() && y.is_nan()));
         assert!(same, "{src}: elevations differ");
+
+        // Converted by rows, strip by strip: the very file the raster held is written as.
+        let held = dir.path().join("held.tif");
+        volterra_formats::geotiff::write_geotiff(&held, &a).unwrap();
+        assert!(std::fs::read(&held).unwrap() == std::fs::read(&tif).unwrap(), "{src}: not the file the raster held gives");
 
         let exr = dir.path().join("out.exr");
         convert(&fx.join(src), &exr);

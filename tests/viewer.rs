@@ -450,9 +450,46 @@ fn a_terrain_walk_keeps_the_eye_above_the_ground() {
     let eye = h.state().camera().position;
     assert!((eye[0] - start[0]).hypot(eye[1] - start[1]) > 1.0, "walked: {start:?} → {eye:?}");
     let scene = h.state().scene().unwrap();
+    // The viewer read the DEM's GeoTIFF by rows, for the GPU and the eye's ground alike.
+    assert!(!scene.is_loaded(0), "the DEM was read whole");
     let ground = scene.heightfield(0).unwrap().surface_height(eye[0], eye[1]).unwrap();
     assert!((eye[2] - ground - 1.7).abs() < 1e-6, "eye {eye:?}, ground {ground}");
     settle(&mut h);
+}
+
+/// A GeoTIFF DEM opened in the viewer is read as the terrain ray-caster reads it — by rows
+/// into the GPU's textures — never held: framed as the raster held would be, described in
+/// the metadata panel as `volterra info` describes it, drawn.
+#[test]
+fn a_geotiff_dem_opens_by_rows_framed_and_described_as_the_raster_held() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = samples();
+    let dem = dir.path().join("fractal_dem.tif");
+    let held = volterra::formats::geotiff::read_geotiff(&dem, &Default::default()).unwrap();
+    let mut viewer = Viewer::new(LoadOptions::default());
+    viewer.open(&dem).unwrap();
+    let scene = viewer.scene().unwrap();
+    assert!(matches!(scene.terrain_data(0).unwrap(), volterra::scene::TerrainData::Rows(_)));
+    let bounds = volterra::scene::auto::data_bounds(
+        &volterra::scene::NodeData::Heightfield(std::sync::Arc::new(held.clone())),
+        glam::DMat4::IDENTITY,
+    );
+    let framed = volterra::scene::auto::fit_camera(volterra::scene::NodeKind::Heightfield, bounds.unwrap());
+    assert_eq!(viewer.camera().position, framed.position, "framed as the raster held");
+    assert_eq!(viewer.camera().focal_point, framed.focal_point);
+    let mut h = harness(viewer);
+    h.get_by_label("dims");
+    h.get_by_label(&format!("{} × {}", held.width, held.height)).hover();
+    let (lo, hi) = held.range().unwrap();
+    h.get_by_label(&serde_json::json!(lo as f64).to_string());
+    h.get_by_label(&serde_json::json!(hi as f64).to_string());
+    settle(&mut h);
+    let frame = h.state().current_full_frame().unwrap();
+    assert_eq!(frame.stats.renderer, "terrain");
+    assert!(mean_rgba(frame)[3] > 0.3, "the terrain is drawn: {:?}", mean_rgba(frame));
+    assert!(!h.state().scene().unwrap().is_loaded(0), "the DEM was read whole");
 }
 
 fn gpu_available() -> bool {

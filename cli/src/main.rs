@@ -824,6 +824,22 @@ fn cmd_info(path: &Path, json: bool, whole_series: bool, opts: &LoadOptions) -> 
         }
     }
     let spin = crate::progress::spinner(&format!("reading {}", path.display()));
+    if formats::detect(path)? == formats::FileKind::GeoTiff {
+        // Read by rows, never held: the range and NoData count come from one pass, so a
+        // DEM larger than memory is described at its full resolution.
+        let rows =
+            formats::geotiff_rows::GeoTiffRows::open(path, &opts.geotiff, &opts.limits, 0).inspect_err(|_| spin.finish_and_clear())?;
+        let summary = info::GridSummary::of_rows(&rows);
+        spin.finish_and_clear();
+        if let Some(failure) = rows.failure() {
+            bail!("{failure}");
+        }
+        match json {
+            true => println!("{}", serde_json::to_string_pretty(&info::grid_json(&summary))?),
+            false => print!("{}", info::grid_text(&summary)),
+        }
+        return Ok(());
+    }
     let data = formats::load(path, opts);
     spin.finish_and_clear();
     let data = data?;
@@ -857,6 +873,9 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
             return Ok(());
         }
     }
+    if (out.ends_with(".tif") || out.ends_with(".tiff")) && formats::detect(input)? == formats::FileKind::GeoTiff {
+        return convert_geotiff(input, output, opts);
+    }
     let spin = crate::progress::spinner(&format!("reading {}", input.display()));
     let data = formats::load(input, opts);
     spin.finish_and_clear();
@@ -881,6 +900,43 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
         }
     }
     eprintln!("wrote {}", output.display());
+    Ok(())
+}
+
+/// A GeoTIFF DEM (or its `--extent`) to a float32 GeoTIFF in metres, as `write_geotiff`
+/// writes a heightfield held, but read by rows and written strip by strip at full
+/// resolution: what is held is a few strips, whatever the DEM's size.
+fn convert_geotiff(input: &Path, output: &Path, opts: &LoadOptions) -> Result<()> {
+    use formats::geotiff_write::{default_rows_per_strip, write_band_strips, BandKind, StripMut, NODATA_WHERE_NONE_DECLARED};
+    let rows = formats::geotiff_rows::GeoTiffRows::open(input, &opts.geotiff, &opts.limits, 0)?;
+    let grid = rows.georef().clone();
+    // A NoData value is declared where the file declares one or where samples are NoData
+    // (values out of range, NaN): that takes a pass over the rows first.
+    let nodata = rows.nodata_value.or_else(|| (rows.summary().nodata > 0).then_some(NODATA_WHERE_NONE_DECLARED));
+    let rows_per_strip = default_rows_per_strip(grid.width, BandKind::F32);
+    let writer = formats::geotiff_write::writer_bytes(grid.width, BandKind::F32, rows_per_strip);
+    opts.limits.check(output, "the GeoTIFF writer's strips", &[writer])?;
+    let progress = progress::TerminalProgress::default();
+    use volterra::render::driver::Progress as _;
+    progress.begin("converting", grid.height as u64);
+    let w = grid.width;
+    let written = write_band_strips(output, &grid, BandKind::F32, nodata, true, rows_per_strip, |first, strip| -> Result<()> {
+        let StripMut::F32(cells) = strip else { unreachable!("a float band") };
+        for (k, row) in cells.chunks_exact_mut(w).enumerate() {
+            rows.read_row(first + k, 0, row);
+        }
+        if let Some(why) = rows.failure() {
+            bail!("{why}");
+        }
+        if let Some(v) = nodata {
+            cells.iter_mut().filter(|z| !z.is_finite()).for_each(|z| *z = v as f32);
+        }
+        progress.update((first + cells.len() / w) as u64);
+        Ok(())
+    });
+    progress.end();
+    written?;
+    eprintln!("wrote {} ({}×{})", output.display(), grid.width, grid.height);
     Ok(())
 }
 

@@ -20,7 +20,7 @@ use crate::memory::Limits;
 use std::collections::HashMap;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
+use std::sync::{Mutex, OnceLock};
 use tiff::decoder::Decoder;
 use tiff::tags::Tag;
 
@@ -43,6 +43,17 @@ pub struct GeoTiffRows {
     image_index: usize,
     decoder_bytes: usize,
     held: Mutex<ChunkRow>,
+    /// The elevation range and NoData count, from one pass over the rows (on first use).
+    summary: OnceLock<RowsSummary>,
+}
+
+/// What one pass over a raster's rows finds: its elevation range and its NoData samples.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowsSummary {
+    /// (min, max) elevation in metres over valid samples; None where every one is NoData.
+    pub range: Option<(f32, f32)>,
+    /// Samples that are NoData (the file's NoData value, or not a finite number).
+    pub nodata: usize,
 }
 
 /// A chunk decoded: its elevations in metres, row by row, and its width in samples.
@@ -94,6 +105,7 @@ impl GeoTiffRows {
             image_index,
             decoder_bytes,
             held: Mutex::new(ChunkRow { d, spare: Vec::new(), row: None, chunks: HashMap::new(), failure: None }),
+            summary: OnceLock::new(),
         })
     }
 
@@ -184,6 +196,29 @@ impl GeoTiffRows {
         self.held.lock().unwrap_or_else(|p| p.into_inner()).failure.clone()
     }
 
+    /// The elevation range and NoData count, from one pass over every row, in order (made
+    /// on first use and kept: `info`, a view's framing and the terrain's preparation each
+    /// need the range). A chunk that fails to decode counts as NoData (see `failure`).
+    pub fn summary(&self) -> RowsSummary {
+        *self.summary.get_or_init(|| {
+            let g = &self.georef;
+            let mut row = vec![0f32; g.width];
+            let (mut lo, mut hi, mut nodata) = (f32::INFINITY, f32::NEG_INFINITY, 0);
+            for r in 0..g.height {
+                self.read_row(r, 0, &mut row);
+                for &z in &row {
+                    if z.is_finite() {
+                        lo = lo.min(z);
+                        hi = hi.max(z);
+                    } else {
+                        nodata += 1;
+                    }
+                }
+            }
+            RowsSummary { range: (lo <= hi).then_some((lo, hi)), nodata }
+        })
+    }
+
     /// As `Heightfield::surface_height`: the bilinear elevation at (x, y) metres east and
     /// north of the south-west sample's centre (two rows read).
     pub fn surface_height(&self, x: f64, y: f64) -> Option<f64> {
@@ -238,5 +273,8 @@ impl HeightRows for GeoTiffRows {
     }
     fn failure(&self) -> Option<String> {
         GeoTiffRows::failure(self)
+    }
+    fn elevation_range(&self) -> Option<(f32, f32)> {
+        self.summary().range
     }
 }

@@ -63,11 +63,15 @@ pub enum StripMut<'a> {
     U8(&'a mut [u8]),
 }
 
+/// The NoData value written for elevations whose source declares none but has NoData
+/// samples (the int16 value SRTM uses).
+pub const NODATA_WHERE_NONE_DECLARED: f64 = -32768.0;
+
 /// Writes a float32 GeoTIFF of the heightfield's elevations (NoData cells as its NoData
 /// value, −32768 where it declares none), with its pixel scale, tiepoint (PixelIsArea),
 /// EPSG code and NoData value. Written atomically.
 pub fn write_geotiff(path: &Path, hf: &Heightfield) -> Result<()> {
-    let nodata = hf.nodata_value.unwrap_or(-32768.0);
+    let nodata = hf.nodata_value.unwrap_or(NODATA_WHERE_NONE_DECLARED);
     let declare = !hf.nodata.is_empty() || hf.nodata_value.is_some();
     let w = hf.width;
     let fill = |first: usize, strip: StripMut| -> Result<()> {

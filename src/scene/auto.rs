@@ -2,10 +2,11 @@
 //! kind draws best, a camera that frames it, a light, and for volumes the transfer-function
 //! preset that suits the modality.
 
-use super::{Camera, ImageSettings, Light, LightKind, Medium, NodeData, NodeDesc, NodeKind, Scene, SceneFile, Transform};
+use super::{Camera, ImageSettings, Light, LightKind, Medium, NodeData, NodeDesc, NodeKind, Scene, SceneFile, TerrainData, Transform};
 use anyhow::{anyhow, Result};
 use glam::{DMat4, DVec3};
 use std::path::{Component, Path, PathBuf};
+use volterra_formats::heightfield::GridGeoref;
 use volterra_formats::LoadOptions;
 
 /// Reads `path` and builds a scene showing it. The data read is handed to the scene, so
@@ -17,8 +18,14 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         true => volterra_formats::series::discover(path)?.map(|s| s.steps[0].file.clone()),
         false => None,
     };
-    let data = NodeData::from(volterra_formats::load(first.as_deref().unwrap_or(path), opts)?);
-    let kind = data.kind();
+    // A GeoTIFF is not read here: the terrain ray-caster reads it by rows into its own
+    // store (`Scene::terrain_data`), so a DEM larger than memory opens too.
+    let geotiff = first.is_none() && volterra_formats::detect(path)? == volterra_formats::FileKind::GeoTiff;
+    let data = match geotiff {
+        true => None,
+        false => Some(NodeData::from(volterra_formats::load(first.as_deref().unwrap_or(path), opts)?)),
+    };
+    let kind = data.as_ref().map_or(NodeKind::Heightfield, NodeData::kind);
     let name = node_name(path);
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
     let file_name = PathBuf::from(path.file_name().ok_or_else(|| anyhow!("{}: not a file name", path.display()))?);
@@ -47,7 +54,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         texture: None,
         texture_colormap: None,
         texture_range: None,
-        extent: None,
+        extent: opts.geotiff.extent,
         arrays: None,
         medium: None,
         color_by: None,
@@ -58,11 +65,11 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
     node.renderer = crate::render::registry::fast_for(kind).map(|r| r.name.to_string());
     let mut image = ImageSettings::default();
     let mut lights = Vec::new();
-    match &data {
+    match kind {
         // A volume gets no transfer function of its own: the preset of its modality
         // classifies it (`Scene::transfer_function`), so choosing a modality changes it.
-        NodeData::Volume(_) => {}
-        NodeData::Heightfield(_) => {
+        NodeKind::Volume | NodeKind::Group => {}
+        NodeKind::Heightfield => {
             if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
                 node.png = Some(opts.png.clone());
             }
@@ -76,7 +83,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
                 cone_angle: None,
             });
         }
-        NodeData::Particles(_) => {
+        NodeKind::Particles => {
             node.arrays = Some(opts.particles.clone());
             // An optically moderate medium for particles in metres with SPH densities
             // near 1 kg/m³ (the SPH defaults): about one mean free path across 0.1 m.
@@ -92,12 +99,10 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
             });
         }
     }
-    let bounds =
-        data_bounds(&data, DMat4::IDENTITY).ok_or_else(|| anyhow!("{}: the data has no finite extent to frame", path.display()))?;
-    let camera = fit_camera(kind, bounds);
     let file = SceneFile {
         image,
-        camera,
+        // Framed below, once the scene reads the data's extent as its renderer will.
+        camera: fit_camera(kind, (DVec3::ZERO, DVec3::ONE)),
         walk: None,
         keyframes: vec![],
         orbit: None,
@@ -106,8 +111,12 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         measurements: vec![],
         slices: None,
     };
-    let scene = Scene::from_file(file, dir, path.to_path_buf())?.with_limits(opts.limits);
-    scene.provide_data(0, data);
+    let mut scene = Scene::from_file(file, dir, path.to_path_buf())?.with_limits(opts.limits);
+    if let Some(data) = data {
+        scene.provide_data(0, data);
+    }
+    let bounds = scene.bounds(0)?.ok_or_else(|| anyhow!("{}: the data has no finite extent to frame", path.display()))?;
+    scene.file.camera = fit_camera(kind, bounds);
     Ok(scene)
 }
 
@@ -134,21 +143,7 @@ pub fn data_bounds(data: &NodeData, node_to_world: DMat4) -> Option<(DVec3, DVec
                 pts.push(a.transform_point3(ijk));
             }
         }
-        NodeData::Heightfield(h) => {
-            let (lo, hi) = h
-                .elevations
-                .iter()
-                .filter(|e| e.is_finite())
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &e| (a.min(e as f64), b.max(e as f64)));
-            if !lo.is_finite() {
-                return None;
-            }
-            let (x, y) = ((h.width - 1) as f64 * h.cell_size[0], (h.height - 1) as f64 * h.cell_size[1]);
-            for c in 0..8 {
-                let p = DVec3::new(if c & 1 == 0 { 0.0 } else { x }, if c & 2 == 0 { 0.0 } else { y }, if c & 4 == 0 { lo } else { hi });
-                pts.push(node_to_world.transform_point3(p));
-            }
-        }
+        NodeData::Heightfield(h) => return grid_bounds(&h.georef(), h.range()?, node_to_world),
         NodeData::Particles(p) => {
             pts.extend(p.positions.iter().map(|&q| node_to_world.transform_point3(DVec3::from(q))).filter(|q| q.is_finite()));
         }
@@ -156,6 +151,31 @@ pub fn data_bounds(data: &NodeData, node_to_world: DMat4) -> Option<(DVec3, DVec
     let lo = pts.iter().copied().reduce(DVec3::min)?;
     let hi = pts.iter().copied().reduce(DVec3::max)?;
     (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+}
+
+/// World-space bounding box of a heightfield's surface: the rectangle of its sample
+/// centres between its lowest and highest elevation.
+pub fn grid_bounds(g: &GridGeoref, (lo, hi): (f32, f32), node_to_world: DMat4) -> Option<(DVec3, DVec3)> {
+    let (x, y) = ((g.width - 1) as f64 * g.cell_size[0], (g.height - 1) as f64 * g.cell_size[1]);
+    let pts: Vec<DVec3> = (0..8)
+        .map(|c| {
+            let z = if c & 4 == 0 { lo } else { hi } as f64;
+            node_to_world.transform_point3(DVec3::new(if c & 1 == 0 { 0.0 } else { x }, if c & 2 == 0 { 0.0 } else { y }, z))
+        })
+        .collect();
+    let lo = pts.iter().copied().reduce(DVec3::min)?;
+    let hi = pts.iter().copied().reduce(DVec3::max)?;
+    (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+}
+
+/// World-space bounding box of a heightfield's surface as its renderer reads it: held, or
+/// by rows (the range from one pass over them, kept; see `GeoTiffRows::summary`).
+pub fn terrain_bounds(t: &TerrainData, node_to_world: DMat4) -> Option<(DVec3, DVec3)> {
+    let range = match t {
+        TerrainData::Held(h) => h.range(),
+        TerrainData::Rows(r) => r.summary().range,
+    };
+    grid_bounds(&t.georef(), range?, node_to_world)
 }
 
 /// A camera that shows the box whole: volumes from the patient's front (anterior, head

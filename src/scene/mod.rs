@@ -1141,6 +1141,22 @@ impl Scene {
     pub fn is_loaded(&self, node: usize) -> bool {
         self.data[node].get().is_some()
     }
+
+    /// True if the node's data has been read, or its GeoTIFF opened to be read by rows.
+    pub fn is_opened(&self, node: usize) -> bool {
+        self.is_loaded(node) || self.height_rows[node].get().is_some()
+    }
+
+    /// World-space bounding box of a node's data as its renderer reads it (a heightfield's
+    /// GeoTIFF by rows, not held: `terrain_data`), reading it on first use; None where
+    /// nothing finite is there.
+    pub fn bounds(&self, node: usize) -> Result<Option<(DVec3, DVec3)>> {
+        let m = self.world_transform(node);
+        match self.file.nodes[node].kind {
+            NodeKind::Heightfield => Ok(auto::terrain_bounds(&self.terrain_data(node)?, m)),
+            _ => Ok(auto::data_bounds(&self.data(node)?, m)),
+        }
+    }
 }
 
 /// The point at s ∈ [0, 1] on a uniform Catmull-Rom spline through `points` (ends

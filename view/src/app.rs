@@ -20,9 +20,9 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 use volterra::render::registry;
 use volterra::render::Frame;
-use volterra::scene::auto::{data_bounds, fit_camera, relative_path, scene_for_file};
+use volterra::scene::auto::{fit_camera, relative_path, scene_for_file};
 use volterra::scene::presets::ValueStats;
-use volterra::scene::{BlendMode, Camera, Measurement, MeasurementKind, NodeData, NodeKind, Scene, VolumeShading};
+use volterra::scene::{BlendMode, Camera, Measurement, MeasurementKind, NodeData, NodeKind, Scene, TerrainData, VolumeShading};
 use volterra_formats::LoadOptions;
 
 /// How long the view must stay unchanged before the full-resolution frame is requested.
@@ -75,6 +75,12 @@ fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
         if n.kind == NodeKind::Volume {
             // The scene's own statistics, which its presets are placed by too.
             stats[i] = Some(scene.value_stats(i)?);
+        } else if n.kind == NodeKind::Heightfield {
+            // Opened now as its renderer reads it (a GeoTIFF by rows, not held), and its
+            // range found (the metadata panel and the terrain's preparation need it).
+            if let TerrainData::Rows(rows) = scene.terrain_data(i)? {
+                rows.summary();
+            }
         } else if n.kind != NodeKind::Group {
             // Read now, not on the render thread's first frame.
             scene.data(i)?;
@@ -1021,8 +1027,8 @@ impl Viewer {
         ui.heading(&n.name);
         // Metadata, as `volterra info` prints it.
         if n.kind != NodeKind::Group {
-            match scene.data(i) {
-                Ok(d) => metadata_grid(ui, &d, n.arrays.clone().unwrap_or_default()),
+            match node_json(&scene, i) {
+                Ok(json) => metadata_grid(ui, json),
                 Err(e) => {
                     ui.colored_label(Color32::from_rgb(230, 90, 80), format!("{e:#}"));
                 }
@@ -1815,7 +1821,7 @@ impl Viewer {
     fn settle_walk(&mut self) {
         let Some(doc) = &self.doc else { return };
         let Some(i) = doc.scene.nodes().iter().position(|n| n.kind == NodeKind::Heightfield) else { return };
-        let Ok(hf) = doc.scene.heightfield(i) else { return };
+        let Ok(hf) = doc.scene.terrain_data(i) else { return };
         let m = doc.scene.world_transform(i);
         let eye = DVec3::from(self.camera.position);
         let local = m.inverse().transform_point3(DVec3::new(eye.x, eye.y, 0.0));
@@ -1921,11 +1927,10 @@ fn default_save_path(opened: &Path) -> String {
 fn scene_extent(scene: &Scene) -> Option<f64> {
     let mut ext: Option<f64> = None;
     for (i, n) in scene.nodes().iter().enumerate() {
-        if n.kind == NodeKind::Group || !scene.is_loaded(i) {
+        if n.kind == NodeKind::Group || !scene.is_opened(i) {
             continue;
         }
-        let d = scene.data(i).ok()?;
-        if let Some((lo, hi)) = data_bounds(&d, scene.world_transform(i)) {
+        if let Some((lo, hi)) = scene.bounds(i).ok()? {
             ext = Some(ext.unwrap_or(0.0).max((hi - lo).length()));
         }
     }
@@ -1935,9 +1940,8 @@ fn scene_extent(scene: &Scene) -> Option<f64> {
 /// Frames the data of every loaded node (used by `volterra view` on a scene with no
 /// camera worth keeping; exposed for tests).
 pub fn fit_scene_camera(scene: &Scene) -> Option<Camera> {
-    let i = scene.nodes().iter().position(|n| n.kind != NodeKind::Group)?;
-    let d = scene.data(i).ok()?;
-    Some(fit_camera(d.kind(), data_bounds(&d, scene.world_transform(i))?))
+    let (i, n) = scene.nodes().iter().enumerate().find(|(_, n)| n.kind != NodeKind::Group)?;
+    Some(fit_camera(n.kind, scene.bounds(i).ok()??))
 }
 
 /// The window position of a world point, if in front of the camera.
@@ -1983,12 +1987,22 @@ fn steps_image(frame: &Frame, steps: &[f32]) -> egui::ColorImage {
     egui::ColorImage::new([frame.width, frame.height], pixels)
 }
 
-fn metadata_grid(ui: &mut egui::Ui, data: &NodeData, names: volterra_formats::ParticleArrayNames) {
-    let json = match data {
-        NodeData::Volume(v) => volterra::info::volume_json(v),
-        NodeData::Heightfield(h) => volterra::info::heightfield_json(h),
-        NodeData::Particles(p) => volterra::info::particles_json(p, &names),
-    };
+/// What `volterra info` prints of a node's data, as its renderer reads it (a heightfield's
+/// GeoTIFF by rows, not held).
+fn node_json(scene: &Scene, i: usize) -> Result<serde_json::Value> {
+    if scene.nodes()[i].kind == NodeKind::Heightfield {
+        if let TerrainData::Rows(rows) = scene.terrain_data(i)? {
+            return Ok(volterra::info::grid_json(&volterra::info::GridSummary::of_rows(&rows)));
+        }
+    }
+    Ok(match scene.data(i)? {
+        NodeData::Volume(v) => volterra::info::volume_json(&v),
+        NodeData::Heightfield(h) => volterra::info::heightfield_json(&h),
+        NodeData::Particles(p) => volterra::info::particles_json(&p, &scene.nodes()[i].arrays.clone().unwrap_or_default()),
+    })
+}
+
+fn metadata_grid(ui: &mut egui::Ui, json: serde_json::Value) {
     // What the file says about itself (codes, patient, series, compression, corners): whole,
     // under a header that starts closed so the panel keeps its layout.
     let details: Vec<(String, serde_json::Value)> = match &json {
