@@ -166,7 +166,7 @@ fn exposure_scales_the_png_preview_and_not_the_exr() {
             "image.height=40",
         ]);
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        (std::fs::read(&exr).unwrap(), volterra_formats::image::decode_png(&png, &Default::default()).unwrap())
+        (std::fs::read(&exr).unwrap(), volterra_formats::image::decode_png(&png, &Default::default(), 0).unwrap())
     };
     let (exr0, png0) = render("0.0", "plain");
     let (exr1, png1) = render("1.0", "bright");
@@ -237,4 +237,57 @@ fn info_of_a_geotiff_read_by_rows_equals_the_raster_read_whole() {
         with_nodata += usize::from(whole.nodata_count() > 0);
     }
     assert!(compared >= 10 && with_nodata >= 2, "{compared} rasters compared, {with_nodata} with NoData");
+}
+
+/// `--max-memory` holds for every reader: `info` on every data file of the fixtures and of
+/// ../shared/data, under limits from 1 MiB to 64 MiB, either reads it within the limit or
+/// refuses it with the one-line reason — never passes the limit (the binary's counting
+/// allocator reports "over the limit" when it does). Readers once counted only what they
+/// returned, not the file, the decoder's buffers and the copies held beside it.
+#[test]
+fn info_never_passes_the_memory_limit_it_is_given() {
+    let mut inputs: Vec<std::path::PathBuf> = Vec::new();
+    let mut roots = vec![repo_path("tests/fixtures")];
+    roots.extend(common::shared_data());
+    let data_file = |p: &std::path::Path| {
+        let name = p.file_name().unwrap().to_string_lossy().to_ascii_lowercase();
+        [".nii", ".nii.gz", ".hdr", ".tif", ".png", ".vtp", ".vtu", ".vti", ".vtk", ".mha", ".mhd", ".nrrd", ".nhdr", ".dcm", ".pvd"]
+            .iter()
+            .any(|e| name.ends_with(e))
+    };
+    fn walk(dir: &std::path::Path, out: &mut Vec<std::path::PathBuf>, keep: &dyn Fn(&std::path::Path) -> bool) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                // A DICOM series directory is read as one volume, too.
+                if std::fs::read_dir(&p).unwrap().any(|f| f.unwrap().path().extension().is_some_and(|x| x == "dcm")) {
+                    out.push(p.clone());
+                }
+                walk(&p, out, keep);
+            } else if keep(&p) {
+                out.push(p);
+            }
+        }
+    }
+    for root in &roots {
+        walk(root, &mut inputs, &data_file);
+    }
+    inputs.sort();
+    let mut over = Vec::new();
+    let (mut read, mut refused) = (0, 0);
+    for limit in ["1M", "2M", "4M", "8M", "16M", "32M", "64M"] {
+        for p in &inputs {
+            let out = volterra(&["info", "--max-memory", limit, p.to_str().unwrap()]);
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            if stderr.contains("over the limit") {
+                over.push(format!("{limit} {}: {}", p.display(), stderr.lines().last().unwrap_or_default()));
+            }
+            match out.status.success() {
+                true => read += 1,
+                false => refused += usize::from(stderr.contains("memory limit")),
+            }
+        }
+    }
+    assert!(over.is_empty(), "{} of {} runs passed the limit:\n{}", over.len(), inputs.len() * 7, over.join("\n"));
+    assert!(inputs.len() > 60 && read > 300 && refused > 50, "{} inputs: {read} read, {refused} refused for memory", inputs.len());
 }

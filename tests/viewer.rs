@@ -545,7 +545,7 @@ fn a_real_window_under_xvfb_shows_the_render() {
     let Some(xvfb) = xvfb_run() else { return };
     let dir = samples();
     let shot = screenshot_under_xvfb(xvfb, &dir.path().join("angio_shear_warp.toml"));
-    let img = volterra::formats::image::decode_png(&shot, &Default::default()).unwrap();
+    let img = volterra::formats::image::decode_png(&shot, &Default::default(), 0).unwrap();
     assert!(img.width >= 1000 && img.height >= 600, "window size {}×{}", img.width, img.height);
     assert_eq!((img.channels, img.bit_depth), (4, 8));
     let px: Vec<[u8; 4]> = img.samples.chunks_exact(4).map(|p| [p[0] as u8, p[1] as u8, p[2] as u8, p[3] as u8]).collect();
@@ -945,7 +945,7 @@ fn a_fused_pet_ct_with_measurements_in_a_real_window() {
     let keep = common::repo_path("target/test-pictures");
     std::fs::create_dir_all(&keep).unwrap();
     std::fs::copy(&shot, keep.join("fused_pet_ct_window.png")).unwrap();
-    let img = volterra::formats::image::decode_png(&shot, &Default::default()).unwrap();
+    let img = volterra::formats::image::decode_png(&shot, &Default::default(), 0).unwrap();
     let px: Vec<[u8; 4]> = img.samples.chunks_exact(4).map(|p| [p[0] as u8, p[1] as u8, p[2] as u8, p[3] as u8]).collect();
     // The measuring tools' orange (255, 120, 40): lines, end points and labels.
     let orange = px.iter().filter(|p| p[0] > 230 && (90..150).contains(&p[1]) && p[2] < 80).count();

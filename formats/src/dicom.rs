@@ -985,7 +985,30 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions, limits: &Lim
     let mut rescale = slice_rescale[0];
     let out_ty = if per_slice { ScalarType::F32 } else { ty };
     let what = if per_slice { "real-valued volume (the rescale differs between slices)" } else { "DICOM volume" };
-    limits.check(src, what, &[cols as u64, rows as u64, n as u64, out_ty.size() as u64])?;
+    let volume = limits.check(src, what, &[cols as u64, rows as u64, n as u64, out_ty.size() as u64])? as u64;
+    // Each thread decoding a file holds its data set (dicom-rs reads a file whole, pixel
+    // data included), the decoded frames and their copy — and for compressed pixel data
+    // the decoder's own buffers, measured at up to twice the frames more (JPEG Lossless
+    // decodes to 16-bit samples, then to bytes): counted with the volume.
+    let threads = rayon::current_num_threads().min(infos.len()).max(1) as u64;
+    let per_file = infos
+        .iter()
+        .map(|i| {
+            let on_disk = std::fs::metadata(&i.path).map(|m| m.len()).unwrap_or(0);
+            let decoded =
+                i.rows as u64 * i.columns as u64 * i.frames as u64 * i.samples_per_pixel as u64 * (i.bits_allocated as u64).div_ceil(8);
+            let native = [uids::IMPLICIT_VR_LITTLE_ENDIAN, uids::EXPLICIT_VR_LITTLE_ENDIAN, crate::dicom_scan::EXPLICIT_VR_BIG_ENDIAN];
+            let copies = if native.contains(&i.transfer_syntax.as_str()) { 2 } else { 4 };
+            // OpenJPEG's working state, whatever the image's size (measured 1.3 MiB for a
+            // 64 × 64 frame).
+            let jpeg2000 =
+                i.transfer_syntax.starts_with("1.2.840.10008.1.2.4.9") || i.transfer_syntax.starts_with("1.2.840.10008.1.2.4.20");
+            let workspace = if jpeg2000 { 2 << 20 } else { 0 };
+            on_disk.saturating_add(decoded.saturating_mul(copies)).saturating_add(workspace)
+        })
+        .max()
+        .unwrap_or(0);
+    limits.check(src, &format!("{what} with the files being decoded"), &[volume.saturating_add(threads.saturating_mul(per_file))])?;
     let mut data = VoxelData::zeroed(out_ty, plane * n);
     let out_frame_bytes = plane * out_ty.size();
 

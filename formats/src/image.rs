@@ -35,7 +35,11 @@ pub fn png_size(path: &Path) -> Result<(usize, usize)> {
     Ok((reader.info().width as usize, reader.info().height as usize))
 }
 
-pub fn decode_png(path: &Path, limits: &Limits) -> Result<PngSamples> {
+/// Decodes a PNG's samples. `built_per_pixel`: the bytes a pixel the caller builds from
+/// the samples while it holds them (a heightmap's elevations, a texture's RGB), counted
+/// against the limit with the decoder's buffer and the samples (each pixel's bytes held at
+/// once: the buffer and the samples while converting, then the samples and what is built).
+pub fn decode_png(path: &Path, limits: &Limits, built_per_pixel: u64) -> Result<PngSamples> {
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
     let mut dec = png::Decoder::new(std::io::BufReader::new(file));
     dec.set_transformations(png::Transformations::EXPAND);
@@ -45,7 +49,9 @@ pub fn decode_png(path: &Path, limits: &Limits) -> Result<PngSamples> {
     let (ct, depth) = reader.output_color_type();
     let channels = ct.samples();
     let bytes_per = if depth == png::BitDepth::Sixteen { 2 } else { 1 };
-    let size = limits.check(path, "PNG image", &[w, h, channels as u64, bytes_per])?;
+    let (decoded, samples) = (channels as u64 * bytes_per, channels as u64 * 2);
+    limits.check(path, "PNG image", &[w, h, samples + decoded.max(built_per_pixel)])?;
+    let size = (w * h * decoded) as usize;
     let mut buf = vec![0u8; size.max(reader.output_buffer_size())];
     let frame = reader.next_frame(&mut buf).map_err(|e| FormatError::invalid(path, format!("PNG data is corrupt or truncated: {e}")))?;
     let buf = &buf[..frame.buffer_size()];
@@ -60,7 +66,7 @@ pub fn decode_png(path: &Path, limits: &Limits) -> Result<PngSamples> {
 /// Reads a colour texture (PNG) as 8-bit RGB; grey is replicated, alpha dropped,
 /// 16-bit reduced to 8.
 pub fn read_rgb_png(path: &Path, limits: &Limits) -> Result<RgbImage> {
-    let p = decode_png(path, limits)?;
+    let p = decode_png(path, limits, 3)?;
     let to8 = |v: u16| if p.bit_depth == 16 { (v >> 8) as u8 } else { v as u8 };
     let mut data = Vec::with_capacity(p.width * p.height * 3);
     for px in p.samples.chunks_exact(p.channels) {

@@ -54,7 +54,10 @@ fn is_gz(path: &Path) -> bool {
 fn open_maybe_gz(path: &Path) -> Result<(Box<dyn Read>, bool)> {
     use std::io::BufRead;
     let f = File::open(path).map_err(|e| FormatError::io(path, e))?;
-    let mut r = BufReader::with_capacity(1 << 20, f);
+    // A megabyte of buffer for large files; no more than the file for small ones (a pair's
+    // header is 348 bytes).
+    let len = f.metadata().map_err(|e| FormatError::io(path, e))?.len();
+    let mut r = BufReader::with_capacity(len.clamp(8 << 10, 1 << 20) as usize, f);
     let gz = r.fill_buf().map_err(|e| FormatError::io(path, e))?.starts_with(&[0x1f, 0x8b]);
     Ok(if gz { (Box::new(MultiGzDecoder::new(r)), true) } else { (Box::new(r), false) })
 }

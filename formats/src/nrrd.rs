@@ -229,6 +229,11 @@ pub fn read_nrrd(path: &Path, limits: &Limits) -> Result<Volume> {
     if per_file * files.len() != n {
         return Err(FormatError::invalid(path, format!("{} data files cannot share {n} samples equally", files.len())));
     }
+    if !ascii {
+        // The voxel data read (from every data file) and the voxels converted from it are
+        // held at once.
+        limits.check(path, "voxel data and the voxels converted from it", &[n as u64, ty.size() as u64, 2])?;
+    }
     let mut bytes = Vec::new();
     let mut text_values = Vec::new();
     for (file, attached) in &files {
@@ -268,7 +273,14 @@ pub fn read_nrrd(path: &Path, limits: &Limits) -> Result<Volume> {
             s if s >= 0 => Start::At(from + s as u64),
             s => return Err(FormatError::invalid(path, format!("byte skip {s} is neither a count nor -1"))),
         };
-        bytes.extend(raw::read_block(path, file, start, compression, (per_file * ty.size()) as u64, limits)?);
+        let block = raw::read_block(path, file, start, compression, (per_file * ty.size()) as u64, limits)?;
+        if bytes.is_empty() {
+            // One data file (or the first): its block is the voxel data, not copied.
+            bytes = block;
+            bytes.reserve_exact((n - per_file) * ty.size());
+        } else {
+            bytes.extend(block);
+        }
     }
     let data = if ascii { raw::parse_text(path, &text_values.join("\n"), ty, n)? } else { VoxelData::from_bytes(ty, &bytes, big_endian) };
     let mut v = Volume::new(dims, affine, data);

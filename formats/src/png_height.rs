@@ -48,7 +48,8 @@ pub fn read_png_heightmap(path: &Path, opts: &PngHeightOptions, limits: &Limits)
     if !opts.vertical_scale.is_finite() || !opts.vertical_offset.is_finite() {
         return Err(FormatError::invalid(path, "vertical_scale and vertical_offset must be finite"));
     }
-    let p = decode_png(path, limits)?;
+    // Elevations in f32 (and a NoData bit) are built while the samples are held.
+    let p = decode_png(path, limits, 4)?;
     let n = p.width * p.height;
     let mut nodata = NodataMask::default();
     let elevations: Vec<f32> = match opts.encoding {

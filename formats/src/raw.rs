@@ -27,8 +27,10 @@ pub enum Start {
 }
 
 /// Reads `want` bytes of voxel data from `file` (named in errors as `path`, the header).
+/// The bytes and the voxels converted from them are held at once: both count against the
+/// limit.
 pub fn read_block(path: &Path, file: &Path, start: Start, compression: Compression, want: u64, limits: &Limits) -> Result<Vec<u8>> {
-    limits.check(path, "voxel data", &[want])?;
+    limits.check(path, "voxel data and the voxels converted from it", &[want, 2])?;
     // Errors are the header's: a separate data file is named by its name beside it.
     let which =
         if file == path { "file".to_string() } else { format!("data file {}", file.file_name().unwrap_or_default().to_string_lossy()) };
@@ -46,7 +48,9 @@ pub fn read_block(path: &Path, file: &Path, start: Start, compression: Compressi
         return Err(FormatError::invalid(path, format!("the data would start at byte {at} of {which}, which holds {len}")));
     }
     f.seek(SeekFrom::Start(at)).map_err(io)?;
-    let mut out = Vec::new();
+    // Sized once (a byte over, for the check that a stream holds no more): a vector grown by
+    // doubling would hold up to twice the data, and three times while it moves.
+    let mut out = Vec::with_capacity(want as usize + 1);
     let got = match compression {
         Compression::None => {
             if len - at < want {

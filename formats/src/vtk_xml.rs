@@ -54,8 +54,15 @@ fn type_size(ty: &str) -> Option<usize> {
     })
 }
 
+/// The file's bytes, held while its arrays are decoded: counted against the limit first.
+fn read_file(path: &Path, limits: &Limits) -> Result<Vec<u8>> {
+    let len = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?.len();
+    limits.check(path, "the file", &[len])?;
+    std::fs::read(path).map_err(|e| FormatError::io(path, e))
+}
+
 pub fn read_vtk_xml(path: &Path, names: &ParticleArrayNames, limits: &Limits) -> Result<ParticleSet> {
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes = read_file(path, limits)?;
     let (decl, data_start) = parse_file(path, &bytes)?;
     let appended: &[u8] = data_start.map_or(&[], |s| &bytes[s..]);
     if decl.dataset != "PolyData" && decl.dataset != "UnstructuredGrid" {
@@ -120,7 +127,7 @@ fn parse_file(path: &Path, bytes: &[u8]) -> Result<(FileDecl, Option<usize>)> {
 /// index counted from the extent's start (a piece may start away from 0).
 pub fn read_vti(path: &Path, limits: &Limits) -> Result<crate::Volume> {
     use crate::volume::{ScalarType, VoxelData};
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes = read_file(path, limits)?;
     let (decl, data_start) = parse_file(path, &bytes)?;
     let appended: &[u8] = data_start.map_or(&[], |s| &bytes[s..]);
     if decl.dataset != "ImageData" {
@@ -159,6 +166,10 @@ pub fn read_vti(path: &Path, limits: &Limits) -> Result<crate::Volume> {
             return Err(FormatError::unsupported(path, format!("array '{}' is {other}: 64-bit integers are not kept as voxels", a.name)))
         }
     };
+    // The decoded bytes and the voxels converted from them are held at once (the array
+    // alone first: a lying extent is refused for what it claims).
+    limits.check(path, &format!("array '{}'", a.name), &[n as u64, ty.size() as u64])?;
+    limits.check(path, &format!("array '{}' decoded and converted to voxels", a.name), &[n as u64, ty.size() as u64, 2])?;
     let data = match decode(path, &decl, &a, appended, n, limits)? {
         Decoded::Bytes(b) => VoxelData::from_bytes(ty, &b, decl.big_endian),
         Decoded::Text(v) => {
@@ -362,7 +373,8 @@ enum Decoded {
 fn decode_array(path: &Path, f: &FileDecl, a: &ArrayDecl, appended: &[u8], n: usize, limits: &Limits) -> Result<Vec<f64>> {
     let size = type_size(&a.ty).unwrap() as u64;
     limits.check(path, &format!("array '{}'", a.name), &[n as u64, a.components as u64, size])?;
-    limits.check(path, &format!("array '{}' as f64", a.name), &[n as u64, a.components as u64, 8])?;
+    // As stored and as f64, held at once while converting.
+    limits.check(path, &format!("array '{}' as f64", a.name), &[n as u64, a.components as u64, size + 8])?;
     let what = if a.name.is_empty() { "Points".to_string() } else { format!("array '{}'", a.name) };
     let values = match decode(path, f, a, appended, n, limits)? {
         Decoded::Bytes(raw) => to_f64(&raw, &a.ty, f.big_endian),
