@@ -1025,11 +1025,25 @@ fn cmd_contours(
     let (src, grid, _) = dem_source(input, load)?;
     match kind {
         ContourOutput::Lines { attribute, three_d } => {
-            let lines = volterra::dem::contours::contours(&*src, &grid, levels).with_context(|| input.display().to_string())?;
-            let features = lines.iter().map(|l| formats::geojson::LineFeature { points: &l.points, value: l.level });
-            formats::geojson::write_lines(output, "contour", &grid.crs, attribute, three_d, features)?;
-            let vertices: usize = lines.iter().map(|l| l.points.len()).sum();
-            eprintln!("wrote {} ({} lines, {vertices} vertices)", output.display(), lines.len());
+            // Each line written as soon as it is complete: what is held is two rows and the
+            // lines still open, not every line of the DEM.
+            let (mut count, mut vertices) = (0usize, 0usize);
+            formats::geojson::write_lines_from(output, "contour", &grid.crs, attribute, three_d, |emit| -> Result<()> {
+                volterra::dem::contours::contours_each(&*src, &grid, levels, |l| {
+                    (count, vertices) = (count + 1, vertices + l.points.len());
+                    Ok(emit(formats::geojson::LineFeature { points: &l.points, value: l.level })?)
+                })
+                .map_err(|e| {
+                    // The output's errors name the output; the reader's name the input already.
+                    let named = e.is::<formats::FormatError>() || e.to_string().starts_with(&input.display().to_string());
+                    if named {
+                        e
+                    } else {
+                        e.context(input.display().to_string())
+                    }
+                })
+            })?;
+            eprintln!("wrote {} ({count} lines, {vertices} vertices)", output.display());
         }
         ContourOutput::Polygons { min, max } => {
             let bands = volterra::dem::contours::contour_polygons(&*src, &grid, levels).with_context(|| input.display().to_string())?;

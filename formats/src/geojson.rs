@@ -31,7 +31,22 @@ pub fn write_lines<'a>(
     three_d: bool,
     features: impl IntoIterator<Item = LineFeature<'a>>,
 ) -> Result<()> {
-    write_collection(path, layer, crs, features, |w, id, f| {
+    write_lines_from(path, layer, crs, attribute, three_d, |emit| features.into_iter().try_for_each(emit))
+}
+
+/// As `write_lines`, the features handed over one at a time by `produce` as it makes them
+/// (a DEM's contours as its rows are read), each written at once: nothing is held but the
+/// feature being written. An error from `produce` stops the write (no file is left) and
+/// is returned as it is.
+pub fn write_lines_from<E: From<FormatError>>(
+    path: &Path,
+    layer: &str,
+    crs: &Crs,
+    attribute: &str,
+    three_d: bool,
+    produce: impl FnOnce(&mut dyn FnMut(LineFeature) -> Result<()>) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    let line = |w: &mut dyn Write, id: usize, f: &LineFeature| -> std::io::Result<()> {
         let finite = f.points.iter().flatten().all(|c| c.is_finite());
         feature_start(w, id, &[(attribute, f.value)], "LineString", finite)?;
         for (i, p) in f.points.iter().enumerate() {
@@ -43,7 +58,8 @@ pub fn write_lines<'a>(
             }
         }
         Ok(())
-    })
+    };
+    write_collection_from(path, layer, crs, |emit| produce(&mut |f: LineFeature| emit(&|w, id| line(w, id, &f))))
 }
 
 /// One polygon band (gdal_contour -p): its polygons (outer ring first, then holes; each
@@ -116,24 +132,53 @@ fn write_collection<T>(
     features: impl IntoIterator<Item = T>,
     feature: impl Fn(&mut dyn Write, usize, &T) -> std::io::Result<()>,
 ) -> Result<()> {
+    write_collection_from(path, layer, crs, |emit| features.into_iter().try_for_each(|f| emit(&|w, id| feature(w, id, &f))))
+}
+
+/// One feature for the collection writer: writes feature `id` from `feature_start` up to
+/// its last coordinate.
+type FeatureBody<'f> = &'f dyn Fn(&mut dyn Write, usize) -> std::io::Result<()>;
+
+/// As `write_collection`, the features handed to the writer by `produce` one at a time,
+/// each written at once. An error from `produce` stops the write (no file is left) and is
+/// returned as it is.
+fn write_collection_from<E: From<FormatError>>(
+    path: &Path,
+    layer: &str,
+    crs: &Crs,
+    produce: impl FnOnce(&mut dyn FnMut(FeatureBody) -> Result<()>) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
     let io = |e: std::io::Error| FormatError::io(path, e);
-    write_atomically(path, |w| {
+    // The error `produce` returned, kept while the writer's own error unwinds the write.
+    let mut failed: Option<E> = None;
+    let written = write_atomically(path, |w| {
         write_header(w, layer, crs).map_err(io)?;
-        for (id, f) in features.into_iter().enumerate() {
+        let mut id = 0;
+        let mut emit = |body: FeatureBody| -> Result<()> {
             if id > 0 {
                 w.write_all(b",\n").map_err(io)?;
             }
-            match feature(w, id, &f) {
+            match body(w, id) {
                 Err(e) if e.get_ref().is_some_and(|inner| inner.is::<NotFinite>()) => {
                     return Err(FormatError::invalid(path, format!("feature {id}: {NotFinite}")));
                 }
                 r => r.map_err(io)?,
             }
             w.write_all(b"]}}").map_err(io)?;
+            id += 1;
+            Ok(())
+        };
+        if let Err(e) = produce(&mut emit) {
+            failed = Some(e);
+            return Err(FormatError::invalid(path, "the write was stopped"));
         }
         w.write_all(b"\n]}\n").map_err(io)?;
         Ok(())
-    })
+    });
+    match failed {
+        Some(e) => Err(e),
+        None => written.map_err(E::from),
+    }
 }
 
 /// The collection's opening, its name and CRS, up to the features' first.

@@ -266,6 +266,14 @@ fn checked_levels(range: Option<(f64, f64)>, levels: &Levels) -> Result<Levels> 
 /// them, with the square's column and row (rows in order, each left to right). Reads each
 /// row of `src` once, in order, holding two.
 fn for_each_square(src: &dyn HeightRows, mut visit: impl FnMut(&Square, i64, i64)) {
+    for_each_square_while(src, |sq, col, row| {
+        visit(sq, col, row);
+        true
+    })
+}
+
+/// As `for_each_square`, stopping (no more rows read) once `visit` returns false.
+fn for_each_square_while(src: &dyn HeightRows, mut visit: impl FnMut(&Square, i64, i64) -> bool) {
     let [w, h] = src.size();
     // Corner rows row − 1 and row (NaN beyond the raster and for NoData).
     let (mut above, mut below) = (vec![f32::NAN; w], vec![f32::NAN; w]);
@@ -292,10 +300,13 @@ fn for_each_square(src: &dyn HeightRows, mut visit: impl FnMut(&Square, i64, i64
                 lower_right: corner(col + 1, row),
                 quarter: false,
             };
-            match sq.nan_count() {
-                4 => {}
+            let go_on = match sq.nan_count() {
+                4 => true,
                 0 => visit(&sq, col, row),
-                _ => sq.quarters().for_each(|q| visit(&q, col, row)),
+                _ => sq.quarters().all(|q| visit(&q, col, row)),
+            };
+            if !go_on {
+                return;
             }
         }
     }
@@ -310,38 +321,205 @@ fn to_map(grid: &GridGeoref) -> impl Fn([f64; 2]) -> [f64; 2] {
 }
 
 /// The contour lines of the rows of `src` (on `grid`; NoData as NaN) at `levels`, in map
-/// coordinates. The rows are read twice, in order: for the elevation range (to refuse an
-/// interval that would draw more than `MAX_LEVELS` levels), then to draw; a DEM of any
-/// size takes the memory of two rows and its lines.
+/// coordinates, collected (see `contours_each`).
 pub fn contours(src: &dyn HeightRows, grid: &GridGeoref, levels: &Levels) -> Result<Vec<ContourLine>> {
+    let mut lines = Vec::new();
+    contours_each(src, grid, levels, |line| {
+        lines.push(line);
+        Ok(())
+    })?;
+    Ok(lines)
+}
+
+/// The contour lines of the rows of `src` (on `grid`; NoData as NaN) at `levels`, in map
+/// coordinates, each handed to `emit` as soon as it is complete: a closed line when its
+/// last segment closes it, an open one once the row of squares below its ends has been
+/// visited without extending it (the squares are visited row by row, and a line can only
+/// grow from an end on the lower edge of the row just visited). The rows are read twice,
+/// in order: for the elevation range (to refuse an interval that would draw more than
+/// `MAX_LEVELS` levels), then to draw; what is held is two rows and the lines still open
+/// — those crossing the current row, not every line of the raster. An error from `emit`
+/// stops the reading and is returned.
+pub fn contours_each(
+    src: &dyn HeightRows,
+    grid: &GridGeoref,
+    levels: &Levels,
+    mut emit: impl FnMut(ContourLine) -> Result<()>,
+) -> Result<()> {
     let levels = checked_levels(range_for(src, levels), levels)?;
-    // Segments per level index, in pixel space.
-    let mut segments: HashMap<i64, Vec<[[f64; 2]; 2]>> = HashMap::new();
-    for_each_square(src, |sq, _, _| {
+    let to_map = to_map(grid);
+    let mut open: HashMap<i64, OpenLines> = HashMap::new();
+    // The lines that took a segment in the row of squares being visited, and in the one before.
+    let (mut touched, mut touched_before): (Vec<LineId>, Vec<LineId>) = (Vec::new(), Vec::new());
+    let mut row_visited = i64::MIN;
+    let mut failed: Option<anyhow::Error> = None;
+    let mut finish = |k: i64, line: std::collections::VecDeque<[f64; 2]>, failed: &mut Option<anyhow::Error>| {
+        if failed.is_none() {
+            let line = ContourLine { level: level_value(&levels, k), points: line.into_iter().map(&to_map).collect() };
+            *failed = emit(line).err();
+        }
+    };
+    for_each_square_while(src, |sq, _, row| {
+        if row != row_visited {
+            // Square row `row_visited` is done: its lower edge lies at y = row_visited + 0.5.
+            // Lines it and the row before it touched whose ends both lie above that edge
+            // can grow no more.
+            let lower_edge = row_visited as f64 + 0.5;
+            let mut done: Vec<LineId> = touched_before.drain(..).chain(touched.iter().copied()).collect();
+            done.sort_unstable();
+            done.dedup();
+            for (k, id) in done {
+                let lines = open.get_mut(&k).expect("a touched level");
+                if let Some(line) = lines.take_if_ended(id, lower_edge) {
+                    finish(k, line, &mut failed);
+                }
+            }
+            std::mem::swap(&mut touched, &mut touched_before);
+            row_visited = row;
+        }
         let (min, max) = sq.value_range();
         for k in level_range(&levels, min, max) {
             let level = level_value(&levels, k);
+            let lines = open.entry(k).or_default();
             sq.segments(level, &mut |a, b| {
                 if a != b {
-                    segments.entry(k).or_default().push([a, b]);
+                    match lines.add(a, b) {
+                        (id, false) => touched.push((k, id)),
+                        (id, true) => {
+                            let closed = lines.remove(id);
+                            finish(k, closed, &mut failed);
+                        }
+                    }
                 }
             });
         }
+        failed.is_none()
     });
+    if let Some(e) = failed {
+        return Err(e);
+    }
     if let Some(why) = src.failure() {
         bail!("{why}");
     }
-    let to_map = to_map(grid);
-    let mut keys: Vec<i64> = segments.keys().copied().collect();
+    // Lines still open at the end (on the raster's last row, or stopped at NoData there).
+    let mut keys: Vec<i64> = open.keys().copied().collect();
     keys.sort_unstable();
-    let mut lines = Vec::new();
     for k in keys {
-        let level = level_value(&levels, k);
-        for chain in join_segments(&segments[&k]) {
-            lines.push(ContourLine { level, points: chain.into_iter().map(&to_map).collect() });
+        let mut lines = open.remove(&k).expect("a key");
+        for id in 0..lines.lines.len() {
+            if lines.lines[id].is_some() {
+                let line = lines.remove(id);
+                finish(k, line, &mut failed);
+            }
         }
     }
-    Ok(lines)
+    failed.map_or(Ok(()), Err)
+}
+
+/// An open line: its level index and its place among that level's open lines.
+type LineId = (i64, usize);
+
+/// The open lines of one level while the squares are visited: each a run of points from
+/// one end to the other, and the line each end point belongs to (a point of marching
+/// squares meets at most two segment ends, so an end meets at most one more segment).
+#[derive(Default)]
+struct OpenLines {
+    lines: Vec<Option<std::collections::VecDeque<[f64; 2]>>>,
+    free: Vec<usize>,
+    ends: HashMap<(u64, u64), usize>,
+}
+
+fn point_key(p: [f64; 2]) -> (u64, u64) {
+    (p[0].to_bits(), p[1].to_bits())
+}
+
+impl OpenLines {
+    /// Adds segment a–b (its ends equal bit for bit to those of the segments it meets: each
+    /// crossing is worked out the same way from both squares sharing its edge): a new line,
+    /// one line grown, or two joined. Returns the line and whether the segment closed it.
+    fn add(&mut self, a: [f64; 2], b: [f64; 2]) -> (usize, bool) {
+        let (at_a, at_b) = (self.ends.remove(&point_key(a)), self.ends.remove(&point_key(b)));
+        match (at_a, at_b) {
+            (None, None) => {
+                let id = self.new_line([a, b].into_iter().collect());
+                self.ends.insert(point_key(a), id);
+                self.ends.insert(point_key(b), id);
+                (id, false)
+            }
+            (Some(id), None) | (None, Some(id)) => {
+                let (end, new) = if at_a.is_some() { (a, b) } else { (b, a) };
+                let line = self.lines[id].as_mut().expect("an open line");
+                if line.back() == Some(&end) {
+                    line.push_back(new);
+                } else {
+                    line.push_front(new);
+                }
+                self.ends.insert(point_key(new), id);
+                (id, false)
+            }
+            (Some(i), Some(j)) if i == j => {
+                // Both ends of one line: it closes, repeating its first point last.
+                let line = self.lines[i].as_mut().expect("an open line");
+                let first = *line.front().expect("points");
+                line.push_back(first);
+                (i, true)
+            }
+            (Some(i), Some(j)) => {
+                // Two lines joined by the segment: the shorter one moved onto the longer.
+                let (len_i, len_j) = (self.lines[i].as_ref().map_or(0, |l| l.len()), self.lines[j].as_ref().map_or(0, |l| l.len()));
+                let (keep, keep_end, other, other_end) = if len_i >= len_j { (i, a, j, b) } else { (j, b, i, a) };
+                let mut moved = self.lines[other].take().expect("an open line");
+                self.free.push(other);
+                // `moved` runs from other_end to its far end.
+                if moved.front() != Some(&other_end) {
+                    moved.make_contiguous().reverse();
+                }
+                let far = *moved.back().expect("points");
+                let line = self.lines[keep].as_mut().expect("an open line");
+                if line.back() == Some(&keep_end) {
+                    line.extend(moved);
+                } else {
+                    for p in moved {
+                        line.push_front(p);
+                    }
+                }
+                self.ends.insert(point_key(far), keep);
+                (keep, false)
+            }
+        }
+    }
+
+    fn new_line(&mut self, points: std::collections::VecDeque<[f64; 2]>) -> usize {
+        match self.free.pop() {
+            Some(id) => {
+                self.lines[id] = Some(points);
+                id
+            }
+            None => {
+                self.lines.push(Some(points));
+                self.lines.len() - 1
+            }
+        }
+    }
+
+    /// Takes line `id` out (its ends forgotten).
+    fn remove(&mut self, id: usize) -> std::collections::VecDeque<[f64; 2]> {
+        let line = self.lines[id].take().expect("an open line");
+        for end in [line.front(), line.back()].into_iter().flatten() {
+            if self.ends.get(&point_key(*end)) == Some(&id) {
+                self.ends.remove(&point_key(*end));
+            }
+        }
+        self.free.push(id);
+        line
+    }
+
+    /// Takes line `id` out if it is still open and both its ends lie above `lower_edge`.
+    fn take_if_ended(&mut self, id: usize, lower_edge: f64) -> Option<std::collections::VecDeque<[f64; 2]>> {
+        let line = self.lines.get(id)?.as_ref()?;
+        let (front, back) = (line.front()?, line.back()?);
+        (front[1] < lower_edge && back[1] < lower_edge).then(|| self.remove(id))
+    }
 }
 
 /// The valid elevations' range where `levels` needs it (an interval), None otherwise.
@@ -352,56 +530,165 @@ fn range_for(src: &dyn HeightRows, levels: &Levels) -> Option<(f64, f64)> {
 mod polygons;
 pub use polygons::{contour_polygons, Band};
 
-/// Joins segments sharing end points (equal bit for bit: each crossing is worked out the
-/// same way from both squares that share its edge) into maximal lines: open lines from
-/// their ends first, then the closed loops left.
-fn join_segments(segs: &[[[f64; 2]; 2]]) -> Vec<Vec<[f64; 2]>> {
-    let key = |p: [f64; 2]| (p[0].to_bits(), p[1].to_bits());
-    // Each point meets at most two segment ends (marching squares' points have degree two).
-    let mut at: HashMap<(u64, u64), Vec<usize>> = HashMap::with_capacity(segs.len() * 2);
-    for (i, s) in segs.iter().enumerate() {
-        for p in s {
-            at.entry(key(*p)).or_default().push(i);
-        }
-    }
-    let mut used = vec![false; segs.len()];
-    let mut chains = Vec::new();
-    let walk = |start: usize, from: [f64; 2], used: &mut Vec<bool>| {
-        let mut chain = vec![from];
-        let (mut seg, mut here) = (start, from);
-        loop {
-            used[seg] = true;
-            let s = segs[seg];
-            let next = if key(s[0]) == key(here) { s[1] } else { s[0] };
-            chain.push(next);
-            here = next;
-            match at[&key(here)].iter().find(|&&j| !used[j]) {
-                Some(&j) => seg = j,
-                None => break,
-            }
-        }
-        chain
-    };
-    // Open lines start at points with one segment end.
-    for (i, s) in segs.iter().enumerate() {
-        for p in s {
-            if !used[i] && at[&key(*p)].len() == 1 {
-                chains.push(walk(i, *p, &mut used));
-            }
-        }
-    }
-    for i in 0..segs.len() {
-        if !used[i] {
-            chains.push(walk(i, segs[i][0], &mut used));
-        }
-    }
-    chains
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use volterra_formats::heightfield::{Crs, Heightfield};
+
+    /// The batch join `contours` used before it joined lines as the rows are visited: every
+    /// segment held, then joined into maximal lines through a map of end points (open lines
+    /// from their ends first, then the closed loops left). Kept as the reference.
+    fn join_segments(segs: &[[[f64; 2]; 2]]) -> Vec<Vec<[f64; 2]>> {
+        let key = |p: [f64; 2]| (p[0].to_bits(), p[1].to_bits());
+        // Each point meets at most two segment ends (marching squares' points have degree two).
+        let mut at: HashMap<(u64, u64), Vec<usize>> = HashMap::with_capacity(segs.len() * 2);
+        for (i, s) in segs.iter().enumerate() {
+            for p in s {
+                at.entry(key(*p)).or_default().push(i);
+            }
+        }
+        let mut used = vec![false; segs.len()];
+        let mut chains = Vec::new();
+        let walk = |start: usize, from: [f64; 2], used: &mut Vec<bool>| {
+            let mut chain = vec![from];
+            let (mut seg, mut here) = (start, from);
+            loop {
+                used[seg] = true;
+                let s = segs[seg];
+                let next = if key(s[0]) == key(here) { s[1] } else { s[0] };
+                chain.push(next);
+                here = next;
+                match at[&key(here)].iter().find(|&&j| !used[j]) {
+                    Some(&j) => seg = j,
+                    None => break,
+                }
+            }
+            chain
+        };
+        // Open lines start at points with one segment end.
+        for (i, s) in segs.iter().enumerate() {
+            for p in s {
+                if !used[i] && at[&key(*p)].len() == 1 {
+                    chains.push(walk(i, *p, &mut used));
+                }
+            }
+        }
+        for i in 0..segs.len() {
+            if !used[i] {
+                chains.push(walk(i, segs[i][0], &mut used));
+            }
+        }
+        chains
+    }
+
+    /// A heightfield's rows, counting the rows read.
+    struct CountedRows<'a> {
+        hf: &'a Heightfield,
+        read: std::sync::atomic::AtomicUsize,
+    }
+
+    impl HeightRows for CountedRows<'_> {
+        fn size(&self) -> [usize; 2] {
+            self.hf.size()
+        }
+        fn cell_size(&self) -> [f64; 2] {
+            self.hf.cell_size()
+        }
+        fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+            self.read.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.hf.read_row(row, col, out)
+        }
+    }
+
+    /// A line as a canonical list of point bits: an open line in the direction whose first
+    /// point is smaller, a closed one from its smallest point in the smaller direction.
+    fn canonical(points: &[[f64; 2]]) -> Vec<(u64, u64)> {
+        let keys: Vec<(u64, u64)> = points.iter().map(|&p| point_key(p)).collect();
+        if keys.len() > 2 && keys.first() == keys.last() {
+            let ring = &keys[..keys.len() - 1];
+            let start = (0..ring.len()).min_by_key(|&i| ring[i]).unwrap();
+            let forward: Vec<_> = (0..ring.len()).map(|i| ring[(start + i) % ring.len()]).collect();
+            let backward: Vec<_> = (0..ring.len()).map(|i| ring[(start + ring.len() - i) % ring.len()]).collect();
+            forward.min(backward)
+        } else {
+            let reversed: Vec<_> = keys.iter().rev().copied().collect();
+            keys.min(reversed)
+        }
+    }
+
+    /// Lines joined as the rows are visited (and handed out as they end) are the lines the
+    /// batch join makes of every segment held: on a rough DEM with NoData holes and
+    /// saddles, at many levels, the same lines point for point.
+    #[test]
+    fn lines_joined_row_by_row_are_those_of_the_whole_raster_joined_at_once() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut rand = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (w, h) = (83, 61);
+        let noise: Vec<f64> = (0..w * h).map(|_| rand()).collect();
+        let hf = grid(w, h, |c, r| {
+            let hole = ((c as f64 - 20.0).powi(2) + (r as f64 - 30.0).powi(2)) < 40.0 || (c > 60 && r == 10);
+            let smooth = 10.0 * ((c as f64) / 9.0).sin() * ((r as f64) / 7.0).cos();
+            if hole {
+                f32::NAN
+            } else {
+                (smooth + 4.0 * noise[r * w + c]) as f32
+            }
+        });
+        let levels = Levels::Interval { interval: 1.5, offset: 0.25 };
+        let mut streamed: Vec<(u64, Vec<(u64, u64)>)> = Vec::new();
+        // Rows read when each line came out: the range pass reads all h first.
+        let counted = CountedRows { hf: &hf, read: Default::default() };
+        let mut read_at_emission = Vec::new();
+        contours_each(&counted, &hf.georef(), &levels, |l| {
+            if !l.is_closed() {
+                read_at_emission.push(counted.read.load(std::sync::atomic::Ordering::Relaxed) - h);
+            }
+            streamed.push((l.level.to_bits(), canonical(&l.points)));
+            Ok(())
+        })
+        .unwrap();
+        // Open lines come out once the rows below their ends are read, not all at the end:
+        // a third of them before half the rows have been read.
+        let early = read_at_emission.iter().filter(|&&r| r < h / 2).count();
+        assert!(
+            early * 3 > read_at_emission.len() && early > 20,
+            "{early} of {} open lines out before row {}",
+            read_at_emission.len(),
+            h / 2
+        );
+        // The batch reference, from the same segments.
+        let checked = checked_levels(range_for(&hf, &levels), &levels).unwrap();
+        let mut segments: HashMap<i64, Vec<[[f64; 2]; 2]>> = HashMap::new();
+        for_each_square(&hf, |sq, _, _| {
+            let (min, max) = sq.value_range();
+            for k in level_range(&checked, min, max) {
+                sq.segments(level_value(&checked, k), &mut |a, b| {
+                    if a != b {
+                        segments.entry(k).or_default().push([a, b]);
+                    }
+                });
+            }
+        });
+        let to_map = to_map(&hf.georef());
+        let mut batch: Vec<(u64, Vec<(u64, u64)>)> = Vec::new();
+        for (k, segs) in &segments {
+            for chain in join_segments(segs) {
+                let points: Vec<[f64; 2]> = chain.into_iter().map(&to_map).collect();
+                batch.push((level_value(&checked, *k).to_bits(), canonical(&points)));
+            }
+        }
+        let long = batch.iter().filter(|(_, l)| l.len() > 4).count();
+        assert!(batch.len() > 300 && long > 100, "{} lines, {long} of more than four points", batch.len());
+        streamed.sort();
+        batch.sort();
+        assert_eq!(streamed.len(), batch.len(), "line count");
+        assert!(streamed == batch, "the lines differ");
+    }
 
     fn grid(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
         Heightfield {
