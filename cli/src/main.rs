@@ -1023,13 +1023,57 @@ fn cmd_contours(
         anyhow::bail!("{}: contours are written as GeoJSON; name the output .geojson", output.display());
     }
     let (src, grid, _) = dem_source(input, load)?;
+    // The rows are read once for the elevation range where an interval needs it, then to
+    // draw: progress counts both passes.
+    let passes = if matches!(levels, volterra::dem::contours::Levels::Interval { .. }) { 2 } else { 1 };
+    let progress = progress::TerminalProgress::default();
+    use volterra::render::driver::Progress as _;
+    progress.begin("contours", (passes * grid.height) as u64);
+    let src = RowsRead { rows: &*src, progress: &progress, read: Default::default() };
+    let drawn = contours_to(&src, &grid, input, output, levels, kind);
+    progress.end();
+    drawn
+}
+
+/// A DEM's rows, reporting the rows read to a progress bar.
+struct RowsRead<'a> {
+    rows: &'a dyn formats::heightfield::HeightRows,
+    progress: &'a progress::TerminalProgress,
+    read: std::sync::atomic::AtomicU64,
+}
+
+impl formats::heightfield::HeightRows for RowsRead<'_> {
+    fn size(&self) -> [usize; 2] {
+        self.rows.size()
+    }
+    fn cell_size(&self) -> [f64; 2] {
+        self.rows.cell_size()
+    }
+    fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+        use volterra::render::driver::Progress as _;
+        self.rows.read_row(row, col, out);
+        self.progress.update(self.read.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+    }
+    fn failure(&self) -> Option<String> {
+        self.rows.failure()
+    }
+}
+
+fn contours_to(
+    src: &dyn formats::heightfield::HeightRows,
+    grid: &formats::heightfield::GridGeoref,
+    input: &Path,
+    output: &Path,
+    levels: &volterra::dem::contours::Levels,
+    kind: ContourOutput,
+) -> Result<()> {
     match kind {
         ContourOutput::Lines { attribute, three_d } => {
             // Each line written as soon as it is complete: what is held is two rows and the
             // lines still open, not every line of the DEM.
             let (mut count, mut vertices) = (0usize, 0usize);
             formats::geojson::write_lines_from(output, "contour", &grid.crs, attribute, three_d, |emit| -> Result<()> {
-                volterra::dem::contours::contours_each(&*src, &grid, levels, |l| {
+                volterra::dem::contours::contours_each(src, grid, levels, |l| {
                     (count, vertices) = (count + 1, vertices + l.points.len());
                     Ok(emit(formats::geojson::LineFeature { points: &l.points, value: l.level })?)
                 })
@@ -1046,7 +1090,7 @@ fn cmd_contours(
             eprintln!("wrote {} ({count} lines, {vertices} vertices)", output.display());
         }
         ContourOutput::Polygons { min, max } => {
-            let bands = volterra::dem::contours::contour_polygons(&*src, &grid, levels).with_context(|| input.display().to_string())?;
+            let bands = volterra::dem::contours::contour_polygons(src, grid, levels).with_context(|| input.display().to_string())?;
             let features = bands.iter().map(|b| formats::geojson::PolygonFeature { polygons: &b.polygons, min: b.min, max: b.max });
             formats::geojson::write_polygons(output, "contour", &grid.crs, (min, max), features)?;
             let polygons: usize = bands.iter().map(|b| b.polygons.len()).sum();
