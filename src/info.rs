@@ -1,8 +1,8 @@
 //! `volterra info`: what a reader made of a file, as text or as one JSON object.
 
 use serde_json::{json, Value};
-use volterra_formats::geotiff_rows::{GeoTiffRows, RowsSummary};
-use volterra_formats::heightfield::GridGeoref;
+use volterra_formats::geotiff_rows::GeoTiffRows;
+use volterra_formats::heightfield::{GridGeoref, RowsSummary};
 use volterra_formats::{dicom, Dataset, Heightfield, ParticleArrayNames, ParticleSet, Volume};
 
 /// A number as people read it: integers without decimals, others to 6 significant digits

@@ -15,7 +15,7 @@
 
 use crate::error::{FormatError, Result};
 use crate::geotiff::{cell_size_metres, open_elevation, read_chunk_at, sample_f64, sample_metres, tiff_err, Chunk, GeoTiffOptions, Opened};
-use crate::heightfield::{bilinear_height, GridGeoref, HeightRows};
+use crate::heightfield::{bilinear_height, summarise, GridGeoref, HeightRows, RowsSummary};
 use crate::memory::Limits;
 use std::collections::HashMap;
 use std::io::BufReader;
@@ -45,15 +45,6 @@ pub struct GeoTiffRows {
     held: Mutex<ChunkRow>,
     /// The elevation range and NoData count, from one pass over the rows (on first use).
     summary: OnceLock<RowsSummary>,
-}
-
-/// What one pass over a raster's rows finds: its elevation range and its NoData samples.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RowsSummary {
-    /// (min, max) elevation in metres over valid samples; None where every one is NoData.
-    pub range: Option<(f32, f32)>,
-    /// Samples that are NoData (the file's NoData value, or not a finite number).
-    pub nodata: usize,
 }
 
 /// A chunk decoded: its elevations in metres, row by row, and its width in samples.
@@ -200,23 +191,7 @@ impl GeoTiffRows {
     /// on first use and kept: `info`, a view's framing and the terrain's preparation each
     /// need the range). A chunk that fails to decode counts as NoData (see `failure`).
     pub fn summary(&self) -> RowsSummary {
-        *self.summary.get_or_init(|| {
-            let g = &self.georef;
-            let mut row = vec![0f32; g.width];
-            let (mut lo, mut hi, mut nodata) = (f32::INFINITY, f32::NEG_INFINITY, 0);
-            for r in 0..g.height {
-                self.read_row(r, 0, &mut row);
-                for &z in &row {
-                    if z.is_finite() {
-                        lo = lo.min(z);
-                        hi = hi.max(z);
-                    } else {
-                        nodata += 1;
-                    }
-                }
-            }
-            RowsSummary { range: (lo <= hi).then_some((lo, hi)), nodata }
-        })
+        *self.summary.get_or_init(|| summarise(self))
     }
 
     /// As `Heightfield::surface_height`: the bilinear elevation at (x, y) metres east and

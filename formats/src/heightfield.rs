@@ -171,18 +171,36 @@ pub trait HeightRows: Send + Sync {
     }
     /// (min, max) elevation over valid samples, reading every row once in order.
     fn elevation_range(&self) -> Option<(f32, f32)> {
-        let [w, h] = self.size();
-        let mut row = vec![0f32; w];
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for r in 0..h {
-            self.read_row(r, 0, &mut row);
-            for &z in row.iter().filter(|z| z.is_finite()) {
+        summarise(self).range
+    }
+}
+
+/// What one pass over a raster's rows finds: its elevation range and its NoData samples.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowsSummary {
+    /// (min, max) elevation in metres over valid samples; None where every one is NoData.
+    pub range: Option<(f32, f32)>,
+    /// Samples that are NoData (the file's NoData value, or not a finite number).
+    pub nodata: usize,
+}
+
+/// One pass over every row of `rows`, in order: the elevation range and the NoData count.
+pub fn summarise<R: HeightRows + ?Sized>(rows: &R) -> RowsSummary {
+    let [w, h] = rows.size();
+    let mut row = vec![0f32; w];
+    let (mut lo, mut hi, mut nodata) = (f32::INFINITY, f32::NEG_INFINITY, 0);
+    for r in 0..h {
+        rows.read_row(r, 0, &mut row);
+        for &z in &row {
+            if z.is_finite() {
                 lo = lo.min(z);
                 hi = hi.max(z);
+            } else {
+                nodata += 1;
             }
         }
-        (lo <= hi).then_some((lo, hi))
     }
+    RowsSummary { range: (lo <= hi).then_some((lo, hi)), nodata }
 }
 
 /// A heightfield held: its rows copied out (NoData samples hold NaN already).
