@@ -29,8 +29,14 @@ struct View {
 // The sphere and its colour travel with each vertex (flat): a fragment reads no buffer.
 struct VOut {
     @builtin(position) pos: vec4<f32>,
+    // Eye-relative centre and radius (world axes), for the spheres' ray intersection.
     @location(0) @interpolate(flat) sphere: vec4<f32>,
     @location(1) @interpolate(flat) colour: vec4<f32>,
+    // For the splats: the centre in the camera's frame (x right, y up, z forward), where a
+    // pixel's ray is (sx, sy, 1) normalised (perspective) or starts at (sx, sy, 0) along z
+    // (parallel), and where the ray through the centre meets the image plane (sx, sy).
+    @location(2) @interpolate(flat) cam: vec3<f32>,
+    @location(3) @interpolate(flat) foot: vec2<f32>,
 };
 
 // The triangle round a unit circle (its incircle): three vertices twice the radius out.
@@ -43,7 +49,12 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
     let cam = vec3<f32>(dot(s.xyz, view.right.xyz), dot(s.xyz, view.up.xyz), dot(s.xyz, view.forward.xyz));
     var out: VOut;
     out.sphere = s;
+    out.cam = cam;
     out.colour = colours[ii];
+    out.foot = cam.xy;
+    if (view.parallel == 0u) {
+        out.foot = cam.xy / cam.z;
+    }
     // A sphere reaching the eye plane is not drawn (a degenerate triangle): its projection
     // is unbounded. The near plane lies just in front of every other sphere.
     if (cam.z - r <= 0.0 && view.parallel == 0u) {
@@ -96,6 +107,11 @@ struct FOut {
     @builtin(frag_depth) depth: f32,
 };
 
+// The image-plane point (sx, sy) of a fragment's pixel centre (row 0 at the top).
+fn image_point(px: vec2<f32>) -> vec2<f32> {
+    return vec2<f32>((2.0 * px.x / view.width - 1.0) * view.half_w, (1.0 - 2.0 * px.y / view.height) * view.half_h);
+}
+
 // The ray through a fragment's pixel centre: origin and unit direction, eye-relative.
 struct Ray {
     o: vec3<f32>,
@@ -103,14 +119,13 @@ struct Ray {
 };
 
 fn pixel_ray(px: vec2<f32>) -> Ray {
-    let sx = (2.0 * px.x / view.width - 1.0) * view.half_w;
-    let sy = (1.0 - 2.0 * px.y / view.height) * view.half_h;
+    let s = image_point(px);
     var o = vec3<f32>(0.0, 0.0, 0.0);
     var d = view.forward.xyz;
     if (view.parallel != 0u) {
-        o = view.right.xyz * sx + view.up.xyz * sy;
+        o = view.right.xyz * s.x + view.up.xyz * s.y;
     } else {
-        d = normalize(view.forward.xyz + view.right.xyz * sx + view.up.xyz * sy);
+        d = normalize(view.forward.xyz + view.right.xyz * s.x + view.up.xyz * s.y);
     }
     return Ray(o, d);
 }
@@ -155,19 +170,28 @@ struct SplatOut {
 
 @fragment
 fn fs_splat(in: VOut) -> SplatOut {
-    let s = in.sphere;
-    let ray = pixel_ray(in.pos.xy);
-    let oc = ray.o - s.xyz;
-    let b = dot(oc, ray.d);
-    let q = oc - b * ray.d;
-    let q2 = dot(q, q) / (s.w * s.w);
-    if (q2 >= 1.0 || -b <= 0.0) {
-        discard;
+    let c = vec4<f32>(in.cam, in.sphere.w);
+    let s = image_point(in.pos.xy);
+    // The pixel's offset from the centre's foot on the image plane; no difference of two
+    // large squares. Perspective: with D = (sx, sy, 1), q = |c × D| / |D|, and
+    // c × D = (−c_z Δy, c_z Δx, c_x Δy − c_y Δx) for Δ = s − c_xy / c_z; the distance along
+    // the ray to the point of nearest approach is c · D / |D|. Parallel: q = |Δ|, distance c_z.
+    let dl = s - in.foot;
+    var q2 = dot(dl, dl);
+    var along = c.z;
+    if (view.parallel == 0u) {
+        let k = c.x * dl.y - c.y * dl.x;
+        let dd = 1.0 + dot(s, s);
+        q2 = (c.z * c.z * q2 + k * k) / dd;
+        along = (dot(c.xy, s) + c.z) * inverseSqrt(dd);
     }
-    let a = view.opacity * exp(-4.5 * q2);
+    q2 = q2 / (c.w * c.w);
+    // Outside the cut (or behind the eye) a fragment adds nothing: α = 0 leaves every sum
+    // as it was, without a discard.
+    let a = select(0.0, view.opacity * exp(-4.5 * q2), q2 < 1.0 && along > 0.0);
     var out: SplatOut;
     out.colour = vec4<f32>(in.colour.rgb * a, a);
     out.weight = a;
-    out.dist = select(3.0e38, -b, q2 <= 1.0 / 9.0);
+    out.dist = select(3.0e38, along, q2 <= 1.0 / 9.0 && along > 0.0);
     return out;
 }

@@ -16,6 +16,7 @@ use crate::scene::camera::RayGenerator;
 use crate::scene::NodeKind;
 use anyhow::{anyhow, bail, Result};
 use glam::{DMat3, DMat4, DVec3};
+use rayon::prelude::*;
 use std::sync::OnceLock;
 use std::time::Instant;
 use volterra_formats::ParticleSet;
@@ -140,18 +141,21 @@ pub fn spheres(input: &PointsInput, s: &Settings) -> Result<(Vec<Sphere>, Option
         let r = input.range.unwrap_or_else(|| volterra_formats::finite_range(v.iter().copied()).map_or([0.0, 1.0], |(lo, hi)| [lo, hi]));
         (name.clone(), r)
     });
-    let mut out = Vec::with_capacity(p.len());
-    for i in 0..p.len() {
-        let radius = if s.radius > 0.0 { s.radius } else { h.unwrap()[i] as f64 } * scale;
-        if !(radius.is_finite() && radius > 0.0) {
-            bail!("particle {i} has radius {radius} (h must be positive and finite)");
-        }
-        let colour = match (&values, &range) {
-            (Some((_, v)), Some((_, [lo, hi]))) => s.colormap.at(if hi > lo { (v[i] - lo) / (hi - lo) } else { 0.5 }),
-            _ => [0.8; 3],
-        };
-        out.push(Sphere { centre: m.transform_point3(DVec3::from(p.positions[i])), radius, colour });
+    let radius = |i: usize| if s.radius > 0.0 { s.radius } else { h.unwrap()[i] as f64 } * scale;
+    // The first bad radius (the lowest index, whatever the threads).
+    if let Some(i) = (0..p.len()).into_par_iter().find_first(|&i| !(radius(i).is_finite() && radius(i) > 0.0)) {
+        bail!("particle {i} has radius {} (h must be positive and finite)", radius(i));
     }
+    let out = (0..p.len())
+        .into_par_iter()
+        .map(|i| {
+            let colour = match (&values, &range) {
+                (Some((_, v)), Some((_, [lo, hi]))) => s.colormap.at(if hi > lo { (v[i] - lo) / (hi - lo) } else { 0.5 }),
+                _ => [0.8; 3],
+            };
+            Sphere { centre: m.transform_point3(DVec3::from(p.positions[i])), radius: radius(i), colour }
+        })
+        .collect();
     Ok((out, range))
 }
 
@@ -390,13 +394,14 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
     // perspective far from their distance from the eye — off the axis a ray reaches a
     // sphere further than its depth along the view, and a far bound by depth put the
     // spheres at a wide view's edges behind the far plane, undrawn.
-    let (mut near, mut far) = (f64::INFINITY, 0.0f64);
-    for sp in &spheres {
-        let z = (sp.centre - eye).dot(forward);
-        near = near.min(z - sp.radius);
-        let reach = if rays.is_parallel() { z } else { (sp.centre - eye).length() };
-        far = far.max(reach + sp.radius);
-    }
+    let (near, far) = spheres
+        .par_iter()
+        .map(|sp| {
+            let z = (sp.centre - eye).dot(forward);
+            let reach = if rays.is_parallel() { z } else { (sp.centre - eye).length() };
+            (z - sp.radius, reach + sp.radius)
+        })
+        .reduce(|| (f64::INFINITY, 0.0f64), |a, b| (a.0.min(b.0), a.1.max(b.1)));
     // Room either side, so the nearest and farthest spheres are not clipped; a sphere that
     // reaches the eye plane (perspective) is not drawn (the shader culls it).
     let near = if rays.is_parallel() { 0.0 } else { (0.999 * near).max(1e-6 * far.max(1e-30)) };
@@ -416,13 +421,13 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
         opacity: s.opacity as f32,
     };
     let centres: Vec<[f32; 4]> = spheres
-        .iter()
+        .par_iter()
         .map(|sp| {
             let c = sp.centre - eye;
             [c.x as f32, c.y as f32, c.z as f32, sp.radius as f32]
         })
         .collect();
-    let colours: Vec<[f32; 4]> = spheres.iter().map(|sp| [sp.colour[0], sp.colour[1], sp.colour[2], 1.0]).collect();
+    let colours: Vec<[f32; 4]> = spheres.par_iter().map(|sp| [sp.colour[0], sp.colour[1], sp.colour[2], 1.0]).collect();
     let buffers = Buffers { view: &view, centres: &centres, colours: &colours, w, h };
     let mut frame = Frame::empty(w, h);
     let seconds = match splats {
@@ -430,19 +435,19 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
             let (targets, seconds) =
                 dev.guarded("drawing the particles on the GPU", || draw(dev, &p.spheres, true, &SPHERE_TARGETS, &buffers))?;
             let (colour, dist) = (&targets[0], &targets[1]);
-            for i in 0..w * h {
+            frame.rgba.par_iter_mut().zip(frame.depth.par_iter_mut()).enumerate().for_each(|(i, (rgba, depth))| {
                 if colour[4 * i + 3] > 0.0 {
-                    frame.rgba[i] = [colour[4 * i], colour[4 * i + 1], colour[4 * i + 2], colour[4 * i + 3]];
-                    frame.depth[i] = dist[i];
+                    *rgba = [colour[4 * i], colour[4 * i + 1], colour[4 * i + 2], colour[4 * i + 3]];
+                    *depth = dist[i];
                 }
-            }
+            });
             seconds
         }
         Some(pipeline) => {
             let (targets, seconds) =
                 dev.guarded("drawing the particles on the GPU", || draw(dev, pipeline, false, &SPLAT_TARGETS, &buffers))?;
             let (sums, weight, dist) = (&targets[0], &targets[1], &targets[2]);
-            for i in 0..w * h {
+            frame.rgba.par_iter_mut().zip(frame.depth.par_iter_mut()).enumerate().for_each(|(i, (rgba, depth))| {
                 let c = &sums[4 * i..4 * i + 4];
                 let acc = SplatSums {
                     colour: [c[0], c[1], c[2]].map(f64::from),
@@ -450,8 +455,8 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
                     weight: weight[i] as f64,
                     dist: dist[i] as f64,
                 };
-                (frame.rgba[i], frame.depth[i]) = acc.resolve();
-            }
+                (*rgba, *depth) = acc.resolve();
+            });
             seconds
         }
     };
@@ -563,6 +568,7 @@ fn draw(
     // Rows padded to 256 bytes for the copies.
     let padded = |bytes_per_pixel: usize| (w * bytes_per_pixel).div_ceil(256) * 256;
     let bpp = |format: wgpu::TextureFormat| format.block_copy_size(None).unwrap_or(4) as usize;
+    // Copied straight into buffers the host maps (no second copy into a staging buffer).
     let rows: Vec<wgpu::Buffer> = textures
         .iter()
         .map(|tex| {
@@ -570,7 +576,7 @@ fn draw(
             let buf = d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("points read-back"),
                 size: (padded(bpp) * h) as u64,
-                usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             });
             enc.copy_texture_to_buffer(
@@ -586,17 +592,30 @@ fn draw(
         .collect();
     let t = Instant::now();
     dev.queue.submit([enc.finish()]);
-    d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("drawing the particles on the GPU failed: {e}"))?;
+    let failed = |e: &dyn std::fmt::Display| anyhow!("drawing the particles on the GPU failed: {e}");
+    d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| failed(&e))?;
     let seconds = t.elapsed().as_secs_f64();
+    let (tx, rx) = std::sync::mpsc::channel();
+    for buf in &rows {
+        let tx = tx.clone();
+        buf.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+    }
+    d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| failed(&e))?;
+    for _ in &rows {
+        rx.recv()?.map_err(|e| failed(&e))?;
+    }
     let mut out = Vec::with_capacity(rows.len());
     for (buf, tex) in rows.iter().zip(&textures) {
-        let bpp = bpp(tex.format());
-        let values = dev.read_buffer::<f32>(buf)?;
-        let mut rows = Vec::with_capacity(w * h * bpp / 4);
-        for row in values.chunks(padded(bpp) / 4) {
-            rows.extend_from_slice(&row[..w * bpp / 4]);
+        let row_values = w * bpp(tex.format()) / 4;
+        let mapped = buf.slice(..).get_mapped_range().map_err(|e| failed(&format!("{e:?}")))?;
+        let values: &[f32] = bytemuck::cast_slice(&mapped);
+        let mut unpadded = Vec::with_capacity(row_values * h);
+        for row in values.chunks(padded(bpp(tex.format())) / 4) {
+            unpadded.extend_from_slice(&row[..row_values]);
         }
-        out.push(rows);
+        out.push(unpadded);
     }
     Ok((out, seconds))
 }
