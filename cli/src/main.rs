@@ -961,7 +961,12 @@ fn cmd_dem(
     let (src, grid, nodata_value) = dem_source(input, load)?;
     let palette = match palette {
         Some((path, text)) => {
-            Some(dem::parse_palette(&text, nodata_value, || dem::elevation_range(&*src)).with_context(|| path.display().to_string())?)
+            let palette = dem::parse_palette(&text, nodata_value, || dem::elevation_range(&*src));
+            // A range pass that stopped at a row it could not read: that, not the palette.
+            if let Some(why) = src.failure() {
+                bail!("{why}");
+            }
+            Some(palette.with_context(|| path.display().to_string())?)
         }
         None => None,
     };

@@ -185,12 +185,17 @@ pub struct RowsSummary {
 }
 
 /// One pass over every row of `rows`, in order: the elevation range and the NoData count.
+/// Stops at the first row that could not be read (`failure`): what it returns then covers
+/// the rows before, and the caller reports the failure.
 pub fn summarise<R: HeightRows + ?Sized>(rows: &R) -> RowsSummary {
     let [w, h] = rows.size();
     let mut row = vec![0f32; w];
     let (mut lo, mut hi, mut nodata) = (f32::INFINITY, f32::NEG_INFINITY, 0);
     for r in 0..h {
         rows.read_row(r, 0, &mut row);
+        if rows.failure().is_some() {
+            break;
+        }
         for &z in &row {
             if z.is_finite() {
                 lo = lo.min(z);

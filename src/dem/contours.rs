@@ -281,6 +281,11 @@ fn for_each_square_while(src: &dyn HeightRows, mut visit: impl FnMut(&Square, i6
         std::mem::swap(&mut above, &mut below);
         if (row as usize) < h {
             src.read_row(row as usize, 0, &mut below);
+            // A row that could not be read ends the pass: the caller reports `failure`,
+            // not after reading the rest of a large raster.
+            if src.failure().is_some() {
+                return;
+            }
         } else {
             below.fill(f32::NAN);
         }
@@ -346,7 +351,13 @@ pub fn contours_each(
     levels: &Levels,
     mut emit: impl FnMut(ContourLine) -> Result<()>,
 ) -> Result<()> {
-    let levels = checked_levels(range_for(src, levels), levels)?;
+    let range = range_for(src, levels);
+    // The range pass stops at a row that could not be read: say why, not what a partial
+    // range makes of the levels.
+    if let Some(why) = src.failure() {
+        bail!("{why}");
+    }
+    let levels = checked_levels(range, levels)?;
     let to_map = to_map(grid);
     let mut open: HashMap<i64, OpenLines> = HashMap::new();
     // The lines that took a segment in the row of squares being visited, and in the one before.
@@ -597,6 +608,63 @@ mod tests {
         fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
             self.read.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             self.hf.read_row(row, col, out)
+        }
+    }
+
+    /// A heightfield's rows as a reader whose chunk under row `bad` fails to decode: from
+    /// then on `failure` says so (as `GeoTiffRows` does); the rows read are counted.
+    struct FailingRows<'a> {
+        hf: &'a Heightfield,
+        bad: usize,
+        read: std::sync::atomic::AtomicUsize,
+        failed: std::sync::atomic::AtomicBool,
+    }
+
+    impl HeightRows for FailingRows<'_> {
+        fn size(&self) -> [usize; 2] {
+            self.hf.size()
+        }
+        fn cell_size(&self) -> [f64; 2] {
+            self.hf.cell_size()
+        }
+        fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
+            self.read.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.hf.read_row(row, col, out);
+            if row == self.bad {
+                self.failed.store(true, std::sync::atomic::Ordering::Relaxed);
+                out.fill(f32::NAN);
+            }
+        }
+        fn failure(&self) -> Option<String> {
+            self.failed.load(std::sync::atomic::Ordering::Relaxed).then(|| "dem.tif: tile 7 could not be decoded".to_string())
+        }
+    }
+
+    /// A row that cannot be read ends every pass over the rows there — the range, the lines,
+    /// the polygons — and the error says why (not what a partial range makes of the
+    /// levels), instead of coming after the rest of a large raster has been read.
+    #[test]
+    fn a_row_that_cannot_be_read_stops_the_passes_at_once() {
+        let (w, h) = (40, 300);
+        let hf = grid(w, h, |c, r| ((c as f64 / 5.0).sin() * 10.0 + r as f64 * 0.1) as f32);
+        for bad in [0, 30] {
+            let interval = Levels::Interval { interval: 2.0, offset: 0.0 };
+            let fixed = Levels::Fixed(vec![-5.0, 0.0, 5.0]);
+            for (levels, what) in [(&interval, "interval"), (&fixed, "fixed levels")] {
+                let rows = FailingRows { hf: &hf, bad, read: Default::default(), failed: Default::default() };
+                let e = contours_each(&rows, &hf.georef(), levels, |_| Ok(())).unwrap_err();
+                assert!(e.to_string().contains("tile 7 could not be decoded"), "{what}: {e}");
+                let read = rows.read.into_inner();
+                assert!(read <= bad + 1, "{what}, bad row {bad}: lines: {read} rows read");
+                let rows = FailingRows { hf: &hf, bad, read: Default::default(), failed: Default::default() };
+                let e = contour_polygons(&rows, &hf.georef(), levels).unwrap_err();
+                assert!(e.to_string().contains("tile 7 could not be decoded"), "{what}: {e}");
+                let read = rows.read.into_inner();
+                assert!(read <= bad + 1, "{what}, bad row {bad}: polygons: {read} rows read");
+            }
+            let rows = FailingRows { hf: &hf, bad, read: Default::default(), failed: Default::default() };
+            let _ = volterra_formats::heightfield::summarise(&rows);
+            assert_eq!(rows.read.into_inner(), bad + 1, "the range pass");
         }
     }
 

@@ -80,6 +80,9 @@ fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
             // range found (the metadata panel and the terrain's preparation need it).
             if let TerrainData::Rows(rows) = scene.terrain_data(i)? {
                 rows.summary();
+                if let Some(why) = rows.failure() {
+                    anyhow::bail!("{why}");
+                }
             }
         } else if n.kind != NodeKind::Group {
             // Read now, not on the render thread's first frame.

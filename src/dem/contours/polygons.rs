@@ -258,6 +258,9 @@ impl<'a> WholeRows<'a> {
 /// the elevation range, and by the squares and the whole-square bands a row apart.
 pub fn contour_polygons(src: &dyn HeightRows, grid: &GridGeoref, levels: &Levels) -> Result<Vec<Band>> {
     let range = crate::dem::elevation_range(src);
+    if let Some(why) = src.failure() {
+        bail!("{why}");
+    }
     let levels = checked_levels(range, levels)?;
     let Some((lo, hi)) = range else { return Ok(vec![]) };
     let mut whole = WholeRows::new(src, &levels);
