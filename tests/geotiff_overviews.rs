@@ -404,4 +404,26 @@ fn rows_read_by_windows_of_tiles_equal_the_raster_read_whole() {
     assert!(out[128..256].iter().all(|z| z.is_nan()) && out[..128].iter().all(|z| z.is_finite()), "the broken tile reads as NoData");
     let why = rows.failure().expect("the failure is kept");
     assert!(why.contains("broken.tif"), "{why}");
+
+    // The command line on the broken file: each command fails naming it, at the broken
+    // tile's row (contours: in the range pass), and leaves no output.
+    for args in [
+        &["dem", "contours", "--interval", "5"][..],
+        &["dem", "contours", "--levels", "100,200", "--polygons"],
+        &["dem", "hillshade"],
+        &["convert"],
+        &["info"],
+    ] {
+        let out_file = dir.path().join(if args[0] == "dem" && args[1] == "contours" { "broken.geojson" } else { "broken_out.tif" });
+        let mut cmd = Command::new(common::volterra_bin());
+        cmd.args(args).arg(&broken);
+        if args[0] != "info" {
+            cmd.arg(&out_file);
+        }
+        let result = cmd.output().unwrap();
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert!(!result.status.success(), "{args:?} succeeded");
+        assert!(stderr.matches("broken.tif").count() == 1 && stderr.lines().count() <= 3, "{args:?}: {stderr}");
+        assert!(!out_file.exists(), "{args:?} left {}", out_file.display());
+    }
 }

@@ -1064,6 +1064,17 @@ impl formats::heightfield::HeightRows for RowsRead<'_> {
     }
 }
 
+/// An error of the contours, named by the input file unless it names a file already (the
+/// output's errors name the output; the reader's name the input).
+fn named_input(e: anyhow::Error, input: &Path) -> anyhow::Error {
+    let named = e.is::<formats::FormatError>() || e.to_string().starts_with(&input.display().to_string());
+    if named {
+        e
+    } else {
+        e.context(input.display().to_string())
+    }
+}
+
 fn contours_to(
     src: &dyn formats::heightfield::HeightRows,
     grid: &formats::heightfield::GridGeoref,
@@ -1082,20 +1093,12 @@ fn contours_to(
                     (count, vertices) = (count + 1, vertices + l.points.len());
                     Ok(emit(formats::geojson::LineFeature { points: &l.points, value: l.level })?)
                 })
-                .map_err(|e| {
-                    // The output's errors name the output; the reader's name the input already.
-                    let named = e.is::<formats::FormatError>() || e.to_string().starts_with(&input.display().to_string());
-                    if named {
-                        e
-                    } else {
-                        e.context(input.display().to_string())
-                    }
-                })
+                .map_err(|e| named_input(e, input))
             })?;
             eprintln!("wrote {} ({count} lines, {vertices} vertices)", output.display());
         }
         ContourOutput::Polygons { min, max } => {
-            let bands = volterra::dem::contours::contour_polygons(src, grid, levels).with_context(|| input.display().to_string())?;
+            let bands = volterra::dem::contours::contour_polygons(src, grid, levels).map_err(|e| named_input(e, input))?;
             let features = bands.iter().map(|b| formats::geojson::PolygonFeature { polygons: &b.polygons, min: b.min, max: b.max });
             formats::geojson::write_polygons(output, "contour", &grid.crs, (min, max), features)?;
             let polygons: usize = bands.iter().map(|b| b.polygons.len()).sum();
