@@ -592,10 +592,20 @@ mod tests {
         chains
     }
 
-    /// A heightfield's rows, counting the rows read.
+    /// A heightfield's rows, counting the rows read; with `bad`, as a reader whose chunk
+    /// under that row fails to decode: from then on `failure` says so (as `GeoTiffRows`
+    /// does) and the row reads as NoData.
     struct CountedRows<'a> {
         hf: &'a Heightfield,
+        bad: Option<usize>,
         read: std::sync::atomic::AtomicUsize,
+        failed: std::sync::atomic::AtomicBool,
+    }
+
+    impl<'a> CountedRows<'a> {
+        fn new(hf: &'a Heightfield, bad: Option<usize>) -> Self {
+            CountedRows { hf, bad, read: Default::default(), failed: Default::default() }
+        }
     }
 
     impl HeightRows for CountedRows<'_> {
@@ -607,30 +617,8 @@ mod tests {
         }
         fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
             self.read.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            self.hf.read_row(row, col, out)
-        }
-    }
-
-    /// A heightfield's rows as a reader whose chunk under row `bad` fails to decode: from
-    /// then on `failure` says so (as `GeoTiffRows` does); the rows read are counted.
-    struct FailingRows<'a> {
-        hf: &'a Heightfield,
-        bad: usize,
-        read: std::sync::atomic::AtomicUsize,
-        failed: std::sync::atomic::AtomicBool,
-    }
-
-    impl HeightRows for FailingRows<'_> {
-        fn size(&self) -> [usize; 2] {
-            self.hf.size()
-        }
-        fn cell_size(&self) -> [f64; 2] {
-            self.hf.cell_size()
-        }
-        fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
-            self.read.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             self.hf.read_row(row, col, out);
-            if row == self.bad {
+            if self.bad == Some(row) {
                 self.failed.store(true, std::sync::atomic::Ordering::Relaxed);
                 out.fill(f32::NAN);
             }
@@ -651,18 +639,18 @@ mod tests {
             let interval = Levels::Interval { interval: 2.0, offset: 0.0 };
             let fixed = Levels::Fixed(vec![-5.0, 0.0, 5.0]);
             for (levels, what) in [(&interval, "interval"), (&fixed, "fixed levels")] {
-                let rows = FailingRows { hf: &hf, bad, read: Default::default(), failed: Default::default() };
+                let rows = CountedRows::new(&hf, Some(bad));
                 let e = contours_each(&rows, &hf.georef(), levels, |_| Ok(())).unwrap_err();
                 assert!(e.to_string().contains("tile 7 could not be decoded"), "{what}: {e}");
                 let read = rows.read.into_inner();
                 assert!(read <= bad + 1, "{what}, bad row {bad}: lines: {read} rows read");
-                let rows = FailingRows { hf: &hf, bad, read: Default::default(), failed: Default::default() };
+                let rows = CountedRows::new(&hf, Some(bad));
                 let e = contour_polygons(&rows, &hf.georef(), levels).unwrap_err();
                 assert!(e.to_string().contains("tile 7 could not be decoded"), "{what}: {e}");
                 let read = rows.read.into_inner();
                 assert!(read <= bad + 1, "{what}, bad row {bad}: polygons: {read} rows read");
             }
-            let rows = FailingRows { hf: &hf, bad, read: Default::default(), failed: Default::default() };
+            let rows = CountedRows::new(&hf, Some(bad));
             let _ = volterra_formats::heightfield::summarise(&rows);
             assert_eq!(rows.read.into_inner(), bad + 1, "the range pass");
         }
@@ -710,7 +698,7 @@ mod tests {
         let levels = Levels::Interval { interval: 1.5, offset: 0.25 };
         let mut streamed: Vec<(u64, Vec<(u64, u64)>)> = Vec::new();
         // Rows read when each line came out: the range pass reads all h first.
-        let counted = CountedRows { hf: &hf, read: Default::default() };
+        let counted = CountedRows::new(&hf, None);
         let mut read_at_emission = Vec::new();
         contours_each(&counted, &hf.georef(), &levels, |l| {
             if !l.is_closed() {
