@@ -82,13 +82,25 @@ impl Device {
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(src, 0, &staging, 0, src.size());
         self.queue.submit([enc.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
-        rx.recv()?.map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        self.map_for_reading(&[&staging])?;
         let view = staging.slice(..).get_mapped_range().map_err(|e| anyhow!("GPU read-back failed: {e:?}"))?;
         Ok(bytemuck::cast_slice::<u8, T>(&view).to_vec())
+    }
+
+    /// Maps `buffers` (MAP_READ, their copies submitted) for the host to read, waiting for
+    /// the GPU once for all of them.
+    pub fn map_for_reading(&self, buffers: &[&wgpu::Buffer]) -> Result<()> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        for buf in buffers {
+            let tx = tx.clone();
+            buf.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+                let _ = tx.send(r);
+            });
+        }
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        for _ in buffers {
+            rx.recv()?.map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        }
+        Ok(())
     }
 }

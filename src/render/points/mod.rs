@@ -592,24 +592,13 @@ fn draw(
         .collect();
     let t = Instant::now();
     dev.queue.submit([enc.finish()]);
-    let failed = |e: &dyn std::fmt::Display| anyhow!("drawing the particles on the GPU failed: {e}");
-    d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| failed(&e))?;
+    d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("drawing the particles on the GPU failed: {e}"))?;
     let seconds = t.elapsed().as_secs_f64();
-    let (tx, rx) = std::sync::mpsc::channel();
-    for buf in &rows {
-        let tx = tx.clone();
-        buf.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-    }
-    d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| failed(&e))?;
-    for _ in &rows {
-        rx.recv()?.map_err(|e| failed(&e))?;
-    }
+    dev.map_for_reading(&rows.iter().collect::<Vec<_>>())?;
     let mut out = Vec::with_capacity(rows.len());
     for (buf, tex) in rows.iter().zip(&textures) {
         let row_values = w * bpp(tex.format()) / 4;
-        let mapped = buf.slice(..).get_mapped_range().map_err(|e| failed(&format!("{e:?}")))?;
+        let mapped = buf.slice(..).get_mapped_range().map_err(|e| anyhow!("GPU read-back failed: {e:?}"))?;
         let values: &[f32] = bytemuck::cast_slice(&mapped);
         let mut unpadded = Vec::with_capacity(row_values * h);
         for row in values.chunks(padded(bpp(tex.format())) / 4) {
