@@ -12,6 +12,9 @@ SHARED="${VOLTERRA_SHARED_DATA:-$(cd .. && pwd)/shared/data}"
 mkdir -p target
 # Where cargo puts the binaries: CARGO_TARGET_DIR or a config may move them out of ./target.
 TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | "$VENV_PY" -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+# A full build each run: cargo's incremental caches would only add GBs to a clean clone's disk.
+export CARGO_INCREMENTAL=0
+df -h . | awk 'NR == 2 { print "disk before the build: " $4 " free of " $2 }'
 set +e
 # The integration tests run the `volterra` binary, which lives in its own package
 # (volterra-cli): `cargo test` builds only its test harness, so build the binary first.
@@ -25,6 +28,7 @@ else
     echo "no $TARGET_DIR/debug/volterra: built-in references not checked"; status=1
 fi
 set -e
+echo "disk after the tests: $(df -h . | awk 'NR == 2 { print $4 }') free; $(du -sh "$TARGET_DIR" 2>/dev/null | cut -f1) in $TARGET_DIR"
 # Every reader under libFuzzer for a bounded time (tests/fuzz.sh; 45 s per target, two at once).
 set +e
 bash tests/fuzz.sh "${VOLTERRA_FUZZ_SECONDS:-45}" 2>&1 | tee target/fuzz-output.log
