@@ -1,9 +1,10 @@
-// The points renderer: every particle a sphere, drawn as a screen-space triangle round
-// its projection (an ellipse, found exactly), and each fragment intersected exactly with the sphere along the pixel's
-// ray (the same rays as every other renderer: pixel centres, row 0 at the top). Writes the
-// colour shaded by a headlight, the distance along the ray (Z) and a depth for the depth
-// test (the distance, mapped linearly between the near and far planes). Positions are
-// relative to the eye, so f32 keeps its precision far from the origin.
+// The points renderer. Spheres: every particle a sphere, drawn as a screen-space triangle
+// round its projection (an ellipse, found exactly), and each fragment intersected exactly
+// with the sphere along the pixel's ray (the same rays as every other renderer: pixel
+// centres, row 0 at the top); writes the colour shaded by a headlight, the distance along
+// the ray (Z) and a depth for the depth test (the distance, mapped linearly between the near
+// and far planes). Positions are relative to the eye, so f32 keeps its precision far from
+// the origin. Splats: a compute pass over screen tiles (cs_splat, below).
 
 struct View {
     forward: vec4<f32>,
@@ -16,8 +17,12 @@ struct View {
     parallel: u32,
     near: f32,
     far: f32,
-    // Splats: each splat's opacity at its centre.
+    // Splats: each splat's opacity at its centre, and the tiles across the image.
     opacity: f32,
+    tiles_x: u32,
+    // Splats: 1 for the first pass over the particles (the sums start empty), 0 for a pass
+    // that carries on the sums the one before left.
+    first_batch: u32,
 };
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -32,11 +37,6 @@ struct VOut {
     // Eye-relative centre and radius (world axes), for the spheres' ray intersection.
     @location(0) @interpolate(flat) sphere: vec4<f32>,
     @location(1) @interpolate(flat) colour: vec4<f32>,
-    // For the splats: the centre in the camera's frame (x right, y up, z forward), where a
-    // pixel's ray is (sx, sy, 1) normalised (perspective) or starts at (sx, sy, 0) along z
-    // (parallel), and where the ray through the centre meets the image plane (sx, sy).
-    @location(2) @interpolate(flat) cam: vec3<f32>,
-    @location(3) @interpolate(flat) foot: vec2<f32>,
 };
 
 // The triangle round a unit circle (its incircle): three vertices twice the radius out.
@@ -49,12 +49,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut 
     let cam = vec3<f32>(dot(s.xyz, view.right.xyz), dot(s.xyz, view.up.xyz), dot(s.xyz, view.forward.xyz));
     var out: VOut;
     out.sphere = s;
-    out.cam = cam;
     out.colour = colours[ii];
-    out.foot = cam.xy;
-    if (view.parallel == 0u) {
-        out.foot = cam.xy / cam.z;
-    }
     // A sphere reaching the eye plane is not drawn (a degenerate triangle): its projection
     // is unbounded. The near plane lies just in front of every other sphere.
     if (cam.z - r <= 0.0 && view.parallel == 0u) {
@@ -159,39 +154,127 @@ fn fs(in: VOut) -> FOut {
 
 // Gaussian splats: each particle a Gaussian blob of σ = radius / 3 about its centre, cut at
 // the radius, weighted by the ray's nearest approach q to the centre: α = opacity ·
-// exp(−q² / 2σ²). Order-independent (weighted blended): target 0 sums colour · α (RGB)
-// and multiplies (1 − α) (A), target 1 sums α, target 2 keeps the least distance to the
-// point of nearest approach among splats the ray passes within σ of.
-struct SplatOut {
-    @location(0) colour: vec4<f32>,
-    @location(1) weight: f32,
-    @location(2) dist: f32,
+// exp(−q² / 2σ²). Order-independent (weighted blended): per pixel, Σ colour · α, Π (1 − α),
+// Σ α, and the least distance to the point of nearest approach among the splats the ray
+// passes within σ of.
+//
+// Drawn by a compute pass, not by the rasteriser: one workgroup per TILE × TILE pixels (TILE
+// is a constant the host puts before this source: it bins the splats by the same tiles), each
+// invocation a pixel, looping over the splats binned to its tile (by the host, in particle
+// order, from each splat's exact ellipse). On a software rasteriser (lavapipe) a blended
+// fragment into three float targets costs several times a loop iteration held in registers,
+// and the per-triangle set-up is gone; the sums are the same, in the same order.
+
+// Each tile's splats, one after another (tile t's from tile_start[t] to tile_start[t + 1],
+// row-major tiles), two vec4 each: the centre in the camera's frame (x right, y up,
+// z forward; a pixel's ray is (sx, sy, 1) normalised in perspective, or starts at
+// (sx, sy, 0) along z in parallel) and the radius; then the colour.
+@group(0) @binding(3) var<storage, read> splat_data: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> tile_start: array<u32>;
+// Per pixel (row-major, row 0 at the top): (Σ colour · α, Π (1 − α)), then (Σ α, distance).
+@group(0) @binding(6) var<storage, read_write> splat_sums: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read_write> splat_weight_dist: array<vec2<f32>>;
+// The tile each workgroup draws: the tiles shuffled, because lavapipe hands each of its
+// threads one contiguous run of workgroups, and a run of neighbouring tiles holds more or
+// fewer splats than another (a thread sat idle a third of the time with tiles in order).
+@group(0) @binding(8) var<storage, read> tile_order: array<u32>;
+
+// What a pixel's splats leave: Σ colour · α, Π (1 − α), Σ α and the least distance.
+struct SplatAcc {
+    colour: vec3<f32>,
+    clear: f32,
+    weight: f32,
+    dist: f32,
 };
 
-@fragment
-fn fs_splat(in: VOut) -> SplatOut {
-    let c = vec4<f32>(in.cam, in.sphere.w);
-    let s = image_point(in.pos.xy);
-    // The pixel's offset from the centre's foot on the image plane; no difference of two
-    // large squares. Perspective: with D = (sx, sy, 1), q = |c × D| / |D|, and
-    // c × D = (−c_z Δy, c_z Δx, c_x Δy − c_y Δx) for Δ = s − c_xy / c_z; the distance along
-    // the ray to the point of nearest approach is c · D / |D|. Parallel: q = |Δ|, distance c_z.
-    let dl = s - in.foot;
+// A pixel's image-plane point s, 1 + |s|² and its inverse square root.
+struct SplatPixel {
+    s: vec2<f32>,
+    dd: f32,
+    inv_len: f32,
+};
+
+fn splat_pixel(x: u32, y: u32) -> SplatPixel {
+    let s = image_point(vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));
+    let dd = 1.0 + dot(s, s);
+    return SplatPixel(s, dd, inverseSqrt(dd));
+}
+
+// Adds one splat (centre c in the camera's frame and radius; where the ray through the
+// centre meets the image plane; colour) to a pixel's sums.
+fn splat_add(acc: ptr<function, SplatAcc>, px: SplatPixel, c: vec4<f32>, foot: vec2<f32>, colour: vec3<f32>) {
+    // The pixel's offset from where the ray through the centre meets the image plane; no
+    // difference of two large squares. Perspective: with D = (sx, sy, 1),
+    // q = |c × D| / |D|, and c × D = (−c_z Δy, c_z Δx, c_x Δy − c_y Δx) for
+    // Δ = s − c_xy / c_z; the distance along the ray to the point of nearest approach is
+    // c · D / |D|. Parallel: q = |Δ|, distance c_z.
+    let dl = px.s - foot;
     var q2 = dot(dl, dl);
     var along = c.z;
     if (view.parallel == 0u) {
         let k = c.x * dl.y - c.y * dl.x;
-        let dd = 1.0 + dot(s, s);
-        q2 = (c.z * c.z * q2 + k * k) / dd;
-        along = (dot(c.xy, s) + c.z) * inverseSqrt(dd);
+        q2 = (c.z * c.z * q2 + k * k) / px.dd;
+        along = (dot(c.xy, px.s) + c.z) * px.inv_len;
     }
     q2 = q2 / (c.w * c.w);
-    // Outside the cut (or behind the eye) a fragment adds nothing: α = 0 leaves every sum
-    // as it was, without a discard.
-    let a = select(0.0, view.opacity * exp(-4.5 * q2), q2 < 1.0 && along > 0.0);
-    var out: SplatOut;
-    out.colour = vec4<f32>(in.colour.rgb * a, a);
-    out.weight = a;
-    out.dist = select(3.0e38, along, q2 <= 1.0 / 9.0 && along > 0.0);
-    return out;
+    // Outside the cut (or behind the eye) a splat adds nothing: α = 0.
+    let inside = q2 < 1.0 && along > 0.0;
+    let a = select(0.0, view.opacity * exp(-4.5 * q2), inside);
+    (*acc).colour += colour * a;
+    (*acc).clear *= 1.0 - a;
+    (*acc).weight += a;
+    (*acc).dist = select((*acc).dist, min((*acc).dist, along), inside && q2 <= 1.0 / 9.0);
+}
+
+// A pixel's sums so far: empty in the first pass, else what the pass before left.
+fn splat_load(x: u32, y: u32) -> SplatAcc {
+    if (view.first_batch != 0u || x >= u32(view.width) || y >= u32(view.height)) {
+        return SplatAcc(vec3<f32>(0.0, 0.0, 0.0), 1.0, 0.0, 3.0e38);
+    }
+    let p = y * u32(view.width) + x;
+    let s = splat_sums[p];
+    let wd = splat_weight_dist[p];
+    return SplatAcc(s.rgb, s.a, wd.x, wd.y);
+}
+
+fn splat_store(acc: SplatAcc, x: u32, y: u32) {
+    if (x < u32(view.width) && y < u32(view.height)) {
+        let p = y * u32(view.width) + x;
+        splat_sums[p] = vec4<f32>(acc.colour, acc.clear);
+        splat_weight_dist[p] = vec2<f32>(acc.weight, acc.dist);
+    }
+}
+
+// Each invocation a 2 × 2 block of the tile's pixels: every splat read (the same for all
+// the lanes; a software GPU reads it lane by lane) serves four pixels.
+@compute @workgroup_size(TILE / 2u, TILE / 2u)
+fn cs_splat(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
+    let tile = tile_order[wg.y * view.tiles_x + wg.x];
+    let x = TILE * (tile % view.tiles_x) + 2u * lid.x;
+    let y = TILE * (tile / view.tiles_x) + 2u * lid.y;
+    let p00 = splat_pixel(x, y);
+    let p10 = splat_pixel(x + 1u, y);
+    let p01 = splat_pixel(x, y + 1u);
+    let p11 = splat_pixel(x + 1u, y + 1u);
+    var a00 = splat_load(x, y);
+    var a10 = splat_load(x + 1u, y);
+    var a01 = splat_load(x, y + 1u);
+    var a11 = splat_load(x + 1u, y + 1u);
+    let end = tile_start[tile + 1u];
+    for (var k = tile_start[tile]; k < end; k++) {
+        let c = splat_data[2u * k];
+        let colour = splat_data[2u * k + 1u].rgb;
+        var foot = c.xy;
+        if (view.parallel == 0u) {
+            foot = c.xy / c.z;
+        }
+        splat_add(&a00, p00, c, foot, colour);
+        splat_add(&a10, p10, c, foot, colour);
+        splat_add(&a01, p01, c, foot, colour);
+        splat_add(&a11, p11, c, foot, colour);
+    }
+    splat_store(a00, x, y);
+    splat_store(a10, x + 1u, y);
+    splat_store(a01, x, y + 1u);
+    splat_store(a11, x + 1u, y + 1u);
 }

@@ -240,6 +240,10 @@ fn splats_on_the_gpu_match_the_f64_reference_in_any_order() {
         assert!(worst_depth < 2e-6 && depth_mismatch <= 3, "depth {worst_depth:e}, {depth_mismatch} mismatches");
         // Translucent where few splats overlap: coverage spans (0, 1).
         assert!(gpu.rgba.iter().any(|p| p[3] > 0.01 && p[3] < 0.5) && gpu.rgba.iter().any(|p| p[3] > 0.6));
+        // In passes of at most 300 tile records (several passes, each carrying on the
+        // sums the one before left): the same picture, bit for bit.
+        let passes = points::render_in_batches(&input, &rays, &s, 300).unwrap();
+        assert!(passes.rgba == gpu.rgba && passes.depth == gpu.depth, "drawn in passes, the splats differ");
         // Reversed order: the same picture up to the float sums' rounding.
         set.positions.reverse();
         set.smoothing_length.as_mut().unwrap().reverse();

@@ -40,9 +40,8 @@ fn open() -> Result<Device> {
     // Ask for everything the adapter offers: big heightfields need big textures.
     let limits = adapter.limits();
     // Early depth tests with a conservative frag_depth, where the adapter has them (Vulkan):
-    // the points renderer then skips the fragments of hidden spheres. Blending into 32-bit
-    // float targets: the points renderer's Gaussian splats sum into them.
-    let features = adapter.features() & (wgpu::Features::SHADER_EARLY_DEPTH_TEST | wgpu::Features::FLOAT32_BLENDABLE);
+    // the points renderer then skips the fragments of hidden spheres.
+    let features = adapter.features() & wgpu::Features::SHADER_EARLY_DEPTH_TEST;
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("volterra"),
         required_features: features,
