@@ -158,12 +158,12 @@ fn fs(in: VOut) -> FOut {
 // Σ α, and the least distance to the point of nearest approach among the splats the ray
 // passes within σ of.
 //
-// Drawn by a compute pass, not by the rasteriser: one workgroup per TILE × TILE pixels (TILE
-// is a constant the host puts before this source: it bins the splats by the same tiles), each
-// invocation a pixel, looping over the splats binned to its tile (by the host, in particle
-// order, from each splat's exact ellipse). On a software rasteriser (lavapipe) a blended
-// fragment into three float targets costs several times a loop iteration held in registers,
-// and the per-triangle set-up is gone; the sums are the same, in the same order.
+// Drawn by a compute pass, not by the rasteriser: one workgroup per tile of TILE_W × TILE_H
+// pixels (constants the host puts before this source: it bins the splats by the same tiles),
+// each invocation a 2 × 2 block of pixels, looping over the splats binned to its tile (by the
+// host, in particle order, from each splat's exact ellipse). The sums are the blending's,
+// in the same order; on lavapipe the 1M-particle plume at 1920×1080 draws in about 0.6 s
+// this way where the triangles' fragments, blended into three float targets, took 1.1 s.
 
 // Each tile's splats, one after another (tile t's from tile_start[t] to tile_start[t + 1],
 // row-major tiles), two vec4 each: the centre in the camera's frame (x right, y up,
@@ -245,13 +245,14 @@ fn splat_store(acc: SplatAcc, x: u32, y: u32) {
     }
 }
 
-// Each invocation a 2 × 2 block of the tile's pixels: every splat read (the same for all
-// the lanes; a software GPU reads it lane by lane) serves four pixels.
-@compute @workgroup_size(TILE / 2u, TILE / 2u)
+// Each invocation a 2 × 2 block of the tile's pixels (a tile's 8 invocations one step of
+// lavapipe's 8 SIMD lanes): every splat read (the same for all the lanes; a software GPU
+// reads it lane by lane) serves four pixels.
+@compute @workgroup_size(TILE_W / 2u, TILE_H / 2u)
 fn cs_splat(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
     let tile = tile_order[wg.y * view.tiles_x + wg.x];
-    let x = TILE * (tile % view.tiles_x) + 2u * lid.x;
-    let y = TILE * (tile / view.tiles_x) + 2u * lid.y;
+    let x = TILE_W * (tile % view.tiles_x) + 2u * lid.x;
+    let y = TILE_H * (tile / view.tiles_x) + 2u * lid.y;
     let p00 = splat_pixel(x, y);
     let p10 = splat_pixel(x + 1u, y);
     let p01 = splat_pixel(x, y + 1u);

@@ -4,7 +4,7 @@
 //! colour map and shaded by a headlight; each pixel's ray is intersected exactly with the
 //! sphere, so `Z` is the distance along the same rays every renderer uses and the node
 //! depth-composites with the others. Or each a Gaussian splat, blended order-independently
-//! by a compute pass over 8×8-pixel tiles (the host bins each splat's exact ellipse into
+//! by a compute pass over 8×4-pixel tiles (the host bins each splat's exact ellipse into
 //! the tiles, in particle order). [`render_reference`] and [`render_splats_reference`] are
 //! the brute-force CPU versions the tests hold it to.
 
@@ -291,7 +291,10 @@ fn pipelines(dev: &wgpu::Device) -> &'static Pipelines {
         });
         // The fragment's depth is never nearer than the triangle's (the sphere's nearest
         // point): with the adapter's early depth test, hidden fragments are never shaded.
-        let source = format!("const TILE: u32 = {SPLAT_TILE}u;\n{}", include_str!("../../../shaders/points.wgsl"));
+        let source = format!(
+            "const TILE_W: u32 = {SPLAT_TILE_W}u;\nconst TILE_H: u32 = {SPLAT_TILE_H}u;\n{}",
+            include_str!("../../../shaders/points.wgsl")
+        );
         let source = if dev.features().contains(wgpu::Features::SHADER_EARLY_DEPTH_TEST) {
             source.replace("@fragment\nfn fs(", "@fragment @early_depth_test(greater_equal)\nfn fs(")
         } else {
@@ -416,7 +419,7 @@ pub fn render_in_batches(input: &PointsInput, rays: &RayGenerator, s: &Settings,
         near: near as f32,
         far: far as f32,
         opacity: s.opacity as f32,
-        tiles_x: w.div_ceil(SPLAT_TILE) as u32,
+        tiles_x: w.div_ceil(SPLAT_TILE_W) as u32,
         first_batch: 1,
         _pad: [0; 2],
     };
@@ -476,13 +479,14 @@ fn draw_spheres(
     Ok(seconds)
 }
 
-/// Pixels per side of the square tiles the splats are binned into (one compute workgroup
-/// of 4×4 invocations, 2×2 pixels each: two of lavapipe's 8-lane SIMD steps). Each pixel
-/// of a tile tests each of its splats, so the tiles are small: the 1M-particle plume's
-/// splats, about 7 pixels across, make 3.2 records each, 205 M pixel tests a frame at
-/// 1920×1080 for 58 M pixels inside their boxes (a 16-pixel tile would test about twice as
-/// many; a 4-pixel one would leave half of each SIMD step idle).
-const SPLAT_TILE: usize = 8;
+/// The tiles the splats are binned into, in pixels: one compute workgroup of 4×2
+/// invocations, 2×2 pixels each — one step of lavapipe's 8 SIMD lanes. Each pixel of a tile
+/// tests each of its splats, so the tiles are small: the 1M-particle plume's splats, about 7
+/// pixels across, make 4.7 records each at 1920×1080, 149 M pixel tests a frame for 58 M
+/// pixels inside their boxes; with 8×8 tiles (two SIMD steps) 3.2 records and 205 M tests,
+/// and a frame 3–8 % slower, the fewer records notwithstanding.
+const SPLAT_TILE_W: usize = 8;
+const SPLAT_TILE_H: usize = 4;
 
 /// The most tile records (32 bytes each) one pass of the splats draws: 128 MB.
 const SPLAT_BATCH: usize = 1 << 22;
@@ -531,6 +535,12 @@ fn splat_pixels(c: [f32; 4], view: &ViewUniform) -> Option<[u32; 4]> {
     (x0 <= x1 && y0 <= y1).then_some([x0 as u32, y0 as u32, x1 as u32, y1 as u32])
 }
 
+/// The columns and rows of tiles a splat's pixel box touches.
+fn splat_tiles(b: &[u32; 4]) -> (std::ops::RangeInclusive<u32>, std::ops::RangeInclusive<u32>) {
+    let (tw, th) = (SPLAT_TILE_W as u32, SPLAT_TILE_H as u32);
+    (b[0] / tw..=b[2] / tw, b[1] / th..=b[3] / th)
+}
+
 /// The splats of each tile, in particle order: tile t's are `splats[start[t]..start[t + 1]]`
 /// (row-major tiles of [`SPLAT_TILE`] pixels).
 struct SplatBins {
@@ -544,10 +554,6 @@ struct SplatBins {
 fn bin_splats(boxes: &[Option<[u32; 4]>], tiles_x: usize, tiles_y: usize) -> Result<SplatBins> {
     let tiles = tiles_x * tiles_y;
     let chunk = boxes.len().div_ceil(4 * rayon::current_num_threads()).max(1 << 14);
-    let tile_range = |b: &[u32; 4]| {
-        let t = SPLAT_TILE as u32;
-        (b[0] / t..=b[2] / t, b[1] / t..=b[3] / t)
-    };
     // Per chunk: where each tile's entries start in its list, and the list.
     let chunks: Vec<(Vec<u32>, Vec<u32>)> = boxes
         .par_chunks(chunk)
@@ -555,7 +561,7 @@ fn bin_splats(boxes: &[Option<[u32; 4]>], tiles_x: usize, tiles_y: usize) -> Res
         .map(|(ci, boxes)| {
             let mut start = vec![0u32; tiles + 1];
             for b in boxes.iter().flatten() {
-                let (xs, ys) = tile_range(b);
+                let (xs, ys) = splat_tiles(b);
                 for ty in ys {
                     for tx in xs.clone() {
                         start[ty as usize * tiles_x + tx as usize + 1] += 1;
@@ -569,7 +575,7 @@ fn bin_splats(boxes: &[Option<[u32; 4]>], tiles_x: usize, tiles_y: usize) -> Res
             let mut list = vec![0u32; start[tiles] as usize];
             for (j, b) in boxes.iter().enumerate() {
                 if let Some(b) = b {
-                    let (xs, ys) = tile_range(b);
+                    let (xs, ys) = splat_tiles(b);
                     for ty in ys {
                         for tx in xs.clone() {
                             let t = ty as usize * tiles_x + tx as usize;
@@ -588,7 +594,7 @@ fn bin_splats(boxes: &[Option<[u32; 4]>], tiles_x: usize, tiles_y: usize) -> Res
     }
     let total = start[tiles];
     if total > u32::MAX as u64 {
-        bail!("the splats cover {total} tiles of {SPLAT_TILE}×{SPLAT_TILE} pixels between them, more than the GPU buffer can index; draw them as spheres, smaller or from further away");
+        bail!("the splats cover {total} tiles of {SPLAT_TILE_W}×{SPLAT_TILE_H} pixels between them, more than the GPU buffer can index; draw them as spheres, smaller or from further away");
     }
     let mut splats = vec![0u32; total as usize];
     // Each tile row's part of the list, filled on its own thread.
@@ -648,7 +654,7 @@ fn draw_splats(
     use wgpu::util::DeviceExt;
     let (eye, right, up, forward) = basis;
     let (w, h) = (frame.width, frame.height);
-    let (tiles_x, tiles_y) = (w.div_ceil(SPLAT_TILE), h.div_ceil(SPLAT_TILE));
+    let (tiles_x, tiles_y) = (w.div_ceil(SPLAT_TILE_W), h.div_ceil(SPLAT_TILE_H));
     // Per particle: the centre in the camera's frame (from f64, so only one rounding) and
     // the radius, then the colour; and the pixels it may cover.
     let (data, boxes): (Vec<SplatRecord>, Vec<Option<[u32; 4]>>) = spheres
@@ -663,12 +669,14 @@ fn draw_splats(
     // large the splats, the records stay within 128 MB by default; a single splat's records
     // are never split); each batch's pass carries on the sums the one before left, so the
     // sums keep particle order.
+    // Each pass's records in one storage binding (lavapipe's limit: 128 MiB, 4M records).
+    let batch = batch.min((dev.device.limits().max_storage_buffer_binding_size / 32) as usize).max(1);
     let mut batches = vec![0usize];
     let mut records = 0u64;
     for (i, b) in boxes.iter().enumerate() {
         let n = b.map_or(0, |b| {
-            let t = SPLAT_TILE as u32;
-            ((b[2] / t - b[0] / t + 1) * (b[3] / t - b[1] / t + 1)) as u64
+            let (xs, ys) = splat_tiles(&b);
+            xs.count() as u64 * ys.count() as u64
         });
         if records + n > batch as u64 && records > 0 {
             batches.push(i);
