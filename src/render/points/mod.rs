@@ -379,7 +379,7 @@ pub fn render(input: &PointsInput, rays: &RayGenerator, s: &Settings) -> Result<
 }
 
 /// [`render`], with splats drawn in passes of at most `batch` tile records (render: 4M, 128 MB);
-/// the tests force many passes on a small scene.
+/// the tests force several passes on a small scene.
 pub fn render_in_batches(input: &PointsInput, rays: &RayGenerator, s: &Settings, batch: usize) -> Result<Frame> {
     let start = Instant::now();
     let (spheres, range) = spheres(input, s)?;
@@ -484,7 +484,7 @@ fn draw_spheres(
 /// tests each of its splats, so the tiles are small: the 1M-particle plume's splats, about 7
 /// pixels across, make 4.7 records each at 1920×1080, 149 M pixel tests a frame for 58 M
 /// pixels inside their boxes; with 8×8 tiles (two SIMD steps) 3.2 records and 205 M tests,
-/// and a frame 3–8 % slower, the fewer records notwithstanding.
+/// and a frame 3–9 % slower, the fewer records notwithstanding.
 const SPLAT_TILE_W: usize = 8;
 const SPLAT_TILE_H: usize = 4;
 
@@ -542,7 +542,7 @@ fn splat_tiles(b: &[u32; 4]) -> (std::ops::RangeInclusive<u32>, std::ops::RangeI
 }
 
 /// The splats of each tile, in particle order: tile t's are `splats[start[t]..start[t + 1]]`
-/// (row-major tiles of [`SPLAT_TILE`] pixels).
+/// (row-major tiles of [`SPLAT_TILE_W`] × [`SPLAT_TILE_H`] pixels).
 struct SplatBins {
     start: Vec<u32>,
     splats: Vec<u32>,
