@@ -10,6 +10,11 @@ pub struct Device {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
+    /// Storage buffers may also be mapped for writing (MAPPABLE_PRIMARY_BUFFERS): asked for
+    /// only where the adapter's memory is the host's (a CPU or integrated GPU), where
+    /// filling such a buffer in place spares the staging copy and its pages that a
+    /// `mapped_at_creation` buffer otherwise costs; a discrete GPU would read it over the bus.
+    pub host_mapped_storage: bool,
 }
 
 static DEVICE: OnceLock<Result<Device, SharedError>> = OnceLock::new();
@@ -41,7 +46,10 @@ fn open() -> Result<Device> {
     let limits = adapter.limits();
     // Early depth tests with a conservative frag_depth, where the adapter has them (Vulkan):
     // the points renderer then skips the fragments of hidden spheres.
-    let features = adapter.features() & wgpu::Features::SHADER_EARLY_DEPTH_TEST;
+    let info = adapter.get_info();
+    let shared_memory = matches!(info.device_type, wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu);
+    let mappable = if shared_memory { wgpu::Features::MAPPABLE_PRIMARY_BUFFERS } else { wgpu::Features::empty() };
+    let features = adapter.features() & (wgpu::Features::SHADER_EARLY_DEPTH_TEST | mappable);
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("volterra"),
         required_features: features,
@@ -49,7 +57,8 @@ fn open() -> Result<Device> {
         ..Default::default()
     }))
     .map_err(|e| anyhow!("cannot open the GPU '{}': {e}", adapter.get_info().name))?;
-    Ok(Device { device, queue, info: adapter.get_info() })
+    let host_mapped_storage = features.contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
+    Ok(Device { device, queue, info, host_mapped_storage })
 }
 
 impl Device {

@@ -704,12 +704,18 @@ fn draw_splats(
         let output = |label, bytes: usize, usage| {
             d.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes as u64, usage, mapped_at_creation: false })
         };
-        let out_usage = storage | wgpu::BufferUsages::COPY_SRC;
+        // Where storage buffers map, the sums are read where they were summed; otherwise
+        // through read-back copies.
+        let in_place = dev.host_mapped_storage;
+        let out_usage = storage | if in_place { wgpu::BufferUsages::MAP_READ } else { wgpu::BufferUsages::COPY_SRC };
         let read_usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
         let sums = output("splat sums", w * h * 16, out_usage);
         let weight_dist = output("splat weights", w * h * 8, out_usage);
-        let sums_read = output("splat sums read-back", w * h * 16, read_usage);
-        let weight_dist_read = output("splat weights read-back", w * h * 8, read_usage);
+        let (sums_read, weight_dist_read) = if in_place {
+            (sums.clone(), weight_dist.clone())
+        } else {
+            (output("splat sums read-back", w * h * 16, read_usage), output("splat weights read-back", w * h * 8, read_usage))
+        };
         let mut seconds = 0.0;
         for (k, run) in batches.windows(2).enumerate() {
             let bins = bin_splats(&boxes[run[0]..run[1]], tiles_x, tiles_y)?;
@@ -726,7 +732,7 @@ fn draw_splats(
             let data_buf = d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("tiles' splats"),
                 size: (bins.splats.len().max(1) * 32) as u64,
-                usage: storage,
+                usage: if dev.host_mapped_storage { storage | wgpu::BufferUsages::MAP_WRITE } else { storage },
                 mapped_at_creation: true,
             });
             {
@@ -764,7 +770,7 @@ fn draw_splats(
                 pass.set_bind_group(0, &bind, &[]);
                 pass.dispatch_workgroups(tiles_x as u32, tiles_y as u32, 1);
             }
-            if k + 2 == batches.len() {
+            if k + 2 == batches.len() && !in_place {
                 enc.copy_buffer_to_buffer(&sums, 0, &sums_read, 0, None);
                 enc.copy_buffer_to_buffer(&weight_dist, 0, &weight_dist_read, 0, None);
             }
