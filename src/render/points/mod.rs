@@ -491,9 +491,17 @@ const SPLAT_TILE_H: usize = 4;
 /// The most tile records (32 bytes each) one pass of the splats draws: 128 MB.
 const SPLAT_BATCH: usize = 1 << 22;
 
-/// A splat as the shader reads it: the centre in the camera's frame and the radius; the
-/// colour (linear RGB, 1).
+/// A splat as the shader reads it: the centre in the camera's frame and the falloff
+/// −4.5 log2(e) / radius²; the colour (linear RGB) and 1 / c_z (see `splat_record`).
 type SplatRecord = [[f32; 4]; 2];
+
+/// A splat's record from its centre `c` in the camera's frame (f64, so each value is
+/// rounded once), radius and colour: what the shader's pixel test multiplies by instead of
+/// dividing (1 / c_z is never read in parallel views, nor for a splat behind the eye).
+fn splat_record(c: [f64; 3], radius: f64, colour: [f32; 3]) -> SplatRecord {
+    let falloff = -4.5 * std::f64::consts::LOG2_E / (radius * radius);
+    [[c[0] as f32, c[1] as f32, c[2] as f32, falloff as f32], [colour[0], colour[1], colour[2], (1.0 / c[2]) as f32]]
+}
 
 /// The pixels (x0, y0, x1, y1, inclusive) whose centres may lie within a splat's cut, the
 /// box round its exact ellipse on the image plane (as the spheres' triangle is; a 20th of a
@@ -661,8 +669,9 @@ fn draw_splats(
         .par_iter()
         .map(|sp| {
             let c = sp.centre - eye;
-            let cam = [c.dot(right), c.dot(up), c.dot(forward), sp.radius].map(|v| v as f32);
-            ([cam, [sp.colour[0], sp.colour[1], sp.colour[2], 1.0]], splat_pixels(cam, view))
+            let cam = [c.dot(right), c.dot(up), c.dot(forward)];
+            let record = splat_record(cam, sp.radius, [sp.colour[0], sp.colour[1], sp.colour[2]]);
+            (record, splat_pixels([cam[0], cam[1], cam[2], sp.radius].map(|v| v as f32), view))
         })
         .unzip();
     // Batches of consecutive particles with at most `batch` tile records each (however
