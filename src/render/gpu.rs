@@ -98,16 +98,22 @@ impl Device {
     /// Maps `buffers` (MAP_READ, their copies submitted) for the host to read, waiting for
     /// the GPU once for all of them.
     pub fn map_for_reading(&self, buffers: &[&wgpu::Buffer]) -> Result<()> {
+        self.map(buffers, wgpu::MapMode::Read)
+    }
+
+    /// Maps whole buffers (no longer in use by the GPU) for `mode` and waits once.
+    pub fn map(&self, buffers: &[&wgpu::Buffer], mode: wgpu::MapMode) -> Result<()> {
+        let what = if mode == wgpu::MapMode::Read { "GPU read-back failed" } else { "GPU upload failed" };
         let (tx, rx) = std::sync::mpsc::channel();
         for buf in buffers {
             let tx = tx.clone();
-            buf.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            buf.slice(..).map_async(mode, move |r| {
                 let _ = tx.send(r);
             });
         }
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("{what}: {e}"))?;
         for _ in buffers {
-            rx.recv()?.map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+            rx.recv()?.map_err(|e| anyhow!("{what}: {e}"))?;
         }
         Ok(())
     }

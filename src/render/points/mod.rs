@@ -19,7 +19,7 @@ use crate::scene::NodeKind;
 use anyhow::{anyhow, bail, Result};
 use glam::{DMat3, DMat4, DVec3};
 use rayon::prelude::*;
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 use std::time::Instant;
 use volterra_formats::ParticleSet;
 
@@ -259,6 +259,22 @@ struct Pipelines {
     spheres: wgpu::RenderPipeline,
     splat_layout: wgpu::BindGroupLayout,
     splats: wgpu::ComputePipeline,
+    /// The splats' buffers of the last frame, where the host maps storage buffers in place.
+    kept: Mutex<Option<KeptSplatBuffers>>,
+}
+
+/// The splats' records and sums kept from frame to frame where the host maps storage
+/// buffers in place (`Device::host_mapped_storage`): refilled rather than made afresh, so
+/// their ~200 MB (1M particles at 1920×1080) are not zeroed and faulted in every frame.
+/// Unmapped while kept; a frame takes them (another frame drawn meanwhile makes its own).
+struct KeptSplatBuffers {
+    /// MAP_WRITE | STORAGE, room for this many records.
+    records: wgpu::Buffer,
+    capacity: usize,
+    /// MAP_READ | STORAGE, for this many pixels.
+    sums: wgpu::Buffer,
+    weight_dist: wgpu::Buffer,
+    pixels: usize,
 }
 
 static PIPELINES: OnceLock<Pipelines> = OnceLock::new();
@@ -344,7 +360,7 @@ fn pipelines(dev: &wgpu::Device) -> &'static Pipelines {
             compilation_options: Default::default(),
             cache: None,
         });
-        Pipelines { layout, spheres, splat_layout, splats }
+        Pipelines { layout, spheres, splat_layout, splats, kept: Mutex::new(None) }
     })
 }
 
@@ -681,7 +697,7 @@ fn draw_splats(
     // Each pass's records in one storage binding (lavapipe's limit: 128 MiB, 4M records).
     let batch = batch.min((dev.device.limits().max_storage_buffer_binding_size / 32) as usize).max(1);
     let mut batches = vec![0usize];
-    let mut records = 0u64;
+    let (mut records, mut most_records) = (0u64, 0u64);
     for (i, b) in boxes.iter().enumerate() {
         let n = b.map_or(0, |b| {
             let (xs, ys) = splat_tiles(&b);
@@ -692,6 +708,7 @@ fn draw_splats(
             records = 0;
         }
         records += n;
+        most_records = most_records.max(records);
     }
     batches.push(boxes.len());
     let d = &dev.device;
@@ -704,7 +721,7 @@ fn draw_splats(
             limit >> 20
         );
     }
-    let (seconds, sums, weight_dist) = dev.guarded("drawing the splats on the GPU", || {
+    let (seconds, sums, weight_dist, kept) = dev.guarded("drawing the splats on the GPU", || {
         let buffer = |label: &str, bytes: &[u8], usage| {
             d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytes, usage })
         };
@@ -713,13 +730,34 @@ fn draw_splats(
         let output = |label, bytes: usize, usage| {
             d.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes as u64, usage, mapped_at_creation: false })
         };
-        // Where storage buffers map, the sums are read where they were summed; otherwise
-        // through read-back copies.
+        // Where storage buffers map, the records are written and the sums read where the
+        // pass reads and sums them, in buffers kept from frame to frame; otherwise through
+        // a fresh mapped-at-creation buffer (a staging copy) and read-back copies.
         let in_place = dev.host_mapped_storage;
         let out_usage = storage | if in_place { wgpu::BufferUsages::MAP_READ } else { wgpu::BufferUsages::COPY_SRC };
         let read_usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
-        let sums = output("splat sums", w * h * 16, out_usage);
-        let weight_dist = output("splat weights", w * h * 8, out_usage);
+        let kept = if in_place {
+            let kept = p.kept.lock().unwrap().take();
+            let (records, capacity) = match kept.as_ref().filter(|k| k.capacity as u64 >= most_records) {
+                Some(k) => (k.records.clone(), k.capacity),
+                // Room for an eighth more (a moving view's records vary), within the binding.
+                None => {
+                    let capacity = (most_records + most_records / 8).clamp(1, batch as u64) as usize;
+                    (output("tiles' splats", capacity * 32, storage | wgpu::BufferUsages::MAP_WRITE), capacity)
+                }
+            };
+            let (sums, weight_dist) = match kept.filter(|k| k.pixels == w * h) {
+                Some(k) => (k.sums, k.weight_dist),
+                None => (output("splat sums", w * h * 16, out_usage), output("splat weights", w * h * 8, out_usage)),
+            };
+            Some(KeptSplatBuffers { records, capacity, sums, weight_dist, pixels: w * h })
+        } else {
+            None
+        };
+        let (sums, weight_dist) = match &kept {
+            Some(k) => (k.sums.clone(), k.weight_dist.clone()),
+            None => (output("splat sums", w * h * 16, out_usage), output("splat weights", w * h * 8, out_usage)),
+        };
         let (sums_read, weight_dist_read) = if in_place {
             (sums.clone(), weight_dist.clone())
         } else {
@@ -738,12 +776,18 @@ fn draw_splats(
             // the tiles' lists of indices, the draw took a sixth longer): written straight
             // into the buffer's mapping, in runs on rayon's threads (through a Vec and a
             // copy, 95 ms a frame for 1M particles instead of 60).
-            let data_buf = d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("tiles' splats"),
-                size: (bins.splats.len().max(1) * 32) as u64,
-                usage: if dev.host_mapped_storage { storage | wgpu::BufferUsages::MAP_WRITE } else { storage },
-                mapped_at_creation: true,
-            });
+            let data_buf = match &kept {
+                Some(k) => {
+                    dev.map(&[&k.records], wgpu::MapMode::Write)?;
+                    k.records.clone()
+                }
+                None => d.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("tiles' splats"),
+                    size: (bins.splats.len().max(1) * 32) as u64,
+                    usage: storage,
+                    mapped_at_creation: true,
+                }),
+            };
             {
                 let mut mapped = data_buf.slice(..).get_mapped_range_mut().map_err(|e| anyhow!("GPU upload failed: {e:?}"))?;
                 let (mut rest, _) = mapped.slice(..bins.splats.len() * 32).into_chunks::<32>();
@@ -788,18 +832,25 @@ fn draw_splats(
             d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("drawing the splats on the GPU failed: {e}"))?;
             seconds += t.elapsed().as_secs_f64();
         }
-        Ok((seconds, sums_read, weight_dist_read))
+        Ok((seconds, sums_read, weight_dist_read, kept))
     })?;
     dev.map_for_reading(&[&sums, &weight_dist])?;
     let mapped = |b: &wgpu::Buffer| b.slice(..).get_mapped_range().map_err(|e| anyhow!("GPU read-back failed: {e:?}"));
-    let (sums, weight_dist) = (mapped(&sums)?, mapped(&weight_dist)?);
-    let (sums, weight_dist): (&[[f32; 4]], &[[f32; 2]]) = (bytemuck::cast_slice(&sums), bytemuck::cast_slice(&weight_dist));
-    frame.rgba.par_iter_mut().zip(frame.depth.par_iter_mut()).enumerate().for_each(|(i, (rgba, depth))| {
-        let [r, g, b, clear] = sums[i];
-        let [weight, dist] = weight_dist[i];
-        let acc = SplatSums { colour: [r, g, b].map(f64::from), clear: clear as f64, weight: weight as f64, dist: dist as f64 };
-        (*rgba, *depth) = acc.resolve();
-    });
+    {
+        let (sums, weight_dist) = (mapped(&sums)?, mapped(&weight_dist)?);
+        let (sums, weight_dist): (&[[f32; 4]], &[[f32; 2]]) = (bytemuck::cast_slice(&sums), bytemuck::cast_slice(&weight_dist));
+        frame.rgba.par_iter_mut().zip(frame.depth.par_iter_mut()).enumerate().for_each(|(i, (rgba, depth))| {
+            let [r, g, b, clear] = sums[i];
+            let [weight, dist] = weight_dist[i];
+            let acc = SplatSums { colour: [r, g, b].map(f64::from), clear: clear as f64, weight: weight as f64, dist: dist as f64 };
+            (*rgba, *depth) = acc.resolve();
+        });
+    }
+    if let Some(k) = kept {
+        k.sums.unmap();
+        k.weight_dist.unmap();
+        *p.kept.lock().unwrap() = Some(k);
+    }
     Ok(seconds)
 }
 
