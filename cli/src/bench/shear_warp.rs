@@ -245,11 +245,15 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         )?);
     }
     rows.extend(time_shaded("shaded shear-warp auto (default)".into(), BlendMode::Composite, Default::default(), true)?);
+    // The nearest-pixel warp: one intermediate ray per final pixel instead of about four.
+    let nearest = shear_warp::Settings { warp: shear_warp::WarpFilter::Nearest, ..Default::default() };
+    rows.extend(time_shaded("shaded shear-warp auto, nearest warp".into(), BlendMode::Composite, nearest.clone(), true)?);
 
     // Perspective (the same views at 30°), unshaded and shaded, against the perspective
     // references.
     rows.extend(time_in(perspective, "shear-warp overlapped auto (default)".into(), BlendMode::Composite, Default::default(), false)?);
     rows.extend(time_in(perspective, "shaded shear-warp auto (default)".into(), BlendMode::Composite, Default::default(), true)?);
+    rows.extend(time_in(perspective, "shaded shear-warp auto, nearest warp".into(), BlendMode::Composite, nearest, true)?);
 
     // VTK's fixed-point mapper through Python, same views, same references.
     for set in &sets {

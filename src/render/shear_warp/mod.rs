@@ -61,6 +61,18 @@ crate::setting_choice! {
     }
 }
 
+crate::setting_choice! {
+    /// How the warp samples the intermediate image.
+    pub enum WarpFilter {
+        /// Each final pixel the bilinear mean of its four intermediate neighbours.
+        Bilinear = "bilinear",
+        /// Each final pixel its nearest intermediate pixel: a quarter of the rays where the
+        /// intermediate image is finer than the final one (the automatic ratio's), each at
+        /// most half an intermediate pixel from the final pixel's centre.
+        Nearest = "nearest",
+    }
+}
+
 crate::declare_settings! {
     pub struct Settings {
         /// Intermediate pixels per voxel: any real ratio, such as 1.13 or 2.26.
@@ -92,6 +104,18 @@ crate::declare_settings! {
         pub slab_samples: usize = 2, range = Bounds::closed(1.0, MAX_SLAB_SAMPLES as f64), quality = true,
             viewer = Control { label: "Samples per slab", widget: Widget::Slider { lo: 1.0, hi: 4.0, step: 1.0 } },
             preview = Preview::AtMost(1.0);
+        /// The warp's filter. Where intermediate pixels lie closer than the final ones (the
+        /// automatic ratio puts them a quarter of an output pixel apart) the bilinear warp
+        /// reads four intermediate rays per final pixel, the nearest one: 2.3–2.8× faster
+        /// for a larger error. Aneurism 512², shaded, 5 views, 2 cores, same run: parallel,
+        /// bilinear 2.29 % from the reference in 385 ms, nearest 3.98 % in 140 ms (ratio 2,
+        /// bilinear: 3.61 % in 140 ms; VTK's fixed-point mapper 10.80 % in 166 ms);
+        /// perspective 2.39 % in 549 ms, nearest 4.27 % in 241 ms (VTK 11.95 % in 202 ms).
+        /// The 512×512×400 CT phantom in perspective (`volterra bench clinical`), further
+        /// frames: bilinear 4.07 % in 831–893 ms, nearest 5.39 % in 548–558 ms (ratio 1,
+        /// bilinear: 8.39 % in 534 ms; VTK 12.69 % in 108–113 ms).
+        pub warp: WarpFilter = WarpFilter::Bilinear, quality = true,
+            viewer = Control { label: "Warp filter", widget: Widget::ByType };
         /// Voxels averaged into one along each axis before drawing: 1 draws the volume
         /// itself; 2 or 4 a coarser copy (real values averaged over 2³ or 4³ voxels, made
         /// on first use and kept beside the volume's slices), as the viewer's previews do
@@ -279,7 +303,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     prep.limits.check(std::path::Path::new("shear-warp"), "the intermediate image", &[iw as u64, fac.height as u64, 20])?;
     let mut inter = Intermediate { width: iw, rgba: filled(iw * fac.height, [0.0; 4]), depth: filled(iw * fac.height, f32::INFINITY) };
     // Only the intermediate pixels the warp reads are composited.
-    let footprint = warp::Footprint::new(&fac, w, h, iw, fac.height);
+    let footprint = warp::Footprint::new(&fac, w, h, iw, fac.height, settings.warp);
     let samples = AtomicU64::new(0);
     let slabs_leapt = AtomicU64::new(0);
     let termination = settings.termination as f32;
@@ -729,7 +753,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         slabs_leapt.fetch_add(n_leapt, Ordering::Relaxed);
     })?;
 
-    let mut frame = warp(&inter, &fac, w, h)?;
+    let mut frame = warp(&inter, &fac, w, h, settings.warp)?;
     frame.stats = FrameStats {
         renderer: RENDERER.name.into(),
         seconds: start.elapsed().as_secs_f64(),

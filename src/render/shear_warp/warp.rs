@@ -1,10 +1,11 @@
 //! The 2-D warp from the intermediate image to the final one (affine in a parallel view,
 //! projective in a perspective one): each final pixel samples the intermediate image
-//! bilinearly (premultiplied colour and opacity; depth from the
-//! finite neighbours), skipping groups of pixels the intermediate image leaves empty.
+//! bilinearly (premultiplied colour and opacity; depth from the finite neighbours) or
+//! takes its nearest intermediate pixel, skipping groups of pixels the intermediate image
+//! leaves empty.
 
 use super::factor::Factorization;
-use super::Intermediate;
+use super::{Intermediate, WarpFilter};
 use crate::render::driver::{render_bands, Cancelled};
 use crate::render::frame::Frame;
 use rayon::prelude::*;
@@ -34,7 +35,25 @@ fn sample_at(fac: &Factorization, x: usize, y: usize, iw: usize, ih: usize) -> O
     Some((u0, v0, (u - u0 as f64) as f32, (v - v0 as f64) as f32))
 }
 
-/// The intermediate pixels the warp reads: each final pixel's four neighbours. Where the
+/// Intermediate pixels (u, v) and their weights, the first `.1` of them used.
+type Taps = ([(i64, i64, f32); 4], usize);
+
+/// The intermediate pixels final pixel (x, y) reads and their weights: its four neighbours
+/// bilinearly, or the nearest one.
+#[inline]
+fn taps(fac: &Factorization, x: usize, y: usize, iw: usize, ih: usize, filter: WarpFilter) -> Option<Taps> {
+    let (u0, v0, tu, tv) = sample_at(fac, x, y, iw, ih)?;
+    Some(match filter {
+        WarpFilter::Bilinear => (
+            [(u0, v0, (1.0 - tu) * (1.0 - tv)), (u0 + 1, v0, tu * (1.0 - tv)), (u0, v0 + 1, (1.0 - tu) * tv), (u0 + 1, v0 + 1, tu * tv)],
+            4,
+        ),
+        WarpFilter::Nearest => ([(u0 + (tu >= 0.5) as i64, v0 + (tv >= 0.5) as i64, 1.0); 4], 1),
+    })
+}
+
+/// The intermediate pixels the warp reads: each final pixel's four neighbours (or its
+/// nearest, `WarpFilter::Nearest`: one intermediate pixel per final pixel). Where the
 /// intermediate image is finer than the final one (a supersampled view, or a clinical
 /// volume whose voxels are smaller than the pixels) most intermediate pixels fall between
 /// the final pixels' footprints and are never read, so compositing skips them (they start
@@ -51,13 +70,13 @@ pub(super) struct Footprint {
 }
 
 impl Footprint {
-    pub(super) fn new(fac: &Factorization, w: usize, h: usize, iw: usize, ih: usize) -> Footprint {
+    pub(super) fn new(fac: &Factorization, w: usize, h: usize, iw: usize, ih: usize, filter: WarpFilter) -> Footprint {
         let words = iw.div_ceil(64);
         let mut bits = vec![0u64; words * ih];
         for y in 0..h {
             for x in 0..w {
-                let Some((u0, v0, _, _)) = sample_at(fac, x, y, iw, ih) else { continue };
-                for (pu, pv) in [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)] {
+                let Some((taps, n)) = taps(fac, x, y, iw, ih, filter) else { continue };
+                for &(pu, pv, _) in &taps[..n] {
                     if pu >= 0 && pv >= 0 && (pu as usize) < iw && (pv as usize) < ih {
                         let (pu, pv) = (pu as usize, pv as usize);
                         bits[pv * words + pu / 64] |= 1 << (pu % 64);
@@ -85,8 +104,8 @@ impl Footprint {
 }
 
 /// The 2-D warp: each final pixel samples the intermediate image bilinearly (premultiplied
-/// colour and opacity; depth from the finite neighbours).
-pub(super) fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize) -> Result<Frame, Cancelled> {
+/// colour and opacity; depth from the finite neighbours) or takes its nearest pixel.
+pub(super) fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize, filter: WarpFilter) -> Result<Frame, Cancelled> {
     let mut f = Frame::empty(w, h);
     let ih = inter.rgba.len() / inter.width;
     let iw = inter.width;
@@ -109,16 +128,15 @@ pub(super) fn warp(inter: &Intermediate, fac: &Factorization, w: usize, h: usize
     render_bands("warp", w, 1, &mut f.rgba, &mut f.depth, &mut [], |band| {
         let (y, row, depth) = (band.y0, band.rgba, band.depth);
         for x in 0..w {
-            let Some((u0, v0, tu, tv)) = sample_at(fac, x, y, iw, ih) else { continue };
-            let weights = [(0, 0, (1.0 - tu) * (1.0 - tv)), (1, 0, tu * (1.0 - tv)), (0, 1, (1.0 - tu) * tv), (1, 1, tu * tv)];
-            let inside = u0 >= 0 && v0 >= 0 && u0 + 1 < iw as i64 && v0 + 1 < ih as i64;
-            if inside && [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)].iter().all(|&(u, v)| group_empty(u, v)) {
+            let Some((taps, n)) = taps(fac, x, y, iw, ih, filter) else { continue };
+            let taps = &taps[..n];
+            let inside = taps.iter().all(|&(u, v, _)| u >= 0 && v >= 0 && u < iw as i64 && v < ih as i64);
+            if inside && taps.iter().all(|&(u, v, _)| group_empty(u, v)) {
                 continue;
             }
             let mut acc = [0f32; 4];
             let (mut zsum, mut zw) = (0f32, 0f32);
-            for (du, dv, wgt) in weights {
-                let (pu, pv) = (u0 + du, v0 + dv);
+            for &(pu, pv, wgt) in taps {
                 // Inside the image the bounds tests are known to pass; a zero weight adds
                 // exactly nothing, so skipping it is only needed at the edges.
                 if !inside && (pu < 0 || pv < 0 || pu >= iw as i64 || pv >= ih as i64 || wgt == 0.0) {
@@ -175,7 +193,7 @@ mod tests {
         // and rows {1, 2}, {4, 5}, {7, 8} of a 9 × 9 intermediate image, and nothing else.
         let mut fac = shifted(0.0, 0.0);
         fac.projection = super::super::factor::Projection::Parallel { sx: 0.0, sy: 0.0, warp: [[0.0, 3.0, 0.0], [0.0, 0.0, 3.0]] };
-        let fp = Footprint::new(&fac, 3, 3, 9, 9);
+        let fp = Footprint::new(&fac, 3, 3, 9, 9, WarpFilter::Bilinear);
         let read = [1, 2, 4, 5, 7, 8];
         assert_eq!(fp.count, 36);
         for v in 0..9 {
@@ -186,14 +204,43 @@ mod tests {
         }
         // A pixel outside the footprint changes nothing the warp writes.
         let mut inter = Intermediate { width: 9, rgba: vec![[0.5; 4]; 81], depth: vec![2.0; 81] };
-        let a = warp(&inter, &fac, 3, 3).unwrap();
+        let a = warp(&inter, &fac, 3, 3, WarpFilter::Bilinear).unwrap();
         for (i, p) in inter.rgba.iter_mut().enumerate() {
             if !fp.read(i % 9, i / 9) {
                 *p = [f32::NAN; 4];
             }
         }
-        let b = warp(&inter, &fac, 3, 3).unwrap();
+        let b = warp(&inter, &fac, 3, 3, WarpFilter::Bilinear).unwrap();
         assert_eq!(a.rgba, b.rgba);
+    }
+
+    #[test]
+    fn the_nearest_filter_reads_and_takes_one_pixel_per_final_pixel() {
+        // U = 3x + 0.2, V = 3y + 0.2: final pixel centres land on 1.7, 4.7, 7.7, nearest to
+        // columns and rows 2, 5 and 8 of a 9 × 9 intermediate image.
+        let mut fac = shifted(0.0, 0.0);
+        fac.projection = super::super::factor::Projection::Parallel { sx: 0.0, sy: 0.0, warp: [[0.2, 3.0, 0.0], [0.2, 0.0, 3.0]] };
+        let fp = Footprint::new(&fac, 3, 3, 9, 9, WarpFilter::Nearest);
+        let read = [2, 5, 8];
+        assert_eq!(fp.count, 9);
+        for v in 0..9 {
+            assert_eq!(fp.row(v), read.contains(&v), "row {v}");
+            for u in 0..9 {
+                assert_eq!(fp.read(u, v), read.contains(&u) && read.contains(&v), "({u}, {v})");
+            }
+        }
+        // Each final pixel is its nearest intermediate pixel, colour and depth, unmixed.
+        let inter = Intermediate {
+            width: 9,
+            rgba: (0..81).map(|i| [i as f32 / 81.0, 0.5, 0.25, 1.0]).collect(),
+            depth: (0..81).map(|i| 10.0 + i as f32).collect(),
+        };
+        let f = warp(&inter, &fac, 3, 3, WarpFilter::Nearest).unwrap();
+        for (y, x) in (0..3).flat_map(|y| (0..3).map(move |x| (y, x))) {
+            let i = (3 * y + 2) * 9 + 3 * x + 2;
+            assert_eq!(f.rgba[y * 3 + x], inter.rgba[i], "({x}, {y})");
+            assert_eq!(f.depth[y * 3 + x], inter.depth[i], "({x}, {y})");
+        }
     }
 
     #[test]
@@ -211,7 +258,7 @@ mod tests {
         let mut inter = Intermediate { width: 4, rgba: vec![[0.0; 4]; 16], depth: vec![f32::INFINITY; 16] };
         inter.rgba[4 + 1] = [0.8, 0.4, 0.0, 1.0];
         inter.depth[4 + 1] = 5.0;
-        let f = warp(&inter, &shifted(0.0, 0.0), 3, 3).unwrap();
+        let f = warp(&inter, &shifted(0.0, 0.0), 3, 3, WarpFilter::Bilinear).unwrap();
         for (x, y) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
             assert_eq!(f.rgba[y * 3 + x], [0.2, 0.1, 0.0, 0.25], "({x}, {y})");
             // A quarter of the weight on a finite depth is below the half needed.
@@ -219,7 +266,7 @@ mod tests {
         }
         assert_eq!(f.rgba[2 * 3 + 2], [0.0; 4]);
         // Shifted by half a pixel the final pixel (1, 1) sits on it exactly.
-        let f = warp(&inter, &shifted(-0.5, -0.5), 3, 3).unwrap();
+        let f = warp(&inter, &shifted(-0.5, -0.5), 3, 3, WarpFilter::Bilinear).unwrap();
         assert_eq!(f.rgba[3 + 1], [0.8, 0.4, 0.0, 1.0]);
         assert_eq!(f.depth[3 + 1], 5.0);
         assert_eq!(f.rgba[0], [0.0; 4]);
