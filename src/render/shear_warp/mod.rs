@@ -264,16 +264,19 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let n = settings.block;
     let clear = table.clear_quanta(q_to_level);
     // Built once per volume, axis and block size; reused across views and transfer functions.
-    let over_map = (leaping == Leaping::Overlapped && nz > 1).then(|| axis.overlapped(n));
+    // MIP tests the map itself; compositing only its transparent-block mask, kept per axis
+    // (a turn back to an axis whose copy was replaced needs no new map).
+    let over_map = (leaping == Leaping::Overlapped && nz > 1 && mip).then(|| axis.overlapped(n));
     let scan_map = (leaping == Leaping::MultiScanline && nz > 1).then(|| axis.scanline(n));
-    let clear_mask = over_map.as_ref().filter(|_| !mip).map(|m| axis.clear_mask(m, &clear));
+    let clear_mask =
+        (leaping == Leaping::Overlapped && nz > 1 && !mip).then(|| prep.clear_mask(fac.perm[2], n, &clear, || axis.overlapped(n)));
     // A block is clear for a fused pair where it is clear for both volumes.
-    let clear_mask = match (clear_mask, &second_axis, &second) {
-        (Some(m1), Some(a2), Some((t2, q2))) => {
-            let m2 = a2.clear_mask(&a2.overlapped(n), &t2.clear_quanta(*q2));
+    let clear_mask = match (clear_mask, &second_axis, &input.second, &second) {
+        (Some(m1), Some(a2), Some(sec), Some((t2, q2))) => {
+            let m2 = sec.prepared.clear_mask(fac.perm[2], n, &t2.clear_quanta(*q2), || a2.overlapped(n));
             Some(Arc::new(m1.and(&m2)))
         }
-        (m, _, _) => m,
+        (m, _, _, _) => m,
     };
     let (over_map, scan_map, clear_mask) = (over_map.as_deref(), scan_map.as_deref(), clear_mask.as_deref());
 
