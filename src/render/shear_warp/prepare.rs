@@ -57,7 +57,7 @@ pub struct Prepared {
     pub(super) limits: Limits,
     /// Each principal axis's transparent-block mask (its overlapped map's test under the
     /// last transfer function used), by (axis, block size): (the test's key, the mask).
-    /// Kept when the axis's copy and map are replaced (a mask is 1/16 of its map: 3.4 MB
+    /// Kept when the axis's copy and map are replaced (a mask is 1/8 of its map: 6.5 MB
     /// at 512 × 512 × 400), so a view turning back to an axis seen before needs no map.
     clear_masks: Mutex<HashMap<(usize, usize), KeyedMask>>,
     /// Coarser copies made so far (voxels averaged 2³, 4³), see `coarser`.
