@@ -736,9 +736,13 @@ fn draw_splats(
         let in_place = dev.host_mapped_storage;
         let out_usage = storage | if in_place { wgpu::BufferUsages::MAP_READ } else { wgpu::BufferUsages::COPY_SRC };
         let read_usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
-        let kept = if in_place {
-            let kept = p.kept.lock().unwrap().take();
-            let (records, capacity) = match kept.as_ref().filter(|k| k.capacity as u64 >= most_records) {
+        let before = if in_place { p.kept.lock().unwrap().take() } else { None };
+        let (sums, weight_dist) = match before.as_ref().filter(|k| k.pixels == w * h) {
+            Some(k) => (k.sums.clone(), k.weight_dist.clone()),
+            None => (output("splat sums", w * h * 16, out_usage), output("splat weights", w * h * 8, out_usage)),
+        };
+        let kept = in_place.then(|| {
+            let (records, capacity) = match before.as_ref().filter(|k| k.capacity as u64 >= most_records) {
                 Some(k) => (k.records.clone(), k.capacity),
                 // Room for an eighth more (a moving view's records vary), within the binding.
                 None => {
@@ -746,18 +750,8 @@ fn draw_splats(
                     (output("tiles' splats", capacity * 32, storage | wgpu::BufferUsages::MAP_WRITE), capacity)
                 }
             };
-            let (sums, weight_dist) = match kept.filter(|k| k.pixels == w * h) {
-                Some(k) => (k.sums, k.weight_dist),
-                None => (output("splat sums", w * h * 16, out_usage), output("splat weights", w * h * 8, out_usage)),
-            };
-            Some(KeptSplatBuffers { records, capacity, sums, weight_dist, pixels: w * h })
-        } else {
-            None
-        };
-        let (sums, weight_dist) = match &kept {
-            Some(k) => (k.sums.clone(), k.weight_dist.clone()),
-            None => (output("splat sums", w * h * 16, out_usage), output("splat weights", w * h * 8, out_usage)),
-        };
+            KeptSplatBuffers { records, capacity, sums: sums.clone(), weight_dist: weight_dist.clone(), pixels: w * h }
+        });
         let (sums_read, weight_dist_read) = if in_place {
             (sums.clone(), weight_dist.clone())
         } else {

@@ -155,14 +155,16 @@ impl Prepared {
         clear: &ClearQuanta,
         map: impl FnOnce() -> Arc<OverlappedMap>,
     ) -> Arc<ClearMask> {
-        if let Some((key, mask)) = self.clear_masks.lock().unwrap().get(&(axis, n)) {
-            if *key == clear.key {
-                return mask.clone();
+        // Held while a mask is built, so frames drawn at once build it once.
+        let mut masks = self.clear_masks.lock().unwrap();
+        match masks.get(&(axis, n)) {
+            Some((key, mask)) if *key == clear.key => mask.clone(),
+            _ => {
+                let mask = Arc::new(map().clear_mask(|mm| clear.clear(mm.min, mm.max)));
+                masks.insert((axis, n), (clear.key, mask.clone()));
+                mask
             }
         }
-        let mask = Arc::new(map().clear_mask(|mm| clear.clear(mm.min, mm.max)));
-        self.clear_masks.lock().unwrap().insert((axis, n), (clear.key, mask.clone()));
-        mask
     }
 
     /// Voxel i's value as a u16 quantum of [lo, hi].
