@@ -183,7 +183,7 @@ impl Prepared {
     /// the memory limit the first time). Copies of up to `KEEP_EVERY_AXIS` bytes are kept
     /// for every axis a view has used; a larger one replaces the others, so a clinical
     /// volume costs itself, one u16 copy and its maps however the camera turns (a turn
-    /// across 45° rebuilds: 0.12–0.31 s for the copy and, where the axis's transparent-block
+    /// across 45° rebuilds: 0.07–0.12 s for the copy and, where the axis's transparent-block
     /// mask is not kept from an earlier visit, 0.15–0.24 s for the overlapped map at
     /// 512 × 512 × 400 on 2 cores). The replaced copy's memory is written over by the new
     /// one where no frame holds it: `volterra bench clinical` (six views, five of them
@@ -260,14 +260,12 @@ fn block_means(dims: [usize; 3], f: [usize; 3], out: [usize; 3], value_at: impl 
 
 /// The voxels of a volume of `dims` (x fastest) permuted so that index axis perm[a] is
 /// axis a (x fastest), each through `q` (linear index → quantum). The loops read the
-/// source as sequentially as the permutation allows: with the principal axis along x
-/// (source stride 1 across slices), tiles of 32 slices × 32 voxels are read into a buffer
-/// and written a slice's run at a time; otherwise each slice is walked along its smaller
-/// source stride. 512 × 512 × 400 int16 (the CT phantom), 2 cores, dev build, with the
-/// page faults of a fresh copy and the freeing of the one it replaces: principal axis x
-/// 1.93 s voxel by voxel through `Volume::value` in slice order → 0.41 s (32 slices
-/// written a voxel at a time) → 0.27–0.33 s (tiles, a fixed-size table); y 0.17 s, z
-/// 0.23 s.
+/// source in whole rows: where the copy's rows run along the source's x they are copied
+/// as they are; otherwise (the principal axis x or y) each source plane that holds whole
+/// copy rows is transposed tile by tile (`transpose_tiles`). 512 × 512 × 400 int16 (the
+/// CT phantom), 2 cores, release build, into a lent buffer, same runs: principal axis x
+/// 294–298 ms (tiles of 32 slices, each reading 64 bytes of every source row) → 107–118
+/// ms; y 116–123 ms (written at a stride) → 105–123 ms; z 64–72 ms (a copy, the floor).
 fn permuted(buffer: Option<Vec<u16>>, dims: [usize; 3], perm: [usize; 3], q: impl Fn(usize) -> u16 + Sync) -> Vec<u16> {
     let pd = [dims[perm[0]], dims[perm[1]], dims[perm[2]]];
     let stride = [1, dims[0], dims[0] * dims[1]];
@@ -279,28 +277,19 @@ fn permuted(buffer: Option<Vec<u16>>, dims: [usize; 3], perm: [usize; 3], q: imp
         _ => vec![0u16; slice * pd[2]],
     };
     if sz == 1 {
-        // Tiles of T slices × T voxels of a slice row: read T runs of T neighbouring source
-        // voxels into a small buffer, then write each slice's T voxels as one contiguous
-        // run (a cache line), rather than one voxel into each of T slices at a time.
-        const T: usize = 32;
-        data.par_chunks_mut(slice * T).enumerate().for_each(|(c, chunk)| {
-            let (z0, nt) = (c * T, chunk.len() / slice);
-            let mut tile = [[0u16; T]; T];
-            for y in 0..pd[1] {
-                for x0 in (0..pd[0]).step_by(T) {
-                    let nx = T.min(pd[0] - x0);
-                    for j in 0..nx {
-                        let src = (x0 + j) * sx + y * sy + z0;
-                        for (t, row) in tile.iter_mut().enumerate().take(nt) {
-                            row[j] = q(src + t);
-                        }
-                    }
-                    let dst = y * pd[0] + x0;
-                    for (t, row) in tile.iter().enumerate().take(nt) {
-                        chunk[t * slice + dst..t * slice + dst + nx].copy_from_slice(&row[..nx]);
-                    }
-                }
-            }
+        // Principal axis x: copy row (slice x, row j) runs along the source's stride sx;
+        // source plane j (stride sy) holds row j of every slice. Each task takes one
+        // source plane, read whole, and writes that row of every slice.
+        let mut planes: Vec<Vec<&mut [u16]>> = (0..pd[1]).map(|_| Vec::with_capacity(pd[2])).collect();
+        for (r, row) in data.chunks_mut(pd[0]).enumerate() {
+            planes[r % pd[1]].push(row);
+        }
+        planes.into_par_iter().enumerate().for_each(|(j, mut rows)| transpose_tiles(&mut rows, pd[0], |x, c| q(j * sy + x + c * sx)));
+    } else if sy == 1 {
+        // Principal axis y: within each slice, copy row j runs along the source's z.
+        data.par_chunks_mut(slice).enumerate().for_each(|(z, s)| {
+            let mut rows: Vec<&mut [u16]> = s.chunks_mut(pd[0]).collect();
+            transpose_tiles(&mut rows, pd[0], |y, c| q(z * sz + y + c * sx));
         });
     } else {
         data.par_chunks_mut(slice).enumerate().for_each(|(z, s)| {
@@ -320,6 +309,28 @@ fn permuted(buffer: Option<Vec<u16>>, dims: [usize; 3], perm: [usize; 3], q: imp
         });
     }
     data
+}
+
+/// Fills `rows[r][c] = at(r, c)` for c < `cols`, where `at` is read fastest along r
+/// (consecutive source voxels): tiles of 32 × 32 are read down r into a buffer and
+/// written along c, so both the source and every row are walked in runs of whole cache
+/// lines.
+fn transpose_tiles(rows: &mut [&mut [u16]], cols: usize, at: impl Fn(usize, usize) -> u16) {
+    const T: usize = 32;
+    let mut tile = [[0u16; T]; T];
+    let n = rows.len();
+    let tiles = (0..n).step_by(T).flat_map(|r0| (0..cols).step_by(T).map(move |c0| (r0, c0)));
+    for (r0, c0) in tiles {
+        let (nr, nc) = (T.min(n - r0), T.min(cols - c0));
+        for c in 0..nc {
+            for (r, t) in tile.iter_mut().enumerate().take(nr) {
+                t[c] = at(r0 + r, c0 + c);
+            }
+        }
+        for (row, t) in rows[r0..r0 + nr].iter_mut().zip(&tile) {
+            row[c0..c0 + nc].copy_from_slice(&t[..nc]);
+        }
+    }
 }
 
 #[cfg(test)]
