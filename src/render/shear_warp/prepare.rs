@@ -184,7 +184,7 @@ impl Prepared {
     /// for every axis a view has used; a larger one replaces the others, so a clinical
     /// volume costs itself, one u16 copy and its maps however the camera turns (a turn
     /// across 45° rebuilds: 0.07–0.12 s for the copy and, where the axis's transparent-block
-    /// mask is not kept from an earlier visit, 0.15–0.24 s for the overlapped map at
+    /// mask is not kept from an earlier visit, 0.09–0.10 s for the overlapped map at
     /// 512 × 512 × 400 on 2 cores). The replaced copy's memory is written over by the new
     /// one where no frame holds it: `volterra bench clinical` (six views, five of them
     /// turns), further frames 607–621 → 552–570 ms.
