@@ -123,12 +123,18 @@ impl<'a> FrameShading<'a> {
 /// (`SliceRows`), or those of two neighbouring slices mixed (`MixedRows`).
 pub(super) trait FieldRow {
     fn sample(&self, x: f64) -> f32;
+    /// The sample at a column found by `column`.
+    fn sample_column(&self, col: (usize, usize, f32)) -> f32;
 }
 
 impl FieldRow for SliceRows<'_> {
     #[inline(always)]
     fn sample(&self, x: f64) -> f32 {
         self.at(x)
+    }
+    #[inline(always)]
+    fn sample_column(&self, col: (usize, usize, f32)) -> f32 {
+        self.at_column(col)
     }
 }
 
@@ -153,6 +159,17 @@ impl<R: FieldRow> RowGradient<R> {
     #[inline]
     pub(super) fn at(&self, x: f64) -> Vec3 {
         let xc = x.clamp(0.0, self.x_max);
+        let nx = self.x_max as usize + 1;
+        let col @ (x0, x1, wx) = column(xc, nx);
+        if x0 >= 1 && x0 + 2 < nx {
+            // At least a voxel from both ends of the row: every sample shares x's column
+            // weight, one column either side for the x difference (found once, not six
+            // times; 4–5 % of a shaded clinical frame).
+            let gx = (self.own.sample_column((x0 + 1, x1 + 1, wx)) - self.own.sample_column((x0 - 1, x0, wx))) * 0.5;
+            let gy = (self.y_up.sample_column(col) - self.y_down.sample_column(col)) * self.inv_dy;
+            let gz = (self.z_up.sample_column(col) - self.z_down.sample_column(col)) * self.inv_dz;
+            return Vec3::new(gx, gy, gz);
+        }
         let (up, down) = ((self.x_max - xc).min(1.0), xc.min(1.0));
         let gx = if up + down > 0.0 { (self.own.sample(xc + up) - self.own.sample(xc - down)) / (up + down) as f32 } else { 0.0 };
         let gy = (self.y_up.sample(xc) - self.y_down.sample(xc)) * self.inv_dy;
@@ -221,7 +238,10 @@ impl FieldRow for MixedRows<'_> {
     /// At continuous x: both slices' samples from one column lookup.
     #[inline(always)]
     fn sample(&self, x: f64) -> f32 {
-        let col = column(x, self.a.len());
+        self.sample_column(column(x, self.a.len()))
+    }
+    #[inline(always)]
+    fn sample_column(&self, col: (usize, usize, f32)) -> f32 {
         let a = self.a.at_column(col);
         a + self.w * (self.b.at_column(col) - a)
     }
