@@ -266,10 +266,10 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     // Built once per volume, axis and block size; reused across views and transfer functions.
     // MIP tests the map itself; compositing only its transparent-block mask, kept per axis
     // (a turn back to an axis whose copy was replaced needs no new map).
-    let over_map = (leaping == Leaping::Overlapped && nz > 1 && mip).then(|| axis.overlapped(n));
+    let overlapped = leaping == Leaping::Overlapped && nz > 1;
+    let over_map = (overlapped && mip).then(|| axis.overlapped(n));
     let scan_map = (leaping == Leaping::MultiScanline && nz > 1).then(|| axis.scanline(n));
-    let clear_mask =
-        (leaping == Leaping::Overlapped && nz > 1 && !mip).then(|| prep.clear_mask(fac.perm[2], n, &clear, || axis.overlapped(n)));
+    let clear_mask = (overlapped && !mip).then(|| prep.clear_mask(fac.perm[2], n, &clear, || axis.overlapped(n)));
     // A block is clear for a fused pair where it is clear for both volumes.
     let clear_mask = match (clear_mask, &second_axis, &input.second, &second) {
         (Some(m1), Some(a2), Some(sec), Some((t2, q2))) => {
