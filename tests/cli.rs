@@ -291,3 +291,61 @@ fn info_never_passes_the_memory_limit_it_is_given() {
     assert!(over.is_empty(), "{} of {} runs passed the limit:\n{}", over.len(), inputs.len() * 7, over.join("\n"));
     assert!(inputs.len() > 60 && read > 300 && refused > 50, "{} inputs: {read} read, {refused} refused for memory", inputs.len());
 }
+
+/// `volterra render` hands its cameras to the scene before reading (issue 20): a DEM whose
+/// whole raster passes `--max-memory` renders one frame, and an animation's frames, from
+/// the window they see — refused before, as it still is where the view takes in the whole.
+#[test]
+fn render_reads_only_the_window_its_cameras_see_of_a_dem_beyond_the_memory_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    // 1200 × 900 float32 samples: 4.3 MB.
+    let hf = common::utm_heightfield(1200, 900, |c, r| Some((400.0 + 250.0 * (c as f64 / 103.0).sin() * (r as f64 / 77.0).cos()) as f32));
+    volterra_formats::geotiff::write_geotiff(&dir.path().join("dem.tif"), &hf).unwrap();
+    let scene = dir.path().join("view.toml");
+    let text = r#"
+[image]
+width = 48
+height = 32
+[camera]
+position = [26000.0, 1500.0, 3000.0]
+focal_point = [29000.0, 6000.0, 300.0]
+view_up = [0.0, 0.0, 1.0]
+view_angle = 30.0
+[[keyframe]]
+position = [26000.0, 1500.0, 3000.0]
+focal_point = [29000.0, 6000.0, 300.0]
+[[keyframe]]
+position = [27000.0, 2500.0, 3000.0]
+focal_point = [30000.0, 7000.0, 300.0]
+[[node]]
+name = "dem"
+kind = "heightfield"
+file = "dem.tif"
+renderer = "terrain-reference"
+"#;
+    std::fs::write(&scene, text).unwrap();
+    let (scene, out) = (scene.to_str().unwrap(), dir.path().join("f.exr"));
+    let one = volterra(&["--max-memory", "4M", "render", scene, "-o", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&one.stderr);
+    assert!(one.status.success() && err.contains("read only what the views see"), "{err}");
+    let frames = volterra(&["--max-memory", "4M", "render", scene, "-o", out.to_str().unwrap(), "--frames", "3"]);
+    assert!(frames.status.success(), "{}", String::from_utf8_lossy(&frames.stderr));
+    assert!((0..3).all(|k| dir.path().join(format!("f_{k:04}.exr")).is_file()));
+    // Looking down on the whole DEM from far above: the whole is seen, and refused.
+    let wide = volterra(&[
+        "--max-memory",
+        "4M",
+        "render",
+        scene,
+        "-o",
+        out.to_str().unwrap(),
+        "--set",
+        "camera.position=[18000.0, 13500.0, 90000.0]",
+        "--set",
+        "camera.focal_point=[18000.0, 13500.0, 0.0]",
+        "--set",
+        "camera.view_up=[0.0, 1.0, 0.0]",
+    ]);
+    let err = String::from_utf8_lossy(&wide.stderr);
+    assert!(!wide.status.success() && err.contains("dem.tif") && err.contains("memory limit"), "{err}");
+}

@@ -51,6 +51,7 @@ fn compressed_geotiffs_read_as_their_uncompressed_copies() {
             500_015.0 + 950.0 * 30.0,
             4_200_015.0 - 100.0 * 30.0,
         ]),
+        ..GeoTiffOptions::default()
     };
     let (mut files, mut lzw_failures_mended) = (0, 0);
     for ty in ["Byte", "Int16", "UInt16", "Int32", "Float32", "Float64"] {

@@ -126,6 +126,21 @@ fn a_dem_beyond_the_memory_limit_is_read_from_its_largest_overview_that_fits_whe
         let gdal_ov1 = dir.path().join(format!("{name}.ov1.tif"));
         run(Command::new(&gdal_translate).args(["-q", "-oo", "OVERVIEW_LEVEL=1"]).arg(file).arg(&gdal_ov1));
         assert_same_grid(&ov1, &read_geotiff(&gdal_ov1, &Limits::default()).unwrap(), &format!("{name}, overview 1"));
+        // A level asked for is read whatever room there is (the scene's view windows fix
+        // the level they placed); one the file lacks, and one that does not fit, refused.
+        let level = |k: usize, limits: &Limits| {
+            volterra_formats::geotiff::read_geotiff_with(
+                file,
+                &volterra_formats::geotiff::GeoTiffOptions { level: Some(k), ..Default::default() },
+                limits,
+            )
+        };
+        assert_same_grid(&level(2, &Limits::default()).unwrap(), &ov1, &format!("{name}, level 2"));
+        assert_same_grid(&level(0, &Limits::default()).unwrap(), &original, &format!("{name}, level 0"));
+        let msg = level(3, &Limits::default()).expect_err("no level 3").to_string();
+        assert!(msg.contains("level 3") && msg.contains("has 3"), "{msg}");
+        let msg = level(1, &limit).expect_err("level 1 does not fit").to_string();
+        assert!(msg.contains("memory limit"), "{msg}");
 
         // Room for none: the full raster's refusal, naming the file.
         let err = read_geotiff(file, &Limits::max(in_use() + 50_000)).expect_err("refused");
@@ -157,7 +172,7 @@ fn an_extent_reads_the_samples_inside_it_as_gdal_translate_srcwin_does_decoding_
         500_015.0 + 612.0 * 30.0 + 10.0,
         4_200_015.0 - 100.0 * 30.0 + 10.0,
     ];
-    let opts = volterra_formats::geotiff::GeoTiffOptions { extent: Some(extent) };
+    let opts = volterra_formats::geotiff::GeoTiffOptions { extent: Some(extent), level: None };
     for file in [&plain, &tiled, &strips] {
         let name = file.file_name().unwrap().to_string_lossy().into_owned();
         let ours = volterra_formats::geotiff::read_geotiff_with(file, &opts, &Limits::default()).unwrap();
@@ -174,7 +189,7 @@ fn an_extent_reads_the_samples_inside_it_as_gdal_translate_srcwin_does_decoding_
     assert_eq!((ours.width, ours.height), (363, 278));
     assert!(!ours.notes.iter().any(|n| n.contains("overview")), "{:?}", ours.notes);
     // An extent beside the raster: refused, naming the file and the raster's bounds.
-    let beside = volterra_formats::geotiff::GeoTiffOptions { extent: Some([0.0, 0.0, 10.0, 10.0]) };
+    let beside = volterra_formats::geotiff::GeoTiffOptions { extent: Some([0.0, 0.0, 10.0, 10.0]), level: None };
     let msg = volterra_formats::geotiff::read_geotiff_with(&tiled, &beside, &Limits::default()).expect_err("beside").to_string();
     assert!(msg.contains("tiled.tif") && msg.contains("holds no sample") && msg.contains("500000"), "{msg}");
 
@@ -340,6 +355,7 @@ fn rows_read_by_windows_of_tiles_equal_the_raster_read_whole() {
             500_015.0 + 612.0 * 30.0 + 10.0,
             4_200_015.0 - 100.0 * 30.0 + 10.0,
         ]),
+        ..GeoTiffOptions::default()
     };
     for file in [&plain, &tiled, &strips, &int16, &cog] {
         let name = file.file_name().unwrap().to_string_lossy().into_owned();

@@ -421,7 +421,7 @@ fn a_geotiff_terrain_is_read_row_by_row_into_the_gpu_and_renders_as_the_raster_h
         assert!(!streamed.is_loaded(0), "the raster was not read whole");
         let b = {
             let scene = Scene::load(&path, &sets).unwrap();
-            let opts = volterra::formats::geotiff::GeoTiffOptions { extent: windowed.then_some(extent) };
+            let opts = volterra::formats::geotiff::GeoTiffOptions { extent: windowed.then_some(extent), level: None };
             scene.provide_data(
                 0,
                 NodeData::Heightfield(std::sync::Arc::new(
@@ -476,4 +476,161 @@ fn an_edited_extent_reads_the_new_window_and_a_moved_camera_reads_nothing() {
     assert!(!windowed.is_loaded(0), "a new extent is read anew");
     let part = windowed.heightfield(0).unwrap();
     assert_eq!((part.width, part.height), (50, 100));
+}
+
+/// A view of part of a DEM: 1200 × 900 cells of 30 m (UTM 10N, smooth hills), seen from
+/// above its south-east quarter.
+const VIEW_WINDOW_SCENE: &str = r#"
+[image]
+width = 96
+height = 64
+
+[camera]
+position = [26000.0, 1500.0, 3000.0]
+focal_point = [29000.0, 6000.0, 300.0]
+view_up = [0.0, 0.0, 1.0]
+view_angle = 30.0
+
+[[node]]
+name = "dem"
+kind = "heightfield"
+file = "dem.tif"
+renderer = "terrain-reference"
+"#;
+
+fn view_window_dem(path: &Path) {
+    let hf = common::utm_heightfield(1200, 900, |c, r| {
+        let (x, y) = (c as f64 * 30.0, (899 - r) as f64 * 30.0);
+        Some((400.0 + 250.0 * (x / 3100.0).sin() * (y / 2300.0).cos() + 0.004 * x) as f32)
+    });
+    volterra_formats::geotiff::write_geotiff(path, &hf).unwrap();
+}
+
+/// Relative depth differences between two frames' hits, and the pixels hit in one only.
+fn depth_differences(a: &render::Frame, b: &render::Frame) -> (Vec<f64>, usize) {
+    let mut rel = Vec::new();
+    let mut coverage = 0;
+    for (&da, &db) in a.depth.iter().zip(&b.depth) {
+        match (da.is_finite(), db.is_finite()) {
+            (true, true) => rel.push(((da - db).abs() / db.abs().max(1e-30)) as f64),
+            (false, false) => {}
+            _ => coverage += 1,
+        }
+    }
+    rel.sort_by(f64::total_cmp);
+    (rel, coverage)
+}
+
+/// Issue 20, "only what a view needs is read when the DEM is larger than memory allows": a
+/// GeoTIFF DEM whose whole raster passes the memory limit (and which has no overviews to
+/// fall back on) is refused — unless the render's cameras are known first
+/// (`Scene::with_views`, as `volterra render` does): then only the window they see is read,
+/// placed where it lies in the whole, and the frame's depth is the whole raster's.
+#[test]
+fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws_as_the_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene_path = write(dir.path(), "view.toml", VIEW_WINDOW_SCENE);
+    view_window_dem(&dir.path().join("dem.tif"));
+    let size = (96, 64);
+    let mut renderers = vec!["terrain-reference"];
+    if common::gpu().is_some() {
+        renderers.push("terrain");
+    }
+    for renderer in renderers {
+        let sets = [format!("node.dem.renderer={renderer}")];
+        let whole = Scene::load(&scene_path, &sets).unwrap();
+        let camera = whole.camera(None).unwrap();
+        let whole = whole.with_views(std::slice::from_ref(&camera)).unwrap();
+        assert_eq!(whole.view_window_note(0), None, "{renderer}: within the default limit the DEM is read whole");
+        let a = render::render_view(&whole, &camera, size, &Default::default()).unwrap();
+
+        // 1200 × 900 samples need 4.3 MB as float32 (5.4 MB on the GPU): over a 3 MB limit.
+        let limits = volterra_formats::Limits::max(3_000_000);
+        let refused = Scene::load(&scene_path, &sets).unwrap().with_limits(limits);
+        let e = format!("{:#}", render::render_view(&refused, &camera, size, &Default::default()).unwrap_err());
+        assert!(e.contains("dem.tif") && e.contains("memory limit"), "{renderer}: without the views the whole is refused: {e}");
+
+        let windowed = Scene::load(&scene_path, &sets).unwrap().with_limits(limits).with_views(std::slice::from_ref(&camera)).unwrap();
+        let note = windowed.view_window_note(0).expect("a view window").to_string();
+        assert!(note.contains("of the full raster"), "{renderer}: {note}");
+        let b = render::render_view(&windowed, &camera, size, &Default::default()).unwrap();
+        assert!(b.stats.notes.iter().any(|n| n.contains("read only what the views see")), "{renderer}: {:?}", b.stats.notes);
+        let read = windowed.terrain_data(0).unwrap().georef();
+        assert!(
+            read.width * read.height * 4 < 3_000_000 && read.width < 1200 && read.height < 900,
+            "{renderer}: {}×{} samples read",
+            read.width,
+            read.height
+        );
+
+        let hits = a.depth.iter().filter(|d| d.is_finite()).count();
+        assert!(hits > a.depth.len() / 2, "{renderer}: the terrain fills the view ({hits} hits)");
+        let (rel, coverage) = depth_differences(&b, &a);
+        assert!(!rel.is_empty(), "{renderer}: no pixel hit in both");
+        let (median, max) = (rel[rel.len() / 2], rel[rel.len() - 1]);
+        eprintln!("{renderer}: window {}×{} of 1200×900; depth vs the whole: median {median:.1e}, max {max:.1e}, {coverage} pixels hit in one only", read.width, read.height);
+        assert!(coverage == 0 && median <= 1e-6 && max <= 1e-5, "{renderer}: median {median:e}, max {max:e}, coverage {coverage}");
+    }
+}
+
+/// The same DEM tiled with `gdaladdo` overviews (2, 4, 8) under a limit that fits neither
+/// the whole (it would be read from the 4× overview) nor the view's window at full
+/// resolution: the window is read from the 2× overview, and every sample read lies in the
+/// world at its map position (GDAL's placement of the overview) less the full raster's
+/// south-west sample's — the node's frame does not move with the level read.
+#[test]
+fn a_view_window_read_from_an_overview_keeps_every_sample_where_its_map_coordinates_put_it() {
+    let (Some(translate), Some(addo)) = (common::gdal_tool("gdal_translate"), common::gdal_tool("gdaladdo")) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let scene_path = write(dir.path(), "view.toml", VIEW_WINDOW_SCENE);
+    let plain = dir.path().join("plain.tif");
+    view_window_dem(&plain);
+    let tiled = dir.path().join("dem.tif");
+    let run = |cmd: &mut std::process::Command| {
+        let out = cmd.output().unwrap();
+        assert!(out.status.success(), "{cmd:?}: {}", String::from_utf8_lossy(&out.stderr));
+    };
+    run(std::process::Command::new(translate)
+        .args(["-q", "-co", "TILED=YES", "-co", "BLOCKXSIZE=128", "-co", "BLOCKYSIZE=128"])
+        .arg(&plain)
+        .arg(&tiled));
+    run(std::process::Command::new(addo).args(["-q", "-r", "average"]).arg(&tiled).args(["2", "4", "8"]));
+    let size = (96, 64);
+    let whole = Scene::load(&scene_path, &[]).unwrap();
+    let camera = whole.camera(None).unwrap();
+    let a = render::render_view(&whole, &camera, size, &Default::default()).unwrap();
+
+    let limits = volterra_formats::Limits::max(400_000);
+    let windowed = Scene::load(&scene_path, &[]).unwrap().with_limits(limits).with_views(std::slice::from_ref(&camera)).unwrap();
+    let b = render::render_view(&windowed, &camera, size, &Default::default()).unwrap();
+    let note = windowed.view_window_note(0).unwrap();
+    assert!(note.contains("of the 600×450 overview"), "{note}");
+    let hf = windowed.heightfield(0).unwrap();
+    assert!(
+        hf.width < 600 && hf.height < 450 && hf.cell_size_native == [60.0, 60.0],
+        "{}×{}, cells {:?}",
+        hf.width,
+        hf.height,
+        hf.cell_size_native
+    );
+    let m = windowed.world_transform(0);
+    let full_south_west = [500_015.0, 4_200_015.0 - 899.0 * 30.0];
+    for (c, r) in [(0, 0), (hf.width - 1, 0), (0, hf.height - 1), (hf.width / 2, hf.height / 3)] {
+        let local = glam::DVec3::new(c as f64 * hf.cell_size[0], (hf.height - 1 - r) as f64 * hf.cell_size[1], 0.0);
+        let world = m.transform_point3(local);
+        let map = [hf.origin[0] + c as f64 * hf.cell_size_native[0], hf.origin[1] - r as f64 * hf.cell_size_native[1]];
+        let want = [map[0] - full_south_west[0], map[1] - full_south_west[1]];
+        assert!(
+            (world.x - want[0]).abs() < 1e-6 && (world.y - want[1]).abs() < 1e-6,
+            "sample ({c}, {r}) at {world:?}, its map position puts it at {want:?}"
+        );
+    }
+    // The 2× overview drawn where the full raster is: depths close to the full raster's.
+    let (rel, coverage) = depth_differences(&b, &a);
+    let median = rel[rel.len() / 2];
+    eprintln!(
+        "2× overview window {}×{}: depth vs the full raster's median {median:.1e}, {coverage} pixels hit in one only",
+        hf.width, hf.height
+    );
+    assert!(median < 2e-3 && coverage <= 3, "median {median:e}, coverage {coverage}");
 }

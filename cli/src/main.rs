@@ -1128,6 +1128,8 @@ fn cmd_render(scene_path: &Path, output: &Path, png: Option<&Path>, sets: &[Stri
     check_render_outputs(output, png)?;
     let scene = Scene::load(scene_path, sets)?.with_limits(limits);
     let camera = scene.camera(None)?;
+    // A DEM larger than memory allows is read only where the camera sees it.
+    let scene = scene.with_views(std::slice::from_ref(&camera))?;
     write_frame(&scene, &camera, true, output, png, &render::RenderCache::default())
 }
 
@@ -1220,6 +1222,14 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         o.is_file() && p.is_none_or(|p| p.is_file())
     };
     let todo: Vec<animation::AnimationFrame> = mine.iter().filter(|f| !(job.resume && done(f.index))).map(|f| **f).collect();
+    // A DEM larger than memory allows is read only where this task's frames see it (a
+    // walk's cameras stand on the ground read: `with_views` leaves such a scene as it is).
+    let scene = if scene.file.walk.is_none() {
+        let cameras = todo.iter().map(|f| scene.camera_at(Some(*f))).collect::<Result<Vec<_>>>()?;
+        scene.with_views(&cameras)?
+    } else {
+        scene
+    };
     let shard = if job.shard == Shard::ALL { String::new() } else { format!("task {} of {}: ", job.shard.index, job.shard.of) };
     eprintln!(
         "{shard}{} of the animation's {} frames to render{}",

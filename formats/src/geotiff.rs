@@ -489,6 +489,12 @@ pub struct GeoTiffOptions {
     /// Only the samples whose centres lie in [west, south, east, north] (CRS units): the
     /// tiles or strips holding them are decoded, no others.
     pub extent: Option<[f64; 4]>,
+    /// Read this level only — 0 the full raster, k its k-th overview, largest first —
+    /// refused where its window passes the memory limit; None: the finest level whose
+    /// window fits. A caller that placed the data before reading it (the scene's view
+    /// windows) fixes the level so that a read later, with other memory in use, cannot
+    /// move it.
+    pub level: Option<usize>,
 }
 
 /// Columns and rows [c0, c1] × [r0, r1] (inclusive) of a w × h raster, origin (ox, oy) at
@@ -655,6 +661,11 @@ pub(crate) struct Opened {
     pub(crate) notes: Vec<String>,
     /// What `info` shows of the storage, after the data type (see `Opened::attributes`).
     pub(crate) storage: Vec<(String, String)>,
+    /// The level read (0 the full raster, k its k-th overview) and how many the file has.
+    pub(crate) level_number: usize,
+    pub(crate) levels: usize,
+    /// The full raster's size, the centre of its north-west sample and its cells.
+    pub(crate) full: ([u32; 2], [f64; 2], [f64; 2]),
 }
 
 impl Opened {
@@ -682,6 +693,7 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
     let full = images[0];
     let Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, mut notes } = georeferencing(path, &mut d)?;
     let nodata_value = gdal_nodata(path, &mut d)?;
+    let full_geo = ([full.width, full.height], [ox, oy], [sx, sy]);
     // Each level's georeferencing: an overview's cells are the full raster's scaled by the
     // size ratio, its corner the same.
     let level_geo = |i: &Image| {
@@ -704,7 +716,18 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
     let per_sample = held_per_sample.unwrap_or(sample_bytes);
     let need = |i: &Image| window(i).map(|win| [(win[2] - win[0] + 1) as u64, (win[3] - win[1] + 1) as u64, per_sample]);
     let what = if opts.extent.is_some() { "elevation raster's window" } else { "elevation raster" };
-    let (image, bytes, note) = finest_fitting(path, limits, &images, what, need)?;
+    let candidates = match opts.level {
+        None => &images[..],
+        Some(k) if k < images.len() => &images[k..=k],
+        Some(k) => {
+            return Err(FormatError::invalid(
+                path,
+                format!("level {k} asked for, but the raster has {} (the full raster and its overviews)", images.len()),
+            ))
+        }
+    };
+    let (image, bytes, note) = finest_fitting(path, limits, candidates, what, need)?;
+    let level_number = images.iter().position(|i| *i == image).unwrap_or(0);
     notes.extend(note);
     let win = window(&image)?;
     let mut d = at_level(path, d, (&full, &image), (spp, sample_bytes), bytes)?;
@@ -771,6 +794,49 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
         sample_bytes,
         notes,
         storage,
+        level_number,
+        levels: images.len(),
+        full: full_geo,
+    })
+}
+
+/// Where a read of a GeoTIFF elevation raster would come from, found without reading its
+/// samples: what `open_elevation` chooses for `opts` at `held_per_sample` bytes a sample
+/// (None: the decoded sample's size), and the full raster's grid beside it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ElevationPlan {
+    /// The level chosen (0 the full raster, k its k-th overview, largest first) and how
+    /// many the file has.
+    pub level: usize,
+    pub levels: usize,
+    /// The chosen level's size, and the window's columns and rows [c0, r0, c1, r1]
+    /// (inclusive) in it.
+    pub level_size: [u32; 2],
+    pub window: [u32; 4],
+    /// The centre of the window's north-west sample and the level's cells (CRS units).
+    pub origin: [f64; 2],
+    pub cell_size_native: [f64; 2],
+    /// The full raster's size, the centre of its north-west sample and its cells.
+    pub full_size: [u32; 2],
+    pub full_origin: [f64; 2],
+    pub full_cell_size_native: [f64; 2],
+    pub crs: Crs,
+}
+
+pub fn elevation_plan(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held_per_sample: Option<u64>) -> Result<ElevationPlan> {
+    let o = open_elevation(path, opts, limits, held_per_sample)?;
+    let (full_size, full_origin, full_cell_size_native) = o.full;
+    Ok(ElevationPlan {
+        level: o.level_number,
+        levels: o.levels,
+        level_size: o.level,
+        window: o.win,
+        origin: o.origin,
+        cell_size_native: o.scale,
+        full_size,
+        full_origin,
+        full_cell_size_native,
+        crs: o.crs,
     })
 }
 

@@ -91,7 +91,11 @@ pub fn run(target: &str, data: &[u8]) {
                 let [x, y] = hf.origin;
                 let extent = [x + 0.25 * w, y - 0.75 * h, x + 0.75 * w, y - 0.25 * h];
                 if extent.iter().all(|v| v.is_finite()) {
-                    let opts = formats::geotiff::GeoTiffOptions { extent: Some(extent) };
+                    let opts = formats::geotiff::GeoTiffOptions { extent: Some(extent), level: None };
+                    check_heightfield(&path, formats::geotiff::read_geotiff_with(&path, &opts, &limits));
+                    // A level fixed by the last byte (an overview, or one the file lacks).
+                    let level = data.last().map(|b| (b % 4) as usize);
+                    let opts = formats::geotiff::GeoTiffOptions { level, ..opts };
                     check_heightfield(&path, formats::geotiff::read_geotiff_with(&path, &opts, &limits));
                 }
             }

@@ -244,6 +244,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             };
             // What the reader noted of the raster (an overview read for the memory limit,
             // degrees converted to metres) is said with the frame.
+            frame.stats.notes.extend(scene.view_window_note(node).map(|n| format!("node '{}': {n}", desc.name)));
             frame.stats.notes.extend(heights.notes().iter().map(|n| format!("node '{}': {n}", desc.name)));
             // A colour-mapped drape gets its scalar bar in the PNG preview.
             if let (Some((colormap, range)), Some(path)) = (texture.as_ref().and_then(|t| t.scale), &desc.texture) {

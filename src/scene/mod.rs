@@ -12,6 +12,7 @@ pub mod drape;
 pub mod measurement;
 pub mod presets;
 pub mod transfer;
+pub mod view_window;
 
 pub use camera::{Camera, Ray, RayGenerator};
 pub use crop::{ClipPlane, CropBox, HalfSpace};
@@ -422,6 +423,8 @@ pub struct Scene {
     /// The memory limits handed to every reader of the scene's data and to every renderer's
     /// preparation (`--max-memory`).
     limits: Limits,
+    /// Heightfield nodes read only where the renders' cameras see them (`with_views`).
+    view_windows: Vec<Option<Arc<view_window::ViewWindow>>>,
 }
 
 /// The line (1-based) of a byte offset in `text`.
@@ -746,6 +749,7 @@ impl Scene {
             series: found,
             time: None,
             limits: Limits::default(),
+            view_windows: vec![None; n],
         })
     }
 
@@ -798,6 +802,7 @@ impl Scene {
             series: self.series.clone(),
             time: Some(t),
             limits: self.limits,
+            view_windows: self.view_windows.clone(),
         };
         for i in 0..n {
             let same_step = self.step(i) == next.step(i);
@@ -907,9 +912,110 @@ impl Scene {
         Ok(cam)
     }
 
-    /// Node-local → world transform (parents applied).
+    /// Node-local → world transform (parents applied). A heightfield read in a view window
+    /// (`with_views`) has its window's south-west sample at the origin: the window's
+    /// placement in the node's frame comes first.
     pub fn world_transform(&self, node: usize) -> DMat4 {
-        self.world[node]
+        match &self.view_windows[node] {
+            Some(w) => self.world[node] * w.placement(),
+            None => self.world[node],
+        }
+    }
+
+    /// What is said of a heightfield node read in a view window (which samples, why).
+    pub fn view_window_note(&self, node: usize) -> Option<&str> {
+        self.view_windows[node].as_ref().map(|w| w.note.as_str())
+    }
+
+    /// The scene, knowing the `cameras` its renders will take (at the image's size), before
+    /// any data is read: a GeoTIFF heightfield node that names no `extent` and whose full
+    /// raster passes the memory limit (at what its renderer holds a sample) is then read
+    /// only where the cameras see it (`view_window`), at the finest level where that fits
+    /// — rather than the largest overview of the whole that fits, or a refusal where the
+    /// file has none. Unchanged: a scene with a `[walk]` (its cameras stand on the ground
+    /// read), and a raster in a geographic CRS (its cells are converted to metres at the
+    /// latitude of what is read, so a window would not keep the whole's scale).
+    pub fn with_views(mut self, cameras: &[Camera]) -> Result<Scene> {
+        if self.file.walk.is_some() {
+            return Ok(self);
+        }
+        for node in 0..self.file.nodes.len() {
+            let window = self.view_window(node, cameras).with_context(|| format!("node '{}'", self.file.nodes[node].name))?;
+            self.view_windows[node] = window.map(Arc::new);
+        }
+        Ok(self)
+    }
+
+    fn view_window(&self, node: usize, cameras: &[Camera]) -> Result<Option<view_window::ViewWindow>> {
+        use volterra_formats::geotiff::{elevation_plan, GeoTiffOptions};
+        let n = &self.file.nodes[node];
+        if n.kind != NodeKind::Heightfield
+            || !n.visible
+            || n.extent.is_some()
+            || self.renderer(node).is_none()
+            || self.data[node].get().is_some()
+        {
+            return Ok(None);
+        }
+        let (path, _) = self.load_plan(node)?;
+        if volterra_formats::detect(&path)? != volterra_formats::FileKind::GeoTiff {
+            return Ok(None);
+        }
+        let gpu = matches!(self.node_settings(node), Some(NodeSettings::Terrain(_)));
+        let held = gpu.then_some(crate::render::terrain::GPU_BYTES_PER_SAMPLE);
+        let whole = GeoTiffOptions::default();
+        let read_whole = elevation_plan(&path, &whole, &self.limits, held).ok();
+        if read_whole.as_ref().is_some_and(|p| p.level == 0) {
+            return Ok(None);
+        }
+        // The full raster's grid (holding nothing, so any level "fits").
+        let full = elevation_plan(&path, &whole, &self.limits, Some(0))?;
+        if full.crs.geographic {
+            return Ok(None);
+        }
+        // Its elevation range from its coarsest level, one pass over the rows; an overview
+        // averages, so its range is widened by a tenth either way.
+        let coarsest = GeoTiffOptions { level: Some(full.levels - 1), ..whole };
+        let Some((lo, hi)) = GeoTiffRows::open(&path, &coarsest, &self.limits, 0)?.summary().range else {
+            return Ok(None);
+        };
+        let widen = if full.levels > 1 { 0.1 * (hi - lo) as f64 + 1.0 } else { 0.0 };
+        let z = (lo as f64 - widen, hi as f64 + widen);
+        let image = (self.file.image.width, self.file.image.height);
+        // In the node's frame the full raster's south-west sample is the origin; a
+        // projected CRS's units are metres.
+        let cell = full.full_cell_size_native;
+        let Some([c0, r0, c1, r1]) = view_window::visible_window(cameras, image, self.world[node], full.full_size, cell, z) else {
+            return Ok(None);
+        };
+        // Those samples' centres, a quarter cell of slack round them.
+        let [ox, oy] = full.full_origin;
+        let extent = [
+            ox + (c0 as f64 - 0.25) * cell[0],
+            oy - (r1 as f64 + 0.25) * cell[1],
+            ox + (c1 as f64 + 0.25) * cell[0],
+            oy - (r0 as f64 - 0.25) * cell[1],
+        ];
+        let plan = elevation_plan(&path, &GeoTiffOptions { extent: Some(extent), level: None }, &self.limits, held)?;
+        let [w0, v0, w1, v1] = plan.window;
+        if read_whole.is_some_and(|p| p.level == plan.level) && [w0, v0, w1 + 1, v1 + 1] == [0, 0, plan.level_size[0], plan.level_size[1]] {
+            // The views see the whole of the level read anyway: nothing to gain.
+            return Ok(None);
+        }
+        // Where the window's south-west sample lies, east and north of the full raster's.
+        let south_west =
+            |origin: [f64; 2], scale: [f64; 2], rows: u32| DVec3::new(origin[0], origin[1] - (rows - 1) as f64 * scale[1], 0.0);
+        let offset = south_west(plan.origin, plan.cell_size_native, v1 - v0 + 1) - south_west(full.full_origin, cell, full.full_size[1]);
+        let level =
+            if plan.level == 0 { "full raster".to_string() } else { format!("{}×{} overview", plan.level_size[0], plan.level_size[1]) };
+        let note = format!(
+            "read only what the views see: columns {w0}..={w1}, rows {v0}..={v1} of the {level} ({}×{} samples), the whole {}×{} raster needing more than the memory limit",
+            w1 - w0 + 1,
+            v1 - v0 + 1,
+            full.full_size[0],
+            full.full_size[1]
+        );
+        Ok(Some(view_window::ViewWindow { extent, level: plan.level, offset: offset.truncate(), note }))
     }
 
     pub fn node_index(&self, name: &str) -> Option<usize> {
@@ -943,6 +1049,10 @@ impl Scene {
                 bail!("{}: node '{}': extent needs a georeferenced raster (a GeoTIFF)", path.display(), n.name);
             }
             opts.geotiff.extent = Some(extent);
+        }
+        if let Some(w) = &self.view_windows[node] {
+            opts.geotiff.extent = Some(w.extent);
+            opts.geotiff.level = Some(w.level);
         }
         if let Some(a) = &n.arrays {
             opts.particles = a.clone();
