@@ -570,6 +570,13 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
         let (median, max) = (rel[rel.len() / 2], rel[rel.len() - 1]);
         eprintln!("{renderer}: window {}×{} of 1200×900; depth vs the whole: median {median:.1e}, max {max:.1e}, {coverage} pixels hit in one only", read.width, read.height);
         assert!(coverage == 0 && median <= 1e-6 && max <= 1e-5, "{renderer}: median {median:e}, max {max:e}, coverage {coverage}");
+        // The elevation colours span the whole raster's range (found in one pass over its
+        // rows: it has no overviews), not the window's: the same colours, the same scale.
+        let colour = a.rgba.iter().zip(&b.rgba).flat_map(|(p, q)| (0..3).map(move |c| (p[c] - q[c]).abs())).fold(0f32, f32::max);
+        eprintln!("{renderer}: largest colour difference {colour:.1e}");
+        assert!(colour <= 2e-3, "{renderer}: colours differ by up to {colour}");
+        let range = |f: &render::Frame| f.scales.iter().find(|s| s.title.starts_with("elevation")).map(|s| s.range);
+        assert_eq!(range(&b), range(&a), "{renderer}: the scalar bar's range");
     }
 }
 
@@ -633,4 +640,36 @@ fn a_view_window_read_from_an_overview_keeps_every_sample_where_its_map_coordina
         hf.width, hf.height
     );
     assert!(median < 2e-3 && coverage <= 3, "median {median:e}, coverage {coverage}");
+}
+
+/// A heightfield's `elevation_range` puts the elevation colours' ends where it says (the
+/// scalar bar too), and is refused where it means nothing.
+#[test]
+fn an_elevation_range_sets_the_elevation_colours_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    volterra::samples::write_samples(dir.path()).unwrap();
+    // The sample terrain without its drape, which would cover the elevation colours.
+    let text = std::fs::read_to_string(dir.path().join("terrain.toml")).unwrap().replace("texture = \"fractal_dem_texture.png\"\n", "");
+    let path = write(dir.path(), "bare.toml", &text);
+    let small = ["image.width=48".to_string(), "image.height=32".into(), "node.dem.renderer=terrain-reference".into()];
+    let render = |extra: Option<String>| {
+        let sets: Vec<String> = small.iter().cloned().chain(extra).collect();
+        render::render_scene(&Scene::load(&path, &sets).unwrap(), None).unwrap()
+    };
+    let range = |f: &render::Frame| f.scales.iter().find(|s| s.title.starts_with("elevation")).map(|s| s.range);
+    let plain = render(None);
+    let own = range(&plain).expect("an elevation scale");
+    let wide = render(Some("node.dem.elevation_range=[-2000.0, 6000.0]".into()));
+    assert_eq!(range(&wide), Some([-2000.0, 6000.0]));
+    let diff = |a: &render::Frame, b: &render::Frame| {
+        a.rgba.iter().zip(&b.rgba).flat_map(|(p, q)| (0..3).map(move |c| (p[c] - q[c]).abs())).fold(0f32, f32::max)
+    };
+    assert!(diff(&plain, &wide) > 0.05, "a wider range changes the colours");
+    // The data's own range: the same colours.
+    let same = render(Some(format!("node.dem.elevation_range=[{}, {}]", own[0], own[1])));
+    assert!(diff(&plain, &same) <= 1e-5, "the data's own range: colours differ by {}", diff(&plain, &same));
+    for (set, why) in [("node.dem.elevation_range=[5.0, 5.0]", "low < high"), ("node.dem.elevation_range=[1.0, nan]", "finite")] {
+        let e = format!("{:#}", Scene::load(&path, &[set.to_string()]).err().expect("refused"));
+        assert!(e.contains("elevation_range") && e.contains(why), "{e}");
+    }
 }

@@ -60,6 +60,7 @@ fn sun_shading(to_sun: Option<[f64; 3]>) -> volterra::render::terrain::shading::
         smooth: true,
         rays_per_side: 1,
         colormap: volterra::render::colormap::Colormap::Hypsometric,
+        colour_range: None,
     }
 }
 

@@ -46,6 +46,7 @@ fn puget_sound_depth_matches_vtk_triangle_mesh() {
             smooth: true,
             rays_per_side: 1,
             colormap: volterra::render::colormap::Colormap::Hypsometric,
+            colour_range: None,
         };
         let triangles = render_surface(&grid, None, &rays, &shading, Surface::Triangles).unwrap();
         let mut bilinear = render_surface(&grid, None, &rays, &shading, Surface::Bilinear).unwrap();

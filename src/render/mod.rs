@@ -238,8 +238,10 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 Ok(p)
             })?;
             let mut frame = match settings {
-                NodeSettings::Terrain(s) => prepared.render(&scene.file.lights, &rays, s)?,
-                NodeSettings::TerrainReference(s) => prepared.render_reference(&scene.file.lights, &rays, &s.into())?,
+                NodeSettings::Terrain(s) => prepared.render(&scene.file.lights, &rays, s, scene.elevation_range(node))?,
+                NodeSettings::TerrainReference(s) => {
+                    prepared.render_reference(&scene.file.lights, &rays, &s.into(), scene.elevation_range(node))?
+                }
                 _ => unreachable!(),
             };
             // What the reader noted of the raster (an overview read for the memory limit,

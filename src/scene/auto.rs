@@ -54,6 +54,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         texture: None,
         texture_colormap: None,
         texture_range: None,
+        elevation_range: None,
         extent: opts.geotiff.extent,
         arrays: None,
         medium: None,

@@ -186,6 +186,10 @@ pub struct NodeDesc {
     pub texture_colormap: Option<String>,
     /// A single-band GeoTIFF texture's values at the colour map's ends (default: its range).
     pub texture_range: Option<[f64; 2]>,
+    /// The elevations (metres) at the ends of the terrain renderer's elevation colour map
+    /// (default: the lowest and highest valid sample read — for a view window, the whole
+    /// raster's, so the colours do not change with what is read).
+    pub elevation_range: Option<[f64; 2]>,
     // --- particles
     pub arrays: Option<ParticleArrayNames>,
     pub medium: Option<Medium>,
@@ -634,6 +638,14 @@ impl Scene {
                     bail!("{src}: node '{}': texture_range [{lo}, {hi}] must be two finite values, low < high", n.name);
                 }
             }
+            if let Some([lo, hi]) = n.elevation_range {
+                if n.kind != NodeKind::Heightfield {
+                    bail!("{src}: node '{}': elevation_range applies to heightfield nodes only", n.name);
+                }
+                if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                    bail!("{src}: node '{}': elevation_range [{lo}, {hi}] must be two finite values, low < high", n.name);
+                }
+            }
             if n.kind != NodeKind::Particles && (n.color_by.is_some() || n.color_range.is_some()) {
                 bail!("{src}: node '{}': color_by and color_range apply to particle nodes only", n.name);
             }
@@ -922,6 +934,12 @@ impl Scene {
         }
     }
 
+    /// The elevations at the ends of heightfield node `node`'s elevation colours: its
+    /// `elevation_range`, else for a view window the whole raster's (None: what is read).
+    pub fn elevation_range(&self, node: usize) -> Option<[f64; 2]> {
+        self.file.nodes[node].elevation_range.or_else(|| self.view_windows[node].as_ref().map(|w| w.elevation_range))
+    }
+
     /// What is said of a heightfield node read in a view window (which samples, why).
     pub fn view_window_note(&self, node: usize) -> Option<&str> {
         self.view_windows[node].as_ref().map(|w| w.note.as_str())
@@ -1015,7 +1033,8 @@ impl Scene {
             full.full_size[0],
             full.full_size[1]
         );
-        Ok(Some(view_window::ViewWindow { extent, level: plan.level, offset: offset.truncate(), note }))
+        let elevation_range = [lo as f64, hi as f64];
+        Ok(Some(view_window::ViewWindow { extent, level: plan.level, offset: offset.truncate(), elevation_range, note }))
     }
 
     pub fn node_index(&self, name: &str) -> Option<usize> {

@@ -21,6 +21,9 @@ pub struct ViewWindow {
     /// The window's south-west sample's centre in the node's frame: metres east and north
     /// of the full raster's south-west sample (the node's origin when read whole).
     pub offset: DVec2,
+    /// The whole raster's elevation range (metres) as found on its coarsest level: the
+    /// elevation colours' ends, so they do not change with the window.
+    pub elevation_range: [f64; 2],
     /// What is said with each frame drawn from it.
     pub note: String,
 }

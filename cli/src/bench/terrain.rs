@@ -148,6 +148,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         smooth: true,
         rays_per_side: 1,
         colormap: volterra::render::colormap::Colormap::Hypsometric,
+        colour_range: None,
     };
     // The reference is f64 and cell by cell: its image is kept small.
     let (rw, rh) = (192usize, (192 * b.height / b.width).max(1));

@@ -243,7 +243,7 @@ impl Prepared {
         Ok(self.gpu.get_or_init(|| t))
     }
 
-    fn shading(&self, lights: &[Light], settings: &Settings) -> Result<shading::Shading> {
+    fn shading(&self, lights: &[Light], settings: &Settings, colour_range: Option<[f64; 2]>) -> Result<shading::Shading> {
         settings.check()?;
         Ok(shading::Shading {
             lights: shading::sun_lights(lights)?,
@@ -252,12 +252,14 @@ impl Prepared {
             smooth: settings.normals == Normals::Smooth,
             rays_per_side: settings.rays_per_side()?,
             colormap: settings.colormap,
+            colour_range,
         })
     }
 
     /// Renders with the GPU ray-caster (the pyramid is built on first use).
-    pub fn render(&self, lights: &[Light], rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-        let shading = self.shading(lights, settings)?;
+    /// `colour_range`: the elevations at the colour map's ends (None: the valid range read).
+    pub fn render(&self, lights: &[Light], rays: &RayGenerator, settings: &Settings, colour_range: Option<[f64; 2]>) -> Result<Frame> {
+        let shading = self.shading(lights, settings, colour_range)?;
         let gpu = gpu::gpu()?;
         let terrain = self.gpu_terrain(gpu)?;
         let view = gpu::View {
@@ -268,28 +270,35 @@ impl Prepared {
             max_steps: settings.step_cap(&self.grid),
         };
         let mut frame = terrain.render(gpu, &view)?;
-        frame.scales.extend(self.elevation_scale(settings.colormap));
+        frame.scales.extend(self.elevation_scale(settings.colormap, colour_range));
         Ok(frame)
     }
 
-    /// The elevation colours' scalar bar for the PNG preview: the colour map from the lowest
-    /// to the highest valid elevation (metres) — unless a stretched drape covers it all.
-    fn elevation_scale(&self, colormap: Colormap) -> Option<super::colormap::ColourScale> {
+    /// The elevation colours' scalar bar for the PNG preview: the colour map over
+    /// `colour_range`, else from the lowest to the highest valid elevation (metres) — unless
+    /// a stretched drape covers it all.
+    fn elevation_scale(&self, colormap: Colormap, colour_range: Option<[f64; 2]>) -> Option<super::colormap::ColourScale> {
         let covered = self.texture.as_ref().is_some_and(|t| t.georef.is_none() && t.rgba.chunks_exact(4).all(|p| p[3] == 255));
         let g = &self.grid;
         (!covered && g.any_valid).then(|| super::colormap::ColourScale {
             title: "elevation (m)".into(),
             colormap,
-            range: [g.z_ref + g.z_lo, g.z_ref + g.z_hi],
+            range: colour_range.unwrap_or([g.z_ref + g.z_lo, g.z_ref + g.z_hi]),
         })
     }
 
     /// Renders with the f64 CPU reference (`traversal` and `max_steps` do not apply).
-    pub fn render_reference(&self, lights: &[Light], rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-        let shading = self.shading(lights, settings)?;
+    pub fn render_reference(
+        &self,
+        lights: &[Light],
+        rays: &RayGenerator,
+        settings: &Settings,
+        colour_range: Option<[f64; 2]>,
+    ) -> Result<Frame> {
+        let shading = self.shading(lights, settings, colour_range)?;
         let texture = self.texture.as_deref().map(|d| shading::LinearTexture::new(d, self.placement));
         let mut frame = reference::render(&self.grid, texture.as_ref(), rays, &shading)?;
-        frame.scales.extend(self.elevation_scale(settings.colormap));
+        frame.scales.extend(self.elevation_scale(settings.colormap, colour_range));
         Ok(frame)
     }
 }
@@ -305,12 +314,12 @@ impl TerrainInput<'_> {
 
 /// Renders with the GPU ray-caster.
 pub fn render(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-    input.prepare()?.render(input.lights, rays, settings)
+    input.prepare()?.render(input.lights, rays, settings, None)
 }
 
 /// Renders with the f64 CPU reference (`traversal` and `max_steps` do not apply).
 pub fn render_reference(input: &TerrainInput, rays: &RayGenerator, settings: &Settings) -> Result<Frame> {
-    input.prepare()?.render_reference(input.lights, rays, settings)
+    input.prepare()?.render_reference(input.lights, rays, settings, None)
 }
 
 /// How closely two terrain renders agree on what they hit and how far away it is.

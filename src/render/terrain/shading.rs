@@ -46,9 +46,24 @@ pub fn sun_lights(lights: &[Light]) -> Result<Vec<SunLight>> {
 /// Entries of the elevation colour table both paths look colours up in.
 pub const RAMP_ENTRIES: usize = 256;
 
-/// `colormap` at 256 evenly spaced values: the table the GPU gets, and the reference uses.
-pub fn elevation_ramp(colormap: Colormap) -> Vec<[f32; 3]> {
-    (0..RAMP_ENTRIES).map(|i| colormap.at(i as f64 / (RAMP_ENTRIES - 1) as f64)).collect()
+/// The colour table the GPU gets, and the reference uses: 256 entries evenly spaced over
+/// the grid's elevations `grid_range` (metres; both paths index it by the elevation's place
+/// in that range), each `colormap` at that elevation's place in `colour_range` (clamped to
+/// its ends) — the same where the two ranges are one, so a colour range costs the shaders
+/// nothing.
+pub fn elevation_ramp(colormap: Colormap, grid_range: [f64; 2], colour_range: Option<[f64; 2]>) -> Vec<[f32; 3]> {
+    let [lo, hi] = grid_range;
+    let [clo, chi] = colour_range.unwrap_or(grid_range);
+    let span = (chi - clo).max(1e-9);
+    (0..RAMP_ENTRIES)
+        .map(|i| {
+            let t = i as f64 / (RAMP_ENTRIES - 1) as f64;
+            if colour_range.is_none() {
+                return colormap.at(t);
+            }
+            colormap.at(((lo + t * (hi - lo) - clo) / span).clamp(0.0, 1.0))
+        })
+        .collect()
 }
 
 /// The elevation colour at normalised elevation f ∈ [0, 1] (clamped): linear between the
@@ -128,8 +143,10 @@ pub struct Shading {
     /// the pixel's centre). Depth stays the centre ray's.
     pub rays_per_side: u32,
     /// The colour map elevations are shown through (low at the lowest valid sample, high at
-    /// the highest).
+    /// the highest, unless `colour_range` says otherwise).
     pub colormap: Colormap,
+    /// The elevations (metres) at the colour map's ends; None: the grid's valid range.
+    pub colour_range: Option<[f64; 2]>,
 }
 
 /// Lambert shading: base · (ambient + Σ radiance · max(0, n·l) · lit).
@@ -144,4 +161,29 @@ pub fn shade(base: [f64; 3], normal: DVec3, shading: &Shading, lit: &dyn Fn(usiz
         }
     }
     [0, 1, 2].map(|c| base[c] * e[c])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_colour_range_remaps_the_table_over_the_grids_elevations() {
+        let map = Colormap::Hypsometric;
+        let plain = elevation_ramp(map, [100.0, 600.0], None);
+        // The grid's own range as the colour range: the same table (to rounding).
+        let same = elevation_ramp(map, [100.0, 600.0], Some([100.0, 600.0]));
+        let close = |a: [f32; 3], b: [f32; 3]| a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-6);
+        assert!(plain.iter().zip(&same).all(|(a, b)| close(*a, *b)));
+        // Colours over 0..1100 m: the grid's 100..600 m take the map's 1/11..6/11.
+        let wide = elevation_ramp(map, [100.0, 600.0], Some([0.0, 1100.0]));
+        for (i, c) in wide.iter().enumerate() {
+            let e = 100.0 + 500.0 * i as f64 / (RAMP_ENTRIES - 1) as f64;
+            assert!(close(*c, map.at(e / 1100.0)), "entry {i}");
+        }
+        // A narrower range clamps at its ends: below 300 m the low colour, above 400 m the high.
+        let narrow = elevation_ramp(map, [100.0, 600.0], Some([300.0, 400.0]));
+        assert!(close(narrow[0], map.at(0.0)) && close(narrow[RAMP_ENTRIES - 1], map.at(1.0)));
+        assert!(!close(plain[0], narrow[RAMP_ENTRIES / 2]), "the middle moved along the map");
+    }
 }
