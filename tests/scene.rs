@@ -536,8 +536,20 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
     if common::gpu().is_some() {
         renderers.push("terrain");
     }
-    for renderer in renderers {
-        let sets = [format!("node.dem.renderer={renderer}")];
+    // Also with the node turned, moved and its heights exaggerated: the frusta are clipped
+    // in the node's frame.
+    let placed = [
+        "node.dem.transform.rotate=[0.0, 0.0, 12.0]",
+        "node.dem.transform.scale=[1.0, 1.0, 2.5]",
+        "node.dem.transform.translate=[2500.0, -400.0, -300.0]",
+    ];
+    let cases = renderers.iter().flat_map(|r| [(*r, false), (*r, true)]);
+    for (renderer, moved) in cases {
+        let mut sets = vec![format!("node.dem.renderer={renderer}")];
+        if moved {
+            sets.extend(placed.iter().map(|s| s.to_string()));
+        }
+        let renderer = format!("{renderer}{}", if moved { " (node turned, moved, exaggerated)" } else { "" });
         let whole = Scene::load(&scene_path, &sets).unwrap();
         let camera = whole.camera(None).unwrap();
         let whole = whole.with_views(std::slice::from_ref(&camera)).unwrap();
@@ -569,12 +581,18 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
         assert!(!rel.is_empty(), "{renderer}: no pixel hit in both");
         let (median, max) = (rel[rel.len() / 2], rel[rel.len() - 1]);
         eprintln!("{renderer}: window {}×{} of 1200×900; depth vs the whole: median {median:.1e}, max {max:.1e}, {coverage} pixels hit in one only", read.width, read.height);
-        assert!(coverage == 0 && median <= 1e-6 && max <= 1e-5, "{renderer}: median {median:e}, max {max:e}, coverage {coverage}");
-        // The elevation colours span the whole raster's range (found in one pass over its
-        // rows: it has no overviews), not the window's: the same colours, the same scale.
+        // The window's terrain spans the whole raster's elevations (found in one pass over
+        // its rows: it has no overviews): the walls at the raster's edges reach as deep, the
+        // heights are the same relative to the grid's middle, the elevation colours span
+        // the same range. The f64 reference draws the same frame bit for bit; the GPU's
+        // f32 within a few ulps.
         let colour = a.rgba.iter().zip(&b.rgba).flat_map(|(p, q)| (0..3).map(move |c| (p[c] - q[c]).abs())).fold(0f32, f32::max);
         eprintln!("{renderer}: largest colour difference {colour:.1e}");
-        assert!(colour <= 2e-3, "{renderer}: colours differ by up to {colour}");
+        let bound = if renderer.starts_with("terrain-reference") { 0.0 } else { 1e-6 };
+        assert!(
+            coverage == 0 && max <= bound && f64::from(colour) <= 10.0 * bound,
+            "{renderer}: depth median {median:e}, max {max:e}, coverage {coverage}, colour {colour:e}"
+        );
         let range = |f: &render::Frame| f.scales.iter().find(|s| s.title.starts_with("elevation")).map(|s| s.range);
         assert_eq!(range(&b), range(&a), "{renderer}: the scalar bar's range");
     }

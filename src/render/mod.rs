@@ -143,6 +143,7 @@ impl RenderCache {
         heights: &TerrainData,
         texture: Option<Arc<crate::scene::drape::Drape>>,
         node_to_world: glam::DMat4,
+        span: Option<[f64; 2]>,
         limits: &Limits,
     ) -> Result<Arc<terrain::Prepared>> {
         let tex = texture.as_ref().map_or(0, |t| Arc::as_ptr(t) as usize);
@@ -155,7 +156,8 @@ impl RenderCache {
             }
         }
         // The prepared terrain holds the texture, so its address stays taken too.
-        let p = Arc::new(terrain::Prepared::new(heights, texture, node_to_world, limits)?);
+        // The span is the view window's, fixed with the heights the key names.
+        let p = Arc::new(terrain::Prepared::new(heights, texture, node_to_world, span, limits)?);
         map.insert(key, (heights.clone(), placement, p.clone()));
         Ok(p)
     }
@@ -231,7 +233,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         }
         (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), Loaded::Terrain(heights)) => {
             let prepared = timed(&mut prepare, || {
-                let p = cache.terrain(&heights, texture.clone(), node_to_world, scene.limits())?;
+                let p = cache.terrain(&heights, texture.clone(), node_to_world, scene.terrain_span(node), scene.limits())?;
                 if matches!(settings, NodeSettings::Terrain(_)) {
                     p.prepare_gpu()?;
                 }

@@ -940,6 +940,12 @@ impl Scene {
         self.file.nodes[node].elevation_range.or_else(|| self.view_windows[node].as_ref().map(|w| w.elevation_range))
     }
 
+    /// The elevations heightfield node `node`'s solid spans at least: for a view window the
+    /// whole raster's range, so the terrain draws as the whole would (None: what is read).
+    pub fn terrain_span(&self, node: usize) -> Option<[f64; 2]> {
+        self.view_windows[node].as_ref().map(|w| w.elevation_range)
+    }
+
     /// What is said of a heightfield node read in a view window (which samples, why).
     pub fn view_window_note(&self, node: usize) -> Option<&str> {
         self.view_windows[node].as_ref().map(|w| w.note.as_str())

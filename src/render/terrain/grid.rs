@@ -81,6 +81,21 @@ impl TerrainGrid {
         TerrainGrid::with_samples([nx, ny], cell, range, Samples::Held(hf), node_to_world)
     }
 
+    /// The grid with its solid spanning at least `span` (metres): its box from the lower of
+    /// its own lowest sample and `span[0]` (the walls at its edges reach down there) to the
+    /// higher of its highest and `span[1]`, `z_ref` their middle. A view window's grid spans
+    /// the whole raster's range, so it draws as the whole would (the walls at the raster's
+    /// edges as deep, the same heights relative to `z_ref`). A grid with no valid sample
+    /// stays as it is.
+    pub fn spanning(self, span: [f64; 2], node_to_world: DMat4) -> Result<TerrainGrid> {
+        if !self.any_valid {
+            return Ok(self);
+        }
+        let lo = (self.z_ref + self.z_lo).min(span[0]) as f32;
+        let hi = (self.z_ref + self.z_hi).max(span[1]) as f32;
+        TerrainGrid::with_samples([self.nx, self.ny], self.cell, Some((lo, hi)), self.samples, node_to_world)
+    }
+
     /// The grid of heights read row by row from `rows` (the elevation range found by
     /// reading every row once).
     pub fn from_rows(rows: Arc<dyn HeightRows>, node_to_world: DMat4) -> Result<TerrainGrid> {

@@ -212,7 +212,15 @@ pub fn drape_placement(hf: &GridGeoref, drape: &Drape) -> Result<[f64; 4]> {
 impl Prepared {
     /// `heights` are shared, not copied (a GeoTIFF read row by row is held only in the
     /// GPU's textures, once they are built).
-    pub fn new(heights: &TerrainData, texture: Option<std::sync::Arc<Drape>>, node_to_world: DMat4, limits: &Limits) -> Result<Prepared> {
+    /// `span`: elevations (metres) the terrain's solid spans at least (a view window's: the
+    /// whole raster's range; see `TerrainGrid::spanning`).
+    pub fn new(
+        heights: &TerrainData,
+        texture: Option<std::sync::Arc<Drape>>,
+        node_to_world: DMat4,
+        span: Option<[f64; 2]>,
+        limits: &Limits,
+    ) -> Result<Prepared> {
         // The GPU's textures, against the memory limit (on lavapipe they live in host memory,
         // allocated by Mesa outside this count; the grid shares the heights): 4 bytes a
         // sample of heights (up to 5 % more in tiles) and a pyramid of a sixth of that.
@@ -226,6 +234,10 @@ impl Prepared {
         let grid = match heights {
             TerrainData::Held(hf) => grid::TerrainGrid::shared(hf.clone(), node_to_world)?,
             TerrainData::Rows(rows) => grid::TerrainGrid::from_rows(rows.clone(), node_to_world)?,
+        };
+        let grid = match span {
+            Some(span) => grid.spanning(span, node_to_world)?,
+            None => grid,
         };
         Ok(Prepared { grid, texture, placement, gpu: std::sync::OnceLock::new() })
     }
@@ -308,7 +320,7 @@ impl TerrainInput<'_> {
     /// its own limits to [`Prepared::new`]).
     fn prepare(&self) -> Result<Prepared> {
         let hf = TerrainData::Held(std::sync::Arc::new(self.heightfield.clone()));
-        Prepared::new(&hf, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world, &Limits::default())
+        Prepared::new(&hf, self.texture.map(|t| std::sync::Arc::new(t.clone())), self.node_to_world, None, &Limits::default())
     }
 }
 
