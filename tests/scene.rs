@@ -575,6 +575,13 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
             read.height
         );
 
+        // Views handed again once the window is read: what was read stays where it was.
+        let (placed, note) = (windowed.world_transform(0), windowed.view_window_note(0).map(str::to_string));
+        let mut far = camera.clone();
+        far.position[0] -= 20000.0;
+        let windowed = windowed.with_views(&[far]).unwrap();
+        assert_eq!((windowed.world_transform(0), windowed.view_window_note(0).map(str::to_string)), (placed, note), "{renderer}");
+
         let hits = a.depth.iter().filter(|d| d.is_finite()).count();
         assert!(hits > a.depth.len() / 2, "{renderer}: the terrain fills the view ({hits} hits)");
         let (rel, coverage) = depth_differences(&b, &a);

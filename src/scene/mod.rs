@@ -964,21 +964,23 @@ impl Scene {
             return Ok(self);
         }
         for node in 0..self.file.nodes.len() {
+            if self.data[node].get().is_some() || self.height_rows[node].get().is_some() {
+                // What was read or opened stays, placed as it was.
+                continue;
+            }
             let window = self.view_window(node, cameras).with_context(|| format!("node '{}'", self.file.nodes[node].name))?;
             self.view_windows[node] = window.map(Arc::new);
         }
         Ok(self)
     }
 
+    /// Node `node`'s view window for `cameras`; None where it is read as before: not a
+    /// GeoTIFF heightfield drawn, an `extent` named, the whole fitting, a geographic CRS, or
+    /// the whole of the level that fits seen anyway.
     fn view_window(&self, node: usize, cameras: &[Camera]) -> Result<Option<view_window::ViewWindow>> {
         use volterra_formats::geotiff::{elevation_plan, GeoTiffOptions};
         let n = &self.file.nodes[node];
-        if n.kind != NodeKind::Heightfield
-            || !n.visible
-            || n.extent.is_some()
-            || self.renderer(node).is_none()
-            || self.data[node].get().is_some()
-        {
+        if n.kind != NodeKind::Heightfield || !n.visible || n.extent.is_some() || self.renderer(node).is_none() {
             return Ok(None);
         }
         let (path, _) = self.load_plan(node)?;
