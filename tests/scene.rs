@@ -605,6 +605,23 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
     }
 }
 
+/// A PNG drape is stretched over what is read, so a DEM draped with one gets no view
+/// window (it would shrink the drape onto the window): it is read as before — refused here.
+#[test]
+fn a_dem_with_a_stretched_png_drape_gets_no_view_window() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene_path = write(dir.path(), "view.toml", VIEW_WINDOW_SCENE);
+    view_window_dem(&dir.path().join("dem.tif"));
+    let drape = volterra_formats::RgbImage { width: 8, height: 6, data: [200, 120, 40].repeat(48) };
+    volterra_formats::image::write_png_rgb8(&dir.path().join("drape.png"), &drape).unwrap();
+    let scene = Scene::load(&scene_path, &["node.dem.texture=\"drape.png\"".to_string()]).unwrap();
+    let camera = scene.camera(None).unwrap();
+    let scene = scene.with_limits(volterra_formats::Limits::max(3_000_000)).with_views(std::slice::from_ref(&camera)).unwrap();
+    assert_eq!(scene.view_window_note(0), None);
+    let e = format!("{:#}", render::render_view(&scene, &camera, (96, 64), &Default::default()).unwrap_err());
+    assert!(e.contains("memory limit"), "{e}");
+}
+
 /// The same DEM tiled with `gdaladdo` overviews (2, 4, 8) under a limit that fits neither
 /// the whole (it would be read from the 4× overview) nor the view's window at full
 /// resolution: the window is read from the 2× overview, and every sample read lies in the

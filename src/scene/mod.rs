@@ -975,8 +975,9 @@ impl Scene {
     }
 
     /// Node `node`'s view window for `cameras`; None where it is read as before: not a
-    /// GeoTIFF heightfield drawn, an `extent` named, the whole fitting, a geographic CRS, or
-    /// the whole of the level that fits seen anyway.
+    /// GeoTIFF heightfield drawn, an `extent` named, a PNG drape (stretched over what is
+    /// read), the whole fitting, a geographic CRS, or the whole of the level that fits seen
+    /// anyway.
     fn view_window(&self, node: usize, cameras: &[Camera]) -> Result<Option<view_window::ViewWindow>> {
         use volterra_formats::geotiff::{elevation_plan, GeoTiffOptions};
         let n = &self.file.nodes[node];
@@ -985,6 +986,14 @@ impl Scene {
         }
         let (path, _) = self.load_plan(node)?;
         if volterra_formats::detect(&path)? != volterra_formats::FileKind::GeoTiff {
+            return Ok(None);
+        }
+        // A PNG drape is stretched over what is read: over a window it would shrink.
+        let stretched = n.texture.as_ref().and_then(|t| t.extension()).and_then(|e| e.to_str()).is_some_and(|e| {
+            let e = e.to_ascii_lowercase();
+            e != "tif" && e != "tiff"
+        });
+        if stretched {
             return Ok(None);
         }
         let gpu = matches!(self.node_settings(node), Some(NodeSettings::Terrain(_)));
