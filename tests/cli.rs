@@ -299,30 +299,17 @@ fn info_never_passes_the_memory_limit_it_is_given() {
 fn render_reads_only_the_window_its_cameras_see_of_a_dem_beyond_the_memory_limit() {
     let dir = tempfile::tempdir().unwrap();
     // 1200 × 900 float32 samples: 4.3 MB.
-    let hf = common::utm_heightfield(1200, 900, |c, r| Some((400.0 + 250.0 * (c as f64 / 103.0).sin() * (r as f64 / 77.0).cos()) as f32));
-    volterra_formats::geotiff::write_geotiff(&dir.path().join("dem.tif"), &hf).unwrap();
+    common::view_window_dem(&dir.path().join("dem.tif"));
     let scene = dir.path().join("view.toml");
-    let text = r#"
-[image]
-width = 48
-height = 32
-[camera]
-position = [26000.0, 1500.0, 3000.0]
-focal_point = [29000.0, 6000.0, 300.0]
-view_up = [0.0, 0.0, 1.0]
-view_angle = 30.0
+    let keyframes = r#"
 [[keyframe]]
 position = [26000.0, 1500.0, 3000.0]
 focal_point = [29000.0, 6000.0, 300.0]
 [[keyframe]]
 position = [27000.0, 2500.0, 3000.0]
 focal_point = [30000.0, 7000.0, 300.0]
-[[node]]
-name = "dem"
-kind = "heightfield"
-file = "dem.tif"
-renderer = "terrain-reference"
 "#;
+    let text = format!("{}{keyframes}", common::VIEW_WINDOW_SCENE.replace("width = 96\nheight = 64", "width = 48\nheight = 32"));
     std::fs::write(&scene, text).unwrap();
     let (scene, out) = (scene.to_str().unwrap(), dir.path().join("f.exr"));
     let one = volterra(&["--max-memory", "4M", "render", scene, "-o", out.to_str().unwrap()]);

@@ -478,34 +478,6 @@ fn an_edited_extent_reads_the_new_window_and_a_moved_camera_reads_nothing() {
     assert_eq!((part.width, part.height), (50, 100));
 }
 
-/// A view of part of a DEM: 1200 × 900 cells of 30 m (UTM 10N, smooth hills), seen from
-/// above its south-east quarter.
-const VIEW_WINDOW_SCENE: &str = r#"
-[image]
-width = 96
-height = 64
-
-[camera]
-position = [26000.0, 1500.0, 3000.0]
-focal_point = [29000.0, 6000.0, 300.0]
-view_up = [0.0, 0.0, 1.0]
-view_angle = 30.0
-
-[[node]]
-name = "dem"
-kind = "heightfield"
-file = "dem.tif"
-renderer = "terrain-reference"
-"#;
-
-fn view_window_dem(path: &Path) {
-    let hf = common::utm_heightfield(1200, 900, |c, r| {
-        let (x, y) = (c as f64 * 30.0, (899 - r) as f64 * 30.0);
-        Some((400.0 + 250.0 * (x / 3100.0).sin() * (y / 2300.0).cos() + 0.004 * x) as f32)
-    });
-    volterra_formats::geotiff::write_geotiff(path, &hf).unwrap();
-}
-
 /// Relative depth differences between two frames' hits, and the pixels hit in one only.
 fn depth_differences(a: &render::Frame, b: &render::Frame) -> (Vec<f64>, usize) {
     let mut rel = Vec::new();
@@ -529,8 +501,8 @@ fn depth_differences(a: &render::Frame, b: &render::Frame) -> (Vec<f64>, usize) 
 #[test]
 fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws_as_the_whole() {
     let dir = tempfile::tempdir().unwrap();
-    let scene_path = write(dir.path(), "view.toml", VIEW_WINDOW_SCENE);
-    view_window_dem(&dir.path().join("dem.tif"));
+    let scene_path = write(dir.path(), "view.toml", common::VIEW_WINDOW_SCENE);
+    common::view_window_dem(&dir.path().join("dem.tif"));
     let size = (96, 64);
     let mut renderers = vec!["terrain-reference"];
     if common::gpu().is_some() {
@@ -610,8 +582,8 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
 #[test]
 fn a_dem_with_a_stretched_png_drape_gets_no_view_window() {
     let dir = tempfile::tempdir().unwrap();
-    let scene_path = write(dir.path(), "view.toml", VIEW_WINDOW_SCENE);
-    view_window_dem(&dir.path().join("dem.tif"));
+    let scene_path = write(dir.path(), "view.toml", common::VIEW_WINDOW_SCENE);
+    common::view_window_dem(&dir.path().join("dem.tif"));
     let drape = volterra_formats::RgbImage { width: 8, height: 6, data: [200, 120, 40].repeat(48) };
     volterra_formats::image::write_png_rgb8(&dir.path().join("drape.png"), &drape).unwrap();
     let scene = Scene::load(&scene_path, &["node.dem.texture=\"drape.png\"".to_string()]).unwrap();
@@ -631,9 +603,9 @@ fn a_dem_with_a_stretched_png_drape_gets_no_view_window() {
 fn a_view_window_read_from_an_overview_keeps_every_sample_where_its_map_coordinates_put_it() {
     let (Some(translate), Some(addo)) = (common::gdal_tool("gdal_translate"), common::gdal_tool("gdaladdo")) else { return };
     let dir = tempfile::tempdir().unwrap();
-    let scene_path = write(dir.path(), "view.toml", VIEW_WINDOW_SCENE);
+    let scene_path = write(dir.path(), "view.toml", common::VIEW_WINDOW_SCENE);
     let plain = dir.path().join("plain.tif");
-    view_window_dem(&plain);
+    common::view_window_dem(&plain);
     let tiled = dir.path().join("dem.tif");
     let run = |cmd: &mut std::process::Command| {
         let out = cmd.output().unwrap();

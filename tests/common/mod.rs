@@ -141,3 +141,32 @@ pub fn gdal_tool(name: &str) -> Option<PathBuf> {
     eprintln!("SKIPPED: {name} not installed (apt install gdal-bin)");
     None
 }
+
+/// A view of part of a DEM: 1200 × 900 cells of 30 m (UTM 10N, smooth hills), seen from
+/// above its south-east quarter.
+pub const VIEW_WINDOW_SCENE: &str = r#"
+[image]
+width = 96
+height = 64
+
+[camera]
+position = [26000.0, 1500.0, 3000.0]
+focal_point = [29000.0, 6000.0, 300.0]
+view_up = [0.0, 0.0, 1.0]
+view_angle = 30.0
+
+[[node]]
+name = "dem"
+kind = "heightfield"
+file = "dem.tif"
+renderer = "terrain-reference"
+"#;
+
+/// The DEM `VIEW_WINDOW_SCENE` draws, written as a float32 GeoTIFF (strips, no overviews).
+pub fn view_window_dem(path: &std::path::Path) {
+    let hf = utm_heightfield(1200, 900, |c, r| {
+        let (x, y) = (c as f64 * 30.0, (899 - r) as f64 * 30.0);
+        Some((400.0 + 250.0 * (x / 3100.0).sin() * (y / 2300.0).cos() + 0.004 * x) as f32)
+    });
+    volterra_formats::geotiff::write_geotiff(path, &hf).unwrap();
+}
