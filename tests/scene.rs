@@ -478,21 +478,6 @@ fn an_edited_extent_reads_the_new_window_and_a_moved_camera_reads_nothing() {
     assert_eq!((part.width, part.height), (50, 100));
 }
 
-/// Relative depth differences between two frames' hits, and the pixels hit in one only.
-fn depth_differences(a: &render::Frame, b: &render::Frame) -> (Vec<f64>, usize) {
-    let mut rel = Vec::new();
-    let mut coverage = 0;
-    for (&da, &db) in a.depth.iter().zip(&b.depth) {
-        match (da.is_finite(), db.is_finite()) {
-            (true, true) => rel.push(((da - db).abs() / db.abs().max(1e-30)) as f64),
-            (false, false) => {}
-            _ => coverage += 1,
-        }
-    }
-    rel.sort_by(f64::total_cmp);
-    (rel, coverage)
-}
-
 /// Issue 20, "only what a view needs is read when the DEM is larger than memory allows": a
 /// GeoTIFF DEM whose whole raster passes the memory limit (and which has no overviews to
 /// fall back on) is refused — unless the render's cameras are known first
@@ -556,9 +541,9 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
 
         let hits = a.depth.iter().filter(|d| d.is_finite()).count();
         assert!(hits > a.depth.len() / 2, "{renderer}: the terrain fills the view ({hits} hits)");
-        let (rel, coverage) = depth_differences(&b, &a);
-        assert!(!rel.is_empty(), "{renderer}: no pixel hit in both");
-        let (median, max) = (rel[rel.len() / 2], rel[rel.len() - 1]);
+        let agreement = render::terrain::depth_agreement(&b, &a);
+        assert!(agreement.both_hit > 0, "{renderer}: no pixel hit in both");
+        let (median, max, coverage) = (agreement.median_rel, agreement.max_rel, agreement.mismatched);
         eprintln!("{renderer}: window {}×{} of 1200×900; depth vs the whole: median {median:.1e}, max {max:.1e}, {coverage} pixels hit in one only", read.width, read.height);
         // The window's terrain spans the whole raster's elevations (found in one pass over
         // its rows: it has no overviews): the walls at the raster's edges reach as deep, the
@@ -647,8 +632,9 @@ fn a_view_window_read_from_an_overview_keeps_every_sample_where_its_map_coordina
         );
     }
     // The 2× overview drawn where the full raster is: depths close to the full raster's.
-    let (rel, coverage) = depth_differences(&b, &a);
-    let median = rel[rel.len() / 2];
+    let agreement = render::terrain::depth_agreement(&b, &a);
+    assert!(agreement.both_hit > 0, "no pixel hit in both");
+    let (median, coverage) = (agreement.median_rel, agreement.mismatched);
     eprintln!(
         "2× overview window {}×{}: depth vs the full raster's median {median:.1e}, {coverage} pixels hit in one only",
         hf.width, hf.height
