@@ -935,15 +935,16 @@ impl Scene {
     }
 
     /// The elevations at the ends of heightfield node `node`'s elevation colours: its
-    /// `elevation_range`, else for a view window the whole raster's (None: what is read).
+    /// `elevation_range` (None: the terrain's own span — for a view window the whole
+    /// raster's, `terrain_span`).
     pub fn elevation_range(&self, node: usize) -> Option<[f64; 2]> {
-        self.file.nodes[node].elevation_range.or_else(|| self.view_windows[node].as_ref().map(|w| w.elevation_range))
+        self.file.nodes[node].elevation_range
     }
 
     /// The elevations heightfield node `node`'s solid spans at least: for a view window the
     /// whole raster's range, so the terrain draws as the whole would (None: what is read).
     pub fn terrain_span(&self, node: usize) -> Option<[f64; 2]> {
-        self.view_windows[node].as_ref().map(|w| w.elevation_range)
+        self.view_windows[node].as_ref().map(|w| w.span)
     }
 
     /// What is said of a heightfield node read in a view window (which samples, why).
@@ -1050,8 +1051,8 @@ impl Scene {
             full.full_size[0],
             full.full_size[1]
         );
-        let elevation_range = [lo as f64, hi as f64];
-        Ok(Some(view_window::ViewWindow { extent, level: plan.level, offset: offset.truncate(), elevation_range, note }))
+        let span = [lo as f64, hi as f64];
+        Ok(Some(view_window::ViewWindow { extent, level: plan.level, offset: offset.truncate(), span, note }))
     }
 
     pub fn node_index(&self, name: &str) -> Option<usize> {

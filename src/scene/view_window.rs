@@ -22,8 +22,8 @@ pub struct ViewWindow {
     /// of the full raster's south-west sample (the node's origin when read whole).
     pub offset: DVec2,
     /// The whole raster's elevation range (metres) as found on its coarsest level: the
-    /// elevation colours' ends, so they do not change with the window.
-    pub elevation_range: [f64; 2],
+    /// window's terrain spans it (walls as deep, elevation colours over the same range).
+    pub span: [f64; 2],
     /// What is said with each frame drawn from it.
     pub note: String,
 }

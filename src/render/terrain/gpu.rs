@@ -825,8 +825,7 @@ impl GpuTerrain {
         p.control = [self.levels - 1, max_steps, traversal as u32, flags];
         p.drape = self.placement;
         p.tiles = self.tiling.params();
-        let grid_range = [grid.z_ref + grid.z_lo, grid.z_ref + grid.z_hi];
-        for (entry, c) in p.ramp.iter_mut().zip(super::shading::elevation_ramp(shading.colormap, grid_range, shading.colour_range)) {
+        for (entry, c) in p.ramp.iter_mut().zip(super::shading::elevation_ramp(shading.colormap, grid.elevations(), shading.colour_range)) {
             *entry = [c[0], c[1], c[2], 0.0];
         }
         p.misc = [

@@ -91,9 +91,15 @@ impl TerrainGrid {
         if !self.any_valid {
             return Ok(self);
         }
-        let lo = (self.z_ref + self.z_lo).min(span[0]) as f32;
-        let hi = (self.z_ref + self.z_hi).max(span[1]) as f32;
+        let [lo, hi] = self.elevations();
+        let (lo, hi) = (lo.min(span[0]) as f32, hi.max(span[1]) as f32);
         TerrainGrid::with_samples([self.nx, self.ny], self.cell, Some((lo, hi)), self.samples, node_to_world)
+    }
+
+    /// The lowest and highest elevation the grid spans, in metres: its valid samples', or
+    /// more where it was made `spanning`. The elevation colours span it by default.
+    pub fn elevations(&self) -> [f64; 2] {
+        [self.z_ref + self.z_lo, self.z_ref + self.z_hi]
     }
 
     /// The grid of heights read row by row from `rows` (the elevation range found by

@@ -295,7 +295,7 @@ impl Prepared {
         (!covered && g.any_valid).then(|| super::colormap::ColourScale {
             title: "elevation (m)".into(),
             colormap,
-            range: colour_range.unwrap_or([g.z_ref + g.z_lo, g.z_ref + g.z_hi]),
+            range: colour_range.unwrap_or(g.elevations()),
         })
     }
 

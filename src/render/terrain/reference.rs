@@ -175,7 +175,7 @@ pub fn render_surface(
 ) -> Result<Frame, Cancelled> {
     let start = Instant::now();
     let (w, h) = rays.size();
-    let ramp = super::shading::elevation_ramp(shading.colormap, [grid.z_ref + grid.z_lo, grid.z_ref + grid.z_hi], shading.colour_range);
+    let ramp = super::shading::elevation_ramp(shading.colormap, grid.elevations(), shading.colour_range);
     let mut frame = Frame::empty(w, h);
     let mut steps = vec![0f32; w * h];
     let mut walls = vec![0f32; w * h];
