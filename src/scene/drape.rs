@@ -43,6 +43,13 @@ pub struct BandColours {
     pub range: Option<[f64; 2]>,
 }
 
+/// Whether the drape at `path` is stretched over the heightfield read (a PNG), rather than
+/// placed by its own georeferencing (a `.tif`/`.tiff` GeoTIFF).
+pub fn is_stretched(path: &Path) -> bool {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or_default().to_ascii_lowercase();
+    ext != "tif" && ext != "tiff"
+}
+
 impl Drape {
     /// An RGB image stretched over the heightfield's extent.
     pub fn stretched(img: &RgbImage) -> Drape {
@@ -50,11 +57,10 @@ impl Drape {
         Drape { width: img.width, height: img.height, rgba, georef: None, scale: None }
     }
 
-    /// Reads a drape: a `.tif`/`.tiff` GeoTIFF (placed by its georeferencing), else a PNG
+    /// Reads a drape (see `is_stretched`): a `.tif`/`.tiff` GeoTIFF (placed by its georeferencing), else a PNG
     /// (stretched). `band` colours a single-band GeoTIFF, and is refused for anything else.
     pub fn load(path: &Path, band: Option<BandColours>, limits: &Limits) -> Result<Drape> {
-        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or_default().to_ascii_lowercase();
-        if ext != "tif" && ext != "tiff" {
+        if is_stretched(path) {
             if band.is_some() {
                 bail!("{}: texture_colormap and texture_range colour a single-band GeoTIFF, not a PNG", path.display());
             }

@@ -990,11 +990,7 @@ impl Scene {
             return Ok(None);
         }
         // A PNG drape is stretched over what is read: over a window it would shrink.
-        let stretched = n.texture.as_ref().and_then(|t| t.extension()).and_then(|e| e.to_str()).is_some_and(|e| {
-            let e = e.to_ascii_lowercase();
-            e != "tif" && e != "tiff"
-        });
-        if stretched {
+        if n.texture.as_deref().is_some_and(drape::is_stretched) {
             return Ok(None);
         }
         let gpu = matches!(self.node_settings(node), Some(NodeSettings::Terrain(_)));
@@ -1004,8 +1000,12 @@ impl Scene {
         if read_whole.as_ref().is_some_and(|p| p.level == 0) {
             return Ok(None);
         }
-        // The full raster's grid (holding nothing, so any level "fits").
-        let full = elevation_plan(&path, &whole, &self.limits, Some(0))?;
+        // The full raster's grid: the whole's plan carries it; where nothing of the whole
+        // fits, a plan holding nothing (any level "fits").
+        let full = match &read_whole {
+            Some(p) => p.clone(),
+            None => elevation_plan(&path, &whole, &self.limits, Some(0))?,
+        };
         if full.crs.geographic {
             return Ok(None);
         }
