@@ -584,6 +584,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                     fac: &fac,
                     shading: slab_shading,
                     crop: &crop,
+                    between: Default::default(),
                     second: second_axis.as_deref().zip(second.as_ref()).map(|(a2, (t2, q2))| SlabSecond {
                         back: SliceRows::new(a2, z, y0, y1, wy),
                         front: (yp >= y_lo && yp <= y_hi).then(|| {
