@@ -113,7 +113,8 @@ pub(super) struct Slab<'a> {
 }
 
 /// The slice rows and gradient rows of the K − 1 points between a slab's slices, for the
-/// first volume and a fused pair's second; each set looked up on first use.
+/// first volume and a fused pair's second; each set looked up on first use, for the K of
+/// the first `composite_run` (a frame has one K, so every run of a slab shares it).
 #[derive(Default)]
 pub(super) struct SlabBetween<'a> {
     rows: OnceCell<BetweenRows<'a>>,
