@@ -309,7 +309,7 @@ focal_point = [29000.0, 6000.0, 300.0]
 position = [27000.0, 2500.0, 3000.0]
 focal_point = [30000.0, 7000.0, 300.0]
 "#;
-    let text = format!("{}{keyframes}", common::VIEW_WINDOW_SCENE.replace("width = 96\nheight = 64", "width = 48\nheight = 32"));
+    let text = format!("{}{keyframes}", common::view_window_scene(48, 32));
     std::fs::write(&scene, text).unwrap();
     let (scene, out) = (scene.to_str().unwrap(), dir.path().join("f.exr"));
     let one = volterra(&["--max-memory", "4M", "render", scene, "-o", out.to_str().unwrap()]);

@@ -486,7 +486,7 @@ fn an_edited_extent_reads_the_new_window_and_a_moved_camera_reads_nothing() {
 #[test]
 fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws_as_the_whole() {
     let dir = tempfile::tempdir().unwrap();
-    let scene_path = write(dir.path(), "view.toml", common::VIEW_WINDOW_SCENE);
+    let scene_path = write(dir.path(), "view.toml", &common::view_window_scene(96, 64));
     common::view_window_dem(&dir.path().join("dem.tif"));
     let size = (96, 64);
     let mut renderers = vec!["terrain-reference"];
@@ -567,7 +567,7 @@ fn a_dem_beyond_the_memory_limit_is_read_only_where_the_camera_sees_it_and_draws
 #[test]
 fn a_dem_with_a_stretched_png_drape_gets_no_view_window() {
     let dir = tempfile::tempdir().unwrap();
-    let scene_path = write(dir.path(), "view.toml", common::VIEW_WINDOW_SCENE);
+    let scene_path = write(dir.path(), "view.toml", &common::view_window_scene(96, 64));
     common::view_window_dem(&dir.path().join("dem.tif"));
     let drape = volterra_formats::RgbImage { width: 8, height: 6, data: [200, 120, 40].repeat(48) };
     volterra_formats::image::write_png_rgb8(&dir.path().join("drape.png"), &drape).unwrap();
@@ -588,7 +588,7 @@ fn a_dem_with_a_stretched_png_drape_gets_no_view_window() {
 fn a_view_window_read_from_an_overview_keeps_every_sample_where_its_map_coordinates_put_it() {
     let (Some(translate), Some(addo)) = (common::gdal_tool("gdal_translate"), common::gdal_tool("gdaladdo")) else { return };
     let dir = tempfile::tempdir().unwrap();
-    let scene_path = write(dir.path(), "view.toml", common::VIEW_WINDOW_SCENE);
+    let scene_path = write(dir.path(), "view.toml", &common::view_window_scene(96, 64));
     let plain = dir.path().join("plain.tif");
     common::view_window_dem(&plain);
     let tiled = dir.path().join("dem.tif");

@@ -142,12 +142,14 @@ pub fn gdal_tool(name: &str) -> Option<PathBuf> {
     None
 }
 
-/// A view of part of a DEM: 1200 × 900 cells of 30 m (UTM 10N, smooth hills), seen from
-/// above its south-east quarter.
-pub const VIEW_WINDOW_SCENE: &str = r#"
+/// A view of part of a DEM at `width` × `height` pixels: 1200 × 900 cells of 30 m (UTM
+/// 10N, smooth hills), seen from above its south-east quarter.
+pub fn view_window_scene(width: u32, height: u32) -> String {
+    format!(
+        r#"
 [image]
-width = 96
-height = 64
+width = {width}
+height = {height}
 
 [camera]
 position = [26000.0, 1500.0, 3000.0]
@@ -160,9 +162,11 @@ name = "dem"
 kind = "heightfield"
 file = "dem.tif"
 renderer = "terrain-reference"
-"#;
+"#
+    )
+}
 
-/// The DEM `VIEW_WINDOW_SCENE` draws, written as a float32 GeoTIFF (strips, no overviews).
+/// The DEM `view_window_scene` draws, written as a float32 GeoTIFF (strips, no overviews).
 pub fn view_window_dem(path: &std::path::Path) {
     let hf = utm_heightfield(1200, 900, |c, r| {
         let (x, y) = (c as f64 * 30.0, (899 - r) as f64 * 30.0);
