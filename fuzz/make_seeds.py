@@ -31,6 +31,18 @@ def png(width, height, colour_type, bit_depth, pixels: bytes) -> bytes:
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
 
 
+def plain_tiff(width=4, height=3) -> bytes:
+    """A little-endian TIFF of int16 samples in one strip, no georeferencing tags."""
+    pixels = struct.pack(f"<{width * height}h", *range(width * height))
+    tags = [(256, 3, width), (257, 3, height), (258, 3, 16), (259, 3, 1), (262, 3, 1), (273, 4, 8),
+            (277, 3, 1), (278, 3, height), (279, 4, len(pixels)), (339, 3, 2)]
+    ifd_at = 8 + len(pixels)
+    ifd = struct.pack("<H", len(tags)) + b"".join(
+        struct.pack("<HHI", tag, kind, 1) + (struct.pack("<HH", value, 0) if kind == 3 else struct.pack("<I", value))
+        for tag, kind, value in tags) + struct.pack("<I", 0)
+    return b"II*\0" + struct.pack("<I", ifd_at) + pixels + ifd
+
+
 def small_files(directory: Path, suffixes):
     if not directory.is_dir():
         return []
@@ -43,8 +55,8 @@ def main():
     shared = Path(sys.argv[2]) if len(sys.argv) > 2 else None
     have_shared = shared is not None and shared.is_dir()
     fixtures = ROOT / "tests" / "fixtures"
-    seeds = {t: [] for t in ["dicom_file", "dicom_series", "nifti", "nifti_gz", "geotiff", "png_height", "vtk_legacy", "vtk_xml",
-                             "vtk_image", "metaimage", "nrrd"]}
+    seeds = {t: [] for t in ["dicom_file", "dicom_series", "nifti", "nifti_gz", "geotiff", "geotiff_sidecars", "png_height",
+                             "vtk_legacy", "vtk_xml", "vtk_image", "metaimage", "nrrd"]}
 
     dicoms = small_files(fixtures / "dicom", [".dcm"])
     if have_shared:
@@ -75,6 +87,20 @@ def main():
     if have_shared:
         tiffs += small_files(shared / "terrain", [".tif", ".tiff"])
     seeds["geotiff"] = [(p.name, p.read_bytes()) for p in tiffs]
+
+    # A plain TIFF and the sidecars GDAL reads beside it (the harness splits the parts):
+    # PAM with a WKT1 CRS, geotransform and NoData; a world file; a .prj in WKT2.
+    utm = ('PROJCS["WGS 84 / UTM zone 10N",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+           'UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],UNIT["metre",1],AUTHORITY["EPSG","32610"]]')
+    pam = ('<PAMDataset>\n  <SRS>' + utm.replace('"', "&quot;") + '</SRS>\n  <GeoTransform> 500000, 30, 0, 4200000, 0, -30</GeoTransform>\n'
+           '  <PAMRasterBand band="1"><NoDataValue>-32768</NoDataValue></PAMRasterBand>\n</PAMDataset>\n').encode()
+    wkt2 = b'GEOGCRS["WGS 84",DATUM["World Geodetic System 1984",ELLIPSOID["WGS 84",6378137,298.257223563]],CS[ellipsoidal,2],ID["EPSG",4326]]'
+    world = b"30.0\n0.0\n0.0\n-30.0\n500015.0\n4199985.0\n"
+    seeds["geotiff_sidecars"] = [
+        ("pam.bin", SERIES_SPLIT.join([plain_tiff(), pam, b"", b""])),
+        ("world_prj.bin", SERIES_SPLIT.join([plain_tiff(), b"<PAMDataset/>", world, wkt2])),
+        ("world_only.bin", SERIES_SPLIT.join([plain_tiff(), b"<PAMDataset></PAMDataset>", world, utm.encode()])),
+    ] + [(p.name + ".bin", SERIES_SPLIT.join([p.read_bytes(), pam, world, wkt2])) for p in tiffs[:3]]
 
     # Grey 8/16-bit, grey+alpha, RGB and RGBA; the harness picks the encoding from the last byte.
     seeds["png_height"] = [

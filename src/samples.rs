@@ -251,7 +251,7 @@ pub fn fractal_dem(levels: u32, cell: f64, seed: u64) -> Heightfield {
         cell_size: [cell; 2],
         cell_size_native: [cell; 2],
         origin: [500_000.0 + 0.5 * cell, 5_200_000.0 - 0.5 * cell],
-        crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610 (projected)".into() },
+        crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610 (projected)".into(), metres_per_unit: 1.0 },
         elevations,
         nodata,
         nodata_value: Some(-32768.0),

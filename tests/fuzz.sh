@@ -12,7 +12,7 @@ SECONDS_PER_TARGET="${1:-60}"
 shift || true
 TARGETS=("$@")
 if [ ${#TARGETS[@]} -eq 0 ]; then
-    TARGETS=(dicom_file dicom_series nifti nifti_gz geotiff png_height vtk_legacy vtk_xml vtk_image metaimage nrrd)
+    TARGETS=(dicom_file dicom_series nifti nifti_gz geotiff geotiff_sidecars png_height vtk_legacy vtk_xml vtk_image metaimage nrrd)
 fi
 SHARED="${VOLTERRA_SHARED_DATA:-$(cd .. && pwd)/shared/data}"
 if [ ! -d "$SHARED" ]; then

@@ -21,7 +21,7 @@ const CELL: f64 = 30.0;
 const N: usize = 65;
 
 fn utm(epsg: u32) -> Crs {
-    Crs { epsg: Some(epsg), geographic: false, description: format!("EPSG:{epsg}") }
+    Crs { epsg: Some(epsg), geographic: false, description: format!("EPSG:{epsg}"), metres_per_unit: 1.0 }
 }
 
 /// A flat DEM (100 m) of N × N samples, 30 m apart, in UTM 10N.

@@ -208,7 +208,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("c.geojson");
         let pts = [[500_015.123456789, 4_200_015.0], [0.1 + 0.2, -1e-7]];
-        let crs = Crs { epsg: Some(32610), geographic: false, description: String::new() };
+        let crs = Crs { epsg: Some(32610), geographic: false, description: String::new(), metres_per_unit: 1.0 };
         write_lines(&path, "contour", &crs, "elev\"m", true, [LineFeature { points: &pts, value: 12.5 }]).unwrap();
         let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
         assert_eq!(v["crs"]["properties"]["name"], "urn:ogc:def:crs:EPSG::32610");
@@ -233,7 +233,7 @@ mod tests {
         let outer = vec![[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0], [0.0, 0.0]];
         let hole = vec![[1.0, 1.0], [1.0, 2.0], [2.0, 2.0], [1.0, 1.0]];
         let polys = vec![vec![outer.clone(), hole.clone()], vec![outer.clone()]];
-        let crs = Crs { epsg: Some(4326), geographic: true, description: String::new() };
+        let crs = Crs { epsg: Some(4326), geographic: true, description: String::new(), metres_per_unit: 1.0 };
         let band = |min, max| PolygonFeature { polygons: &polys, min, max };
         write_polygons(&path, "contour", &crs, ("lo", "hi"), [band(0.5, 10.0), band(10.0, 20.25)]).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();

@@ -4,6 +4,7 @@
 //! GeoKeyDirectory (EPSG code, raster type, vertical units) and GDAL_NODATA.
 
 use crate::error::{FormatError, Result};
+use crate::gdal_sidecar;
 use crate::heightfield::{metres_per_degree, Crs, Heightfield, NodataMask};
 use crate::memory::{human_bytes, Limits};
 use std::io::BufReader;
@@ -16,6 +17,7 @@ pub(crate) const KEY_RASTER_TYPE: u16 = 1025;
 pub(crate) const KEY_CITATION: u16 = 1026;
 pub(crate) const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
 pub(crate) const KEY_PROJECTED_TYPE: u16 = 3072;
+pub(crate) const KEY_PROJ_LINEAR_UNITS: u16 = 3076;
 pub(crate) const KEY_VERTICAL_UNITS: u16 = 4099;
 
 /// A decoded GeoKey value (double-valued keys are not needed and skipped).
@@ -96,16 +98,62 @@ fn check_data_offsets<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Dec
 
 /// Where a GeoTIFF's raster lies: its CRS, the map coordinates of the centre of its first
 /// (north-west) pixel, the pixel size in CRS units (both positive: north-up only), whether
-/// it is PixelIsPoint, its GeoKeys and notes on what was assumed.
+/// it is PixelIsPoint, its GeoKeys, its NoData value, and notes on what was assumed and
+/// which sidecar file gave what.
 struct Georeferencing {
     keys: Vec<(u16, GeoKey)>,
     crs: Crs,
     origin: [f64; 2],
     scale: [f64; 2],
     point: bool,
+    nodata: Option<f64>,
     notes: Vec<String>,
+    /// What `info` shows: where the georeferencing and the CRS came from.
+    sources: Vec<(String, String)>,
 }
 
+/// A file's name for notes.
+fn file_name(p: &Path) -> String {
+    p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| p.display().to_string())
+}
+
+/// The centre of the first pixel and the pixel size (both positive) of a north-up
+/// geotransform; a rotated, sheared or south-up one is refused, naming `source`.
+fn north_up(path: &Path, source: &str, gt: [f64; 6]) -> Result<(f64, f64, f64, f64)> {
+    if gt[2] != 0.0 || gt[4] != 0.0 {
+        return Err(FormatError::unsupported(path, format!("{source} is rotated or sheared; only north-up rasters are supported")));
+    }
+    if gt[5].is_nan() || gt[5] >= 0.0 {
+        return Err(FormatError::unsupported(
+            path,
+            format!("{source} has rows running north (pixel height {}); only north-up rasters are supported", gt[5]),
+        ));
+    }
+    Ok((gt[0] + 0.5 * gt[1], gt[3] + 0.5 * gt[5], gt[1], -gt[5]))
+}
+
+/// The metres in one unit of a projected CRS's coordinates, from ProjLinearUnitsGeoKey.
+fn linear_unit(path: &Path, keys: &[(u16, GeoKey)]) -> Result<f64> {
+    Ok(match short_key(keys, KEY_PROJ_LINEAR_UNITS) {
+        None | Some(9001) | Some(32767) => 1.0,
+        Some(9002) => 0.3048,
+        Some(9003) => 1200.0 / 3937.0,
+        Some(9005) => 0.3047972654,
+        Some(9036) => 1000.0,
+        Some(code) => {
+            return Err(FormatError::unsupported(
+                path,
+                format!("projected linear unit code {code} is not one of metre, foot, US survey foot, Clarke's foot, kilometre"),
+            ))
+        }
+    })
+}
+
+/// The raster's georeferencing, as GDAL's GeoTIFF driver finds it (GEOREF_SOURCES
+/// `PAM,INTERNAL,TABFILE,WORLDFILE`): the geotransform from the PAM file (`.aux.xml`),
+/// else the GeoTIFF tags, else a world file (`.tfw`, `.tifw`, `.wld`); the CRS from the PAM
+/// file, else the GeoKeys, else (which GDAL does not read beside a GeoTIFF) a `.prj`; the
+/// NoData value from the PAM file, else GDAL_NODATA.
 fn georeferencing<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder<R>) -> Result<Georeferencing> {
     let keys = geo_keys(path, d)?;
     let scale = match d.find_tag(Tag::ModelPixelScaleTag).map_err(|e| tiff_err(path, e))? {
@@ -120,8 +168,12 @@ fn georeferencing<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder
         Some(v) => Some(v.into_f64_vec().map_err(|e| tiff_err(path, e))?),
         None => None,
     };
+    let pam = gdal_sidecar::read_pam(path)?;
+    let pam_srs = pam.as_ref().and_then(|p| Some((p.path.clone(), p.srs.clone()?)));
+    let pam_geotransform = pam.as_ref().and_then(|p| Some((p.path.clone(), p.geotransform?)));
+    let internal_geotransform = scale.is_some() || transform.is_some();
 
-    if keys.is_empty() && (scale.is_some() || transform.is_some()) {
+    if keys.is_empty() && internal_geotransform && pam_srs.is_none() {
         // Without GeoKeys the CRS is unknown, and with it whether the pixel scale is in
         // degrees or metres: guessing would give cells 100 000 times too small or too large.
         return Err(FormatError::invalid(
@@ -130,10 +182,14 @@ fn georeferencing<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder
         ));
     }
     let mut notes = Vec::new();
-    // Raster → model: X = x0 + sx·I, Y = y0 − sy·J, for raster coordinates (I, J) where
-    // (0, 0) is the corner of the first pixel (PixelIsArea) or its centre (PixelIsPoint).
-    let (x0, y0, sx, sy) = match (&scale, &tie, &transform) {
-        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => (t[3] - t[0] * s[0], t[4] + t[1] * s[1], s[0], s[1]),
+    let mut sources = Vec::new();
+    let point = short_key(&keys, KEY_RASTER_TYPE) == Some(2);
+    // The centre of the first pixel and the pixel size, from the first source that has them.
+    // Internal tags: raster → model is X = x0 + sx·I, Y = y0 − sy·J, for raster coordinates
+    // (I, J) where (0, 0) is the corner of the first pixel (PixelIsArea) or its centre
+    // (PixelIsPoint).
+    let internal = match (&scale, &tie, &transform) {
+        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => Some((t[3] - t[0] * s[0], t[4] + t[1] * s[1], s[0], s[1])),
         (_, _, Some(m)) if m.len() >= 16 => {
             if m[1] != 0.0 || m[4] != 0.0 {
                 return Err(FormatError::unsupported(
@@ -141,43 +197,100 @@ fn georeferencing<R: std::io::Read + std::io::Seek>(path: &Path, d: &mut Decoder
                     "ModelTransformation is rotated or sheared; only north-up rasters are supported",
                 ));
             }
-            (m[3], m[7], m[0], -m[5])
+            Some((m[3], m[7], m[0], -m[5]))
         }
-        _ => {
-            notes.push("no georeferencing tags: unit cells at a local origin".to_string());
-            (0.0, 0.0, 1.0, 1.0)
-        }
+        _ => None,
     };
-    if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0 && x0.is_finite() && y0.is_finite()) {
+    let (ox, oy, sx, sy, georeferenced) = if let Some((pam_path, gt)) = &pam_geotransform {
+        let name = file_name(pam_path);
+        let (ox, oy, sx, sy) = north_up(path, &format!("the geotransform in {name}"), *gt)?;
+        if internal.is_some() {
+            notes.push(format!("georeferencing from {name}, which GDAL reads before the GeoTIFF's own tags"));
+        }
+        sources.push(("georef from".to_string(), format!("{name} (PAM)")));
+        (ox, oy, sx, sy, true)
+    } else if let Some((x0, y0, sx, sy)) = internal {
+        if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0 && x0.is_finite() && y0.is_finite()) {
+            return Err(FormatError::invalid(path, format!("pixel scale ({sx}, {sy}) must be finite and positive (north-up)")));
+        }
+        let (ox, oy) = if point { (x0, y0) } else { (x0 + 0.5 * sx, y0 - 0.5 * sy) };
+        (ox, oy, sx, sy, true)
+    } else if let Some((world, gt)) = gdal_sidecar::read_world_file(path)? {
+        let name = file_name(&world);
+        let (ox, oy, sx, sy) = north_up(path, &format!("world file {name}"), gt)?;
+        sources.push(("georef from".to_string(), format!("{name} (world file)")));
+        (ox, oy, sx, sy, true)
+    } else {
+        notes.push("no georeferencing tags: unit cells at a local origin".to_string());
+        (0.0, 0.0, 1.0, 1.0, false)
+    };
+    if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0 && ox.is_finite() && oy.is_finite()) {
         return Err(FormatError::invalid(path, format!("pixel scale ({sx}, {sy}) must be finite and positive (north-up)")));
     }
-    let point = short_key(&keys, KEY_RASTER_TYPE) == Some(2);
-    let (ox, oy) = if point { (x0, y0) } else { (x0 + 0.5 * sx, y0 - 0.5 * sy) };
 
-    let model = short_key(&keys, KEY_MODEL_TYPE);
-    let projected = short_key(&keys, KEY_PROJECTED_TYPE).filter(|&c| c != 0 && c != 32767);
-    let geographic_code = short_key(&keys, KEY_GEOGRAPHIC_TYPE).filter(|&c| c != 0 && c != 32767);
+    // The CRS: the PAM file's, else the GeoKeys', else a .prj's.
+    let crs = if let Some((pam_path, wkt)) = &pam_srs {
+        let name = file_name(pam_path);
+        let crs = gdal_sidecar::crs_from_wkt(pam_path, wkt)?;
+        if !keys.is_empty() {
+            notes.push(format!("CRS from {name}, which GDAL reads before the GeoTIFF's own GeoKeys"));
+        }
+        sources.push(("crs from".to_string(), format!("{name} (PAM)")));
+        crs
+    } else if !keys.is_empty() {
+        crs_from_keys(path, &keys)?
+    } else if let Some((prj, wkt)) = gdal_sidecar::read_prj(path)?.filter(|_| georeferenced) {
+        let name = file_name(&prj);
+        let crs = gdal_sidecar::crs_from_wkt(&prj, &wkt)?;
+        notes.push(format!("CRS from {name}; GDAL does not read a .prj beside a GeoTIFF, so gdalinfo shows none"));
+        sources.push(("crs from".to_string(), format!("{name} (ESRI .prj)")));
+        crs
+    } else if georeferenced {
+        let source = sources.first().map(|(_, s)| s.clone()).unwrap_or_default();
+        return Err(FormatError::invalid(
+            path,
+            format!(
+                "is georeferenced by {source} but no CRS is given (no GeoKeys, no SRS in a .aux.xml, no .prj): \
+                 its cells' units (degrees or metres) are unknown; add one with gdal_edit.py -a_srs EPSG:<code>"
+            ),
+        ));
+    } else {
+        Crs::local()
+    };
+    if crs.metres_per_unit != 1.0 && !crs.geographic {
+        notes.push(format!("projected CRS in units of {} m: cell sizes converted to metres", crs.metres_per_unit));
+    }
+    let nodata = match pam.as_ref().and_then(|p| Some((p.path.clone(), p.nodata?))) {
+        Some((pam_path, v)) => {
+            sources.push(("nodata from".to_string(), format!("{} (PAM)", file_name(&pam_path))));
+            Some(v)
+        }
+        None => gdal_nodata(path, d)?,
+    };
+    Ok(Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, nodata, notes, sources })
+}
+
+/// The CRS the GeoKeys describe.
+fn crs_from_keys(path: &Path, keys: &[(u16, GeoKey)]) -> Result<Crs> {
+    let model = short_key(keys, KEY_MODEL_TYPE);
+    let projected = short_key(keys, KEY_PROJECTED_TYPE).filter(|&c| c != 0 && c != 32767);
+    let geographic_code = short_key(keys, KEY_GEOGRAPHIC_TYPE).filter(|&c| c != 0 && c != 32767);
     let geographic = model == Some(2) || (model.is_none() && projected.is_none() && geographic_code.is_some());
     let epsg = if geographic { geographic_code } else { projected.or(geographic_code) }.map(u32::from);
     let citation = keys.iter().find_map(|(k, v)| match v {
         GeoKey::Ascii(s) if *k == KEY_CITATION => Some(s.clone()),
         _ => None,
     });
-    let crs = if keys.is_empty() {
-        Crs::local()
-    } else {
-        let mut desc = match epsg {
-            Some(c) => format!("EPSG:{c}"),
-            None => "user-defined CRS".to_string(),
-        };
-        desc.push_str(if geographic { " (geographic)" } else { " (projected)" });
-        if let Some(c) = citation {
-            desc.push_str(&format!(" {c}"));
-        }
-        Crs { epsg, geographic, description: desc }
+    let mut desc = match epsg {
+        Some(c) => format!("EPSG:{c}"),
+        None => "user-defined CRS".to_string(),
     };
-
-    Ok(Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, notes })
+    desc.push_str(if geographic { " (geographic)" } else { " (projected)" });
+    if let Some(c) = citation {
+        desc.push_str(&format!(" {c}"));
+    }
+    let metres_per_unit = if geographic { 1.0 } else { linear_unit(path, keys)? };
+    Ok(Crs { epsg, geographic, description: desc, metres_per_unit })
 }
 
 /// One image of a GeoTIFF: its directory index and size.
@@ -388,7 +501,7 @@ pub fn read_geotiff_image(path: &Path, limits: &Limits) -> Result<GeoImage> {
     }
     // The georeferencing is the full image's (a COG's overviews carry none).
     let mut geo = georeferencing(path, &mut d)?;
-    let nodata = gdal_nodata(path, &mut d)?;
+    let nodata = geo.nodata;
     // Per pixel: the decoded samples, and a band's values as f64.
     let per_pixel = spp as u64 * sample_bytes + if spp == 1 { 8 } else { 0 };
     let (image, bytes, note) = finest_fitting(path, limits, &images, "draped image", |i| Ok([i.width as u64, i.height as u64, per_pixel]))?;
@@ -691,8 +804,8 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
         return Err(FormatError::unsupported(path, format!("{spp} samples per pixel: an elevation raster has one band")));
     }
     let full = images[0];
-    let Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, mut notes } = georeferencing(path, &mut d)?;
-    let nodata_value = gdal_nodata(path, &mut d)?;
+    let Georeferencing { keys, crs, origin: [ox, oy], scale: [sx, sy], point, nodata: nodata_value, mut notes, sources } =
+        georeferencing(path, &mut d)?;
     let full_geo = ([full.width, full.height], [ox, oy], [sx, sy]);
     // Each level's georeferencing: an overview's cells are the full raster's scaled by the
     // size ratio, its corner the same.
@@ -762,6 +875,7 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
         ("layout".to_string(), layout),
         ("raster type".to_string(), if point { "PixelIsPoint".into() } else { "PixelIsArea".into() }),
     ];
+    storage.extend(sources);
     if images.len() > 1 {
         let sizes: Vec<String> = images[1..].iter().map(|o| format!("{}×{}", o.width, o.height)).collect();
         storage.push(("overviews".to_string(), sizes.join(", ")));
@@ -952,7 +1066,7 @@ pub(crate) fn cell_size_metres(path: &Path, crs: &Crs, oy: f64, h: u32, [sx, sy]
         ));
         [sx * mx, sy * my]
     } else {
-        [sx, sy]
+        [sx * crs.metres_per_unit, sy * crs.metres_per_unit]
     };
     if !cell_size.iter().all(|c| c.is_finite() && *c > 0.0) {
         return Err(FormatError::invalid(path, format!("cell size {cell_size:?} m is not positive and finite")));

@@ -14,7 +14,7 @@
 
 use crate::atomic::write_atomically;
 use crate::error::{FormatError, Result};
-use crate::geotiff::{KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_TYPE, KEY_RASTER_TYPE, KEY_VERTICAL_UNITS};
+use crate::geotiff::{KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_TYPE, KEY_PROJ_LINEAR_UNITS, KEY_RASTER_TYPE, KEY_VERTICAL_UNITS};
 use crate::heightfield::{Crs, GridGeoref, Heightfield};
 use rayon::prelude::*;
 use std::io::{Seek, Write};
@@ -336,6 +336,17 @@ fn write_tags<W: Write + Seek, K: TiffKind>(
     if let Some(c) = grid.crs.epsg {
         push(if grid.crs.geographic { KEY_GEOGRAPHIC_TYPE } else { KEY_PROJECTED_TYPE }, c as u16);
     }
+    // A projected CRS in feet keeps its unit (the reader converts cell sizes by it).
+    if !grid.crs.geographic {
+        let unit = grid.crs.metres_per_unit;
+        let code = [(0.3048, 9002), (1200.0 / 3937.0, 9003), (0.3047972654, 9005), (1000.0, 9036)]
+            .iter()
+            .find(|(m, _)| (unit - m).abs() < 1e-12 * m)
+            .map(|&(_, c)| c);
+        if let Some(code) = code {
+            push(KEY_PROJ_LINEAR_UNITS, code);
+        }
+    }
     if l.elevation {
         push(KEY_VERTICAL_UNITS, 9001);
     }
@@ -358,7 +369,7 @@ mod tests {
             cell_size: [30.0, 30.0],
             cell_size_native: [30.0, 30.0],
             origin: [500_015.0, 4_199_985.0],
-            crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
+            crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into(), metres_per_unit: 1.0 },
         }
     }
 

@@ -14,11 +14,14 @@ pub struct Crs {
     pub geographic: bool,
     /// Human-readable description ("EPSG:4326 (geographic)", "local (no georeferencing)").
     pub description: String,
+    /// Metres in one unit of a projected CRS's coordinates (0.3048 for feet; 1 for metres,
+    /// and for a geographic CRS, whose degrees are converted at the raster's latitude).
+    pub metres_per_unit: f64,
 }
 
 impl Crs {
     pub fn local() -> Crs {
-        Crs { epsg: None, geographic: false, description: "local (no georeferencing)".into() }
+        Crs { epsg: None, geographic: false, description: "local (no georeferencing)".into(), metres_per_unit: 1.0 }
     }
 }
 

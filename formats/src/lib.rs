@@ -12,6 +12,7 @@ mod dicom_scan;
 pub mod dicom_write;
 pub mod error;
 pub mod exr_io;
+pub mod gdal_sidecar;
 pub mod geojson;
 pub mod geotiff;
 pub mod geotiff_rows;

@@ -18,6 +18,7 @@ pub const TARGETS: &[&str] = &[
     "nifti",
     "nifti_gz",
     "geotiff",
+    "geotiff_sidecars",
     "png_height",
     "vtk_legacy",
     "vtk_xml",
@@ -100,6 +101,18 @@ pub fn run(target: &str, data: &[u8]) {
                 }
             }
             check_heightfield(&path, whole);
+        }
+        "geotiff_sidecars" => {
+            // A raster and the files GDAL reads beside it: PAM (.aux.xml), world file, .prj.
+            let path = dir.join("input.tif");
+            let names = ["input.tif", "input.tif.aux.xml", "input.tfw", "input.prj"];
+            for (part, name) in split(data, SERIES_SPLIT).into_iter().zip(names) {
+                write(&dir.join(name), part);
+            }
+            if path.exists() {
+                // An error may name the sidecar at fault (input.tfw) rather than the raster.
+                check_heightfield(&dir.join("input"), formats::geotiff::read_geotiff(&path, &limits));
+            }
         }
         "png_height" => {
             let path = dir.join("input.png");

@@ -119,7 +119,7 @@ pub fn utm_heightfield(w: usize, h: usize, elevation: impl Fn(usize, usize) -> O
         cell_size: [30.0, 30.0],
         cell_size_native: [30.0, 30.0],
         origin: [500_015.0, 4_200_015.0],
-        crs: volterra_formats::Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into() },
+        crs: volterra_formats::Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into(), metres_per_unit: 1.0 },
         elevations: cells.iter().map(|e| e.unwrap_or(f32::NAN)).collect(),
         nodata: cells.iter().map(|e| e.is_none()).collect(),
         nodata_value: Some(-32768.0),
@@ -173,4 +173,35 @@ pub fn view_window_dem(path: &std::path::Path) {
         Some((400.0 + 250.0 * (x / 3100.0).sin() * (y / 2300.0).cos() + 0.004 * x) as f32)
     });
     volterra_formats::geotiff::write_geotiff(path, &hf).unwrap();
+}
+
+/// Runs a command that must succeed; its standard output.
+pub fn run_ok(cmd: &mut std::process::Command) -> String {
+    let out = cmd.output().unwrap();
+    assert!(out.status.success(), "{cmd:?}: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The EPSG code of the CRS in a WKT (GDAL's WKT2: the last `ID["EPSG",…]`), as text.
+pub fn wkt_epsg(wkt: &str) -> Option<String> {
+    wkt.rfind("ID[\"EPSG\",").map(|at| wkt[at..].split(']').next().unwrap_or_default().to_string())
+}
+
+/// What gdalinfo says of a raster's grid and band: size, geotransform, CRS (by its EPSG
+/// code), band type and NoData value.
+pub fn gdal_grid(path: &std::path::Path) -> serde_json::Value {
+    let info: serde_json::Value = serde_json::from_str(&run_ok(std::process::Command::new("gdalinfo").arg("-json").arg(path))).unwrap();
+    let band = &info["bands"][0];
+    // The CRS by its EPSG code: GDAL spells the same code out in other words when it wrote
+    // the file (a datum ensemble or the datum it resolves to).
+    let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or_default();
+    let epsg = wkt_epsg(wkt);
+    assert!(epsg.is_some(), "{}: no EPSG code in {wkt}", path.display());
+    serde_json::json!({
+        "size": info["size"],
+        "geoTransform": info["geoTransform"],
+        "crs": epsg,
+        "type": band["type"],
+        "noDataValue": band["noDataValue"],
+    })
 }
