@@ -16,29 +16,7 @@ fn gdaldem() -> Option<PathBuf> {
     common::gdal_tool("gdaldem")
 }
 
-fn run(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap();
-    assert!(out.status.success(), "{cmd:?}: {}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-/// What gdalinfo says of a raster's grid and band.
-fn grid_of(path: &Path) -> serde_json::Value {
-    let info: serde_json::Value = serde_json::from_str(&run(Command::new("gdalinfo").arg("-json").arg(path))).unwrap();
-    let band = &info["bands"][0];
-    // The CRS by its EPSG code: GDAL spells the same code out in other words when it wrote
-    // the file (a datum ensemble or the datum it resolves to).
-    let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or_default();
-    let epsg = wkt.rfind("ID[\"EPSG\",").map(|at| wkt[at..].split(']').next().unwrap_or_default().to_string());
-    assert!(epsg.is_some(), "{}: no EPSG code in {wkt}", path.display());
-    serde_json::json!({
-        "size": info["size"],
-        "geoTransform": info["geoTransform"],
-        "crs": epsg,
-        "type": band["type"],
-        "noDataValue": band["noDataValue"],
-    })
-}
+use common::{gdal_grid as grid_of, run_ok as run};
 
 /// The cells of a raster as f32 (through gdal_translate, so GDAL reads ours too) and
 /// which are NoData.
@@ -62,9 +40,14 @@ const PALETTE: &str = "# elevations\nnv 0 0 0 0\n150 0 90 30\n180,60,140,60\n0% 
 
 /// color-relief both ways (interpolated and nearest, RGB and RGBA): every band equal.
 fn compare_color_relief(dem: &Path, dir: &Path) {
+    compare_color_relief_with(dem, dir, PALETTE);
+}
+
+/// As `compare_color_relief`, with the palette `palette_text`.
+fn compare_color_relief_with(dem: &Path, dir: &Path, palette_text: &str) {
     let gdaldem = gdaldem().unwrap();
     let palette = dir.join("palette.txt");
-    std::fs::write(&palette, PALETTE).unwrap();
+    std::fs::write(&palette, palette_text).unwrap();
     for (mode, our_mode) in [(None, None), (Some("-nearest_color_entry"), Some("--nearest-color-entry"))] {
         for alpha in [false, true] {
             let tag = format!("relief{}{}", if mode.is_some() { "_nearest" } else { "" }, if alpha { "_alpha" } else { "" });
@@ -238,18 +221,22 @@ fn compare_products(dem: &Path, dir: &Path, gdal_args: &[&str], our_args: &[&str
     let gdaldem = gdaldem().unwrap();
     compare_color_relief(dem, dir);
     let mut compared = 0;
-    for product in ["hillshade", "slope", "aspect"] {
+    // aspect -zero_for_flat too: 0 for flat, edge and void cells, and no NoData value.
+    let variants: [(&str, &[&str], &[&str]); 4] =
+        [("hillshade", &[], &[]), ("slope", &[], &[]), ("aspect", &[], &[]), ("aspect", &["-zero_for_flat"], &["--zero-for-flat"])];
+    for (product, gdal_extra, our_extra) in variants {
         for edges in [false, true] {
-            let tag = format!("{product}{}", if edges { "_edges" } else { "" });
+            let tag =
+                format!("{product}{}{}", if gdal_extra.is_empty() { "" } else { "_zero_for_flat" }, if edges { "_edges" } else { "" });
             let (reference, ours) = (dir.join(format!("gdal_{tag}.tif")), dir.join(format!("ours_{tag}.tif")));
             let mut g = Command::new(&gdaldem);
-            g.arg(product).arg(dem).arg(&reference).arg("-q").args(gdal_args);
+            g.arg(product).arg(dem).arg(&reference).arg("-q").args(gdal_args).args(gdal_extra);
             if edges {
                 g.arg("-compute_edges");
             }
             run(&mut g);
             let mut v = Command::new(common::volterra_bin());
-            v.args(["dem", product]).arg(dem).arg(&ours).args(our_args);
+            v.args(["dem", product]).arg(dem).arg(&ours).args(our_args).args(our_extra);
             if edges {
                 v.arg("--compute-edges");
             }
@@ -395,4 +382,33 @@ fn dem_products_of_a_tiled_dem_larger_than_the_memory_limit_equal_gdaldem_at_ful
     let held = dir.path().join("held.tif");
     volterra_formats::geotiff::write_geotiff(&held, &hf).unwrap();
     assert!(std::fs::read(&converted).unwrap() == std::fs::read(&held).unwrap(), "converted by rows: not the file the raster held gives");
+}
+
+/// A DEM whose every sample is NoData: color-relief with a palette of percentages (whose
+/// range is then undefined) paints what gdaldem paints — the nv colour where the palette
+/// has one, else its lowest (it painted an opaque palette colour before) — and says that
+/// the DEM has no valid sample; the other products are all NoData, said too.
+#[test]
+fn products_of_an_all_nodata_dem_equal_gdaldem_and_say_so() {
+    if gdaldem().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let hf = common::utm_heightfield(40, 30, |_, _| None);
+    let dem = dir.path().join("void.tif");
+    volterra_formats::geotiff::write_geotiff(&dem, &hf).unwrap();
+    compare_color_relief_with(&dem, dir.path(), PALETTE);
+    compare_color_relief_with(&dem, dir.path(), "0% blue\n40% 200 200 80 200\n100% white\n");
+    for product in ["slope", "color-relief"] {
+        let out = Command::new(common::volterra_bin())
+            .args(["dem", product])
+            .arg(&dem)
+            .arg(dir.path().join(format!("{product}.tif")))
+            .args(["--palette", dir.path().join("palette.txt").to_str().unwrap()].iter().filter(|_| product == "color-relief"))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{stderr}");
+        assert!(stderr.contains("no valid samples"), "{product}: {stderr}");
+    }
 }

@@ -259,7 +259,8 @@ enum Command {
         /// Slope in percent instead of degrees.
         #[arg(long)]
         percent: bool,
-        /// Aspect 0 instead of NoData where the ground is flat.
+        /// Aspect 0 instead of NoData where the ground is flat (gdaldem -zero_for_flat: as
+        /// gdaldem, edge and void cells are 0 too and the output declares no NoData value).
         #[arg(long)]
         zero_for_flat: bool,
         /// Complete the 3 × 3 windows at the raster's edges and around NoData instead of
@@ -961,7 +962,18 @@ fn cmd_dem(
     let (src, grid, nodata_value) = dem_source(input, load)?;
     let palette = match palette {
         Some((path, text)) => {
-            let palette = dem::parse_palette(&text, nodata_value, || dem::elevation_range(&*src));
+            let no_range = std::cell::Cell::new(false);
+            let palette = dem::parse_palette(&text, nodata_value, || {
+                let range = dem::elevation_range(&*src);
+                no_range.set(range.is_none());
+                range
+            });
+            if no_range.get() && src.failure().is_none() {
+                eprintln!(
+                    "warning: {}: no valid samples, so the palette's percentages have no range: each is taken as 0 (as gdaldem)",
+                    input.display()
+                );
+            }
             // A range pass that stopped at a row it could not read: that, not the palette.
             if let Some(why) = src.failure() {
                 bail!("{why}");
@@ -986,7 +998,15 @@ fn cmd_dem(
     progress.begin(what, grid.height as u64);
     let written = dem::write_product(&*src, &grid, &op, output, &load.limits, &|rows| progress.update(rows as u64));
     progress.end();
-    written?;
+    let valid = written?;
+    if valid == 0 {
+        let what = match (product, op.nodata()) {
+            (DemProduct::ColorRelief, _) => "every cell has the palette's NoData colour (its nv entry, else its lowest)".to_string(),
+            (_, Some(v)) => format!("every cell of the output is NoData ({v})"),
+            (_, None) => "every cell of the output is 0".to_string(),
+        };
+        eprintln!("warning: {}: no valid samples (every one NoData): {what}", input.display());
+    }
     eprintln!("wrote {} ({}×{})", output.display(), grid.width, grid.height);
     Ok(())
 }

@@ -10,7 +10,8 @@
 //! · yscale), with nsres negative for a north-up raster, both multiplied by `z`.
 //! Slope: atan(√(x² + y²) / 8) in degrees (or 100 · √(x² + y²) / 8 percent). Aspect: the
 //! azimuth clockwise from north of the downhill direction, from the unscaled differences
-//! (as GDAL: it assumes square cells), NoData where flat (0 with `zero_for_flat`).
+//! (as GDAL: it assumes square cells), NoData where flat (0 with `zero_for_flat`, and then
+//! no NoData value at all: edges and voids 0 too, as gdaldem writes them).
 //! Hillshade: (sin alt − (y cos az − x sin az) cos alt · z/8) / √(1 + (z/8)² (x² + y²)),
 //! as a byte 1 + 254 · that (1 where ≤ 0), 0 for NoData. A geographic DEM (degrees) needs
 //! `scale` = 111120 (metres per degree), as with gdaldem's -s. Color-relief: a gdaldem
@@ -69,11 +70,14 @@ pub enum Raster {
     U8(Vec<u8>),
 }
 
-/// The NoData value gdaldem gives each product.
-pub fn nodata_value(p: Product) -> f64 {
+/// The NoData value gdaldem gives each product with options `o`: none for aspect with
+/// `-zero_for_flat`, where gdaldem writes 0 for flat, edge and void cells alike and tags no
+/// NoData (GDAL 3.6).
+pub fn nodata_value(p: Product, o: &Options) -> Option<f64> {
     match p {
-        Product::Hillshade => 0.0,
-        Product::Slope | Product::Aspect => -9999.0,
+        Product::Hillshade => Some(0.0),
+        Product::Aspect if o.zero_for_flat => None,
+        Product::Slope | Product::Aspect => Some(-9999.0),
     }
 }
 
@@ -98,7 +102,7 @@ impl Op<'_> {
     /// The output's NoData value (color-relief has none: NoData cells are coloured).
     pub fn nodata(&self) -> Option<f64> {
         match self {
-            Op::Product(p, _) => Some(nodata_value(*p)),
+            Op::Product(p, o) => nodata_value(*p, o),
             Op::Relief { .. } => None,
         }
     }
@@ -156,7 +160,8 @@ pub fn color_relief(hf: &Heightfield, palette: &[PaletteEntry], mode: ColorMode,
 /// parallel, so a DEM of any size takes the memory of a few strips' rows. `rows_done` is
 /// told how many output rows are written. What a band holds is checked against `limits`
 /// first. A chunk of the input that fails to decode stops the write with its one-line
-/// error (no output is left).
+/// error (no output is left). Returns the valid (not NoData) samples read: 0 says the
+/// product is of a DEM with no valid sample.
 pub fn write_product(
     src: &dyn HeightRows,
     grid: &GridGeoref,
@@ -164,7 +169,7 @@ pub fn write_product(
     output: &Path,
     limits: &Limits,
     rows_done: &dyn Fn(usize),
-) -> Result<()> {
+) -> Result<usize> {
     let [w, _] = src.size();
     let kind = op.band();
     let rows_per_strip = default_rows_per_strip(w, kind);
@@ -182,11 +187,11 @@ fn write_product_strips(
     output: &Path,
     rows_per_strip: usize,
     rows_done: &dyn Fn(usize),
-) -> Result<()> {
+) -> Result<usize> {
     let [w, h] = src.size();
     op.check([w, h])?;
     let kind = op.band();
-    let mut input = InputRows { first: 0, n: 0, w, cells: std::borrow::Cow::Owned(Vec::new()) };
+    let mut input = InputRows { first: 0, n: 0, w, cells: std::borrow::Cow::Owned(Vec::new()), valid: 0 };
     write_band_strips(output, grid, kind, op.nodata(), false, rows_per_strip, |first, strip| -> Result<()> {
         let n = match &strip {
             StripMut::F32(s) => s.len(),
@@ -199,7 +204,8 @@ fn write_product_strips(
         fill_rows(&input, grid.cell_size_native, h, op, first, strip);
         rows_done(first + n);
         Ok(())
-    })
+    })?;
+    Ok(input.valid)
 }
 
 /// The lowest and highest valid elevation of the rows of `src` (`HeightRows::elevation_range`).
@@ -213,12 +219,15 @@ struct InputRows<'a> {
     n: usize,
     w: usize,
     cells: std::borrow::Cow<'a, [f32]>,
+    /// The valid (finite) samples of the rows read so far.
+    valid: usize,
 }
 
 impl InputRows<'_> {
     /// Every row of a heightfield held (its NoData cells hold NaN), not copied.
     fn all(hf: &Heightfield) -> InputRows<'_> {
-        InputRows { first: 0, n: hf.height, w: hf.width, cells: std::borrow::Cow::Borrowed(&hf.elevations) }
+        let valid = hf.elevations.len() - hf.nodata_count();
+        InputRows { first: 0, n: hf.height, w: hf.width, cells: std::borrow::Cow::Borrowed(&hf.elevations), valid }
     }
 
     /// Holds rows [lo, hi): those it holds already moved to the front, the rest read.
@@ -234,6 +243,7 @@ impl InputRows<'_> {
         for r in start + kept..hi {
             let at = (r - start) * w;
             src.read_row(r, 0, &mut cells[at..at + w]);
+            self.valid += cells[at..at + w].iter().filter(|v| v.is_finite()).count();
         }
         self.first = start;
         self.n = hi - start;
@@ -301,7 +311,7 @@ fn product_row(
     let (sin_alt, cos_alt) = o.altitude.to_radians().sin_cos();
     let (sin_az, cos_az) = o.azimuth.to_radians().sin_cos();
     let zf = 1.0 / 8.0;
-    let out_nodata = nodata_value(product);
+    let out_nodata = nodata_value(product, o).unwrap_or(0.0);
     // Inside the raster the window is its three rows' cells, where all are valid; at the
     // edges and next to NoData, `window`'s rules.
     let row = |r: usize| &input.cells[(r - input.first) * w..(r - input.first + 1) * w];
@@ -333,11 +343,7 @@ fn product_row(
             Product::Aspect => {
                 let (dx, dy) = (((win[2] + win[5] + win[5] + win[8]) - (win[0] + win[3] + win[3] + win[6])) as f64, south_minus_north);
                 if dx == 0.0 && dy == 0.0 {
-                    if o.zero_for_flat {
-                        0.0
-                    } else {
-                        out_nodata
-                    }
+                    out_nodata
                 } else {
                     // As GDAL: in f32, the angle from east counter-clockwise made an azimuth.
                     let a = (dy.atan2(-dx).to_degrees()) as f32;
@@ -452,7 +458,8 @@ const NAMED_COLOURS: [(&str, [f32; 3]); 16] = [
 /// spaces, tabs, commas or colons; # and / start comments); the value may be "nv" (the
 /// DEM's NoData value; ignored where it has none) or a percentage of the DEM's range of
 /// valid elevations, `range()` (asked for only where a percentage is given: a DEM read by
-/// rows is read once more for it). Sorted by value (stably, as GDAL sorts). GMT .cpt
+/// rows is read once more for it; a DEM with no valid elevation has none, and then, as
+/// gdaldem, every percentage is 0). Sorted by value (stably, as GDAL sorts). GMT .cpt
 /// palettes are not read.
 pub fn parse_palette(text: &str, nodata_value: Option<f64>, range: impl FnOnce() -> Option<(f64, f64)>) -> Result<Vec<PaletteEntry>> {
     if text.lines().any(|l| l.starts_with('#') && l.contains("COLOR_MODEL")) {
@@ -461,7 +468,8 @@ pub fn parse_palette(text: &str, nodata_value: Option<f64>, range: impl FnOnce()
     let mut range = Some(range);
     let mut lo_hi = None;
     let mut percent_of = |pct: f64| {
-        let (lo, hi) = *lo_hi.get_or_insert_with(|| range.take().and_then(|r| r()).unwrap_or((f64::INFINITY, f64::NEG_INFINITY)));
+        // No valid elevation: GDAL's min/max computation fails and leaves both 0.
+        let (lo, hi) = *lo_hi.get_or_insert_with(|| range.take().and_then(|r| r()).unwrap_or((0.0, 0.0)));
         lo + pct / 100.0 * (hi - lo)
     };
     let mut entries = Vec::new();
