@@ -153,6 +153,7 @@ pub fn particles_json(p: &ParticleSet, names: &ParticleArrayNames) -> Value {
     json!({
         "kind": "particles",
         "count": p.len(),
+        "non_finite_positions": p.non_finite_positions().0,
         "arrays": p.array_names(names),
         "bounds": bounds,
         "notes": p.notes,
@@ -240,10 +241,15 @@ pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
         }
         Dataset::Heightfield(h) => s += &grid_text(&GridSummary::of_heightfield(h)),
         Dataset::Particles(p) => {
-            s += &format!("particles   {}\n", p.len());
+            let (non_finite, _) = p.non_finite_positions();
+            s += &format!("particles   {}", p.len());
+            if non_finite > 0 {
+                s += &format!(" ({non_finite} at positions that are not finite)");
+            }
+            s += "\n";
             s += &format!("arrays      {}\n", p.array_names(names).join(", "));
             if let Some((lo, hi)) = p.bounds() {
-                s += &format!("bounds      {:?} .. {:?}\n", lo, hi);
+                s += &format!("bounds      {:?} .. {:?}{}\n", lo, hi, if non_finite > 0 { " (of the finite positions)" } else { "" });
             }
             for n in &p.notes {
                 s += &format!("note        {n}\n");

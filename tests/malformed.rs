@@ -417,7 +417,7 @@ const EXPECTED: &[(&str, &str)] = &[
     ("huge.png", "invalid PNG: limits are exceeded"),
     ("more_points_ascii.vtk", "POINTS declares 5000 points but only 150 coordinates follow (15000 needed)"),
     ("huge_points.vtk", "POINTS needs 96.0 GiB but the memory limit is 1.0 GiB (set --max-memory to raise it)"),
-    ("cut_half.vtk", "legacy VTK is malformed or truncated (vtkio: Parse error: Complete)"),
+    ("cut_half.vtk", "FIELD array 'h' declares 50 values but only 26 follow"),
     ("wrong_magic.vtk", "not a legacy VTK file (no '# vtk DataFile' header)"),
     ("more_points_binary.vtk", "POINTS declares 5000 points (60000 bytes of float) but only 2759 bytes follow"),
     ("more_points.vtp", "array 'Points' holds 150 values, but 5000 points × 3 components need 15000"),

@@ -35,6 +35,7 @@ mod tiff_lzw;
 pub mod volume;
 pub mod vtk;
 pub mod vtk_image;
+pub mod vtk_legacy;
 pub mod vtk_xml;
 
 pub use error::{ErrorKind, FormatError, Result};

@@ -59,12 +59,8 @@ pub fn detect(path: &Path) -> Result<FileKind> {
         FileKind::GeoTiff
     } else if name.ends_with(".png") {
         FileKind::PngHeightmap
-    } else if name.ends_with(".vtk") {
-        FileKind::VtkLegacy
-    } else if name.ends_with(".vtp") || name.ends_with(".vtu") {
-        FileKind::VtkXml
-    } else if name.ends_with(".vti") {
-        FileKind::VtkImage
+    } else if [".vtk", ".vtp", ".vtu", ".vti"].iter().any(|e| name.ends_with(e)) {
+        vtk_kind(path, &name)?
     } else if name.ends_with(".mha") || name.ends_with(".mhd") {
         FileKind::MetaImage
     } else if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
@@ -78,6 +74,29 @@ pub fn detect(path: &Path) -> Result<FileKind> {
         ));
     };
     Ok(kind)
+}
+
+/// Which VTK file a `.vtk`, `.vtp`, `.vtu` or `.vti` is, by its content (VTK's XML files
+/// are often named `.vtk`): a legacy header, or the XML `VTKFile` element's type; by the
+/// name where the content says neither.
+fn vtk_kind(path: &Path, name: &str) -> Result<FileKind> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    std::fs::File::open(path).and_then(|f| f.take(1024).read_to_end(&mut head)).map_err(|e| FormatError::io(path, e))?;
+    let text = String::from_utf8_lossy(&head);
+    if text.starts_with("# vtk DataFile") {
+        return Ok(FileKind::VtkLegacy);
+    }
+    if text.contains("<VTKFile") {
+        return Ok(if text.contains("type=\"ImageData\"") { FileKind::VtkImage } else { FileKind::VtkXml });
+    }
+    Ok(if name.ends_with(".vtk") {
+        FileKind::VtkLegacy
+    } else if name.ends_with(".vti") {
+        FileKind::VtkImage
+    } else {
+        FileKind::VtkXml
+    })
 }
 
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {

@@ -1,170 +1,34 @@
-//! VTK particle files: legacy `.vtk` (ASCII or binary; POLYDATA, UNSTRUCTURED_GRID or bare
-//! points) through `vtkio`, and XML `.vtp` / `.vtu` (ascii, base64 binary, appended raw or
-//! base64, zlib-compressed) read here.
+//! VTK particle files: legacy `.vtk` (ASCII or binary; POLYDATA, UNSTRUCTURED_GRID,
+//! STRUCTURED_GRID: `vtk_legacy`) and XML `.vtp` / `.vtu` (ascii, base64 binary, appended
+//! raw or base64, zlib-compressed: `vtk_xml`), both read here rather than by vtkio.
 //!
 //! Why the XML reader is our own: vtkio 0.7 (a release candidate) hands the whole file to an
 //! XML parser, and raw appended data is not valid XML — VTK's own writer produces exactly
 //! such files. Parsing the few XML elements that matter with quick-xml and decoding the
 //! DataArrays (inline or from the appended block) ourselves reads every variant VTK writes.
+//! Why the legacy reader is: see `vtk_legacy`.
 
 use crate::atomic::write_atomically;
 use crate::error::{FormatError, Result};
 use crate::memory::Limits;
-use crate::particles::{ParticleArrayNames, ParticleSet, PointArray};
+use crate::particles::{ParticleArrayNames, ParticleSet};
 use std::io::Write;
 use std::path::Path;
 
+/// A VTK particle file, legacy or XML by its content (a `.vtp` named `.vtk` is read as what
+/// it is, as VTK's readers and pyvista do not).
 pub fn read_vtk_particles(path: &Path, names: &ParticleArrayNames, limits: &Limits) -> Result<ParticleSet> {
-    let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-    match ext.as_str() {
-        "vtp" | "vtu" => crate::vtk_xml::read_vtk_xml(path, names, limits),
-        _ => read_legacy(path, names, limits),
-    }
-}
-
-fn read_legacy(path: &Path, names: &ParticleArrayNames, limits: &Limits) -> Result<ParticleSet> {
-    use vtkio::model::{Attribute, DataSet};
-    let head = {
+    let mut head = [0u8; 64];
+    let n = {
         use std::io::Read;
-        let mut b = [0u8; 256];
-        let mut f = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
-        let n = f.read(&mut b).map_err(|e| FormatError::io(path, e))?;
-        b[..n].to_vec()
+        std::fs::File::open(path).and_then(|mut f| f.read(&mut head)).map_err(|e| FormatError::io(path, e))?
     };
-    if !head.starts_with(b"# vtk DataFile") {
-        return Err(FormatError::invalid(path, "not a legacy VTK file (no '# vtk DataFile' header)"));
-    }
-    // Guard before vtkio allocates: the file and the POINTS it declares must fit the memory
-    // limit, and the points must be there (vtkio reports a short file as "Parse error: Digit").
-    let len = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?.len();
-    // Held at once at the peak: the file, vtkio's arrays, their f64 copies and the
-    // positions — measured 4.2× a binary file of f32 points. ASCII numbers take at least
-    // two bytes each and become up to 24 bytes (vtkio's f64, ours, the positions).
-    let ascii = head.split(|&b| b == b'\n').nth(2).is_some_and(|l| l.trim_ascii().eq_ignore_ascii_case(b"ASCII"));
-    limits.check(path, "VTK file as it is read", &[len, if ascii { 12 } else { 5 }])?;
-    let mut bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
-    check_legacy_points(path, &bytes, limits)?;
-    // Legacy binary is big-endian by the format's definition. vtkio parses the bytes read
-    // above (its reader appends nothing from an empty one): the file is read once.
-    let vtk = crate::guard::third_party(path, "the legacy VTK parser", || {
-        vtkio::Vtk::parse_legacy_buf_be(std::io::empty(), &mut bytes)
-            .map_err(|e| FormatError::invalid(path, format!("legacy VTK is malformed or truncated (vtkio: {})", short(&e.to_string()))))
-    })?;
-    let (points, attributes) = match vtk.data {
-        DataSet::PolyData { pieces, .. } => {
-            let p = first_piece(path, pieces)?;
-            (p.points, p.data)
-        }
-        DataSet::UnstructuredGrid { pieces, .. } => {
-            let p = first_piece(path, pieces)?;
-            (p.points, p.data)
-        }
-        DataSet::StructuredGrid { pieces, .. } => {
-            let p = first_piece(path, pieces)?;
-            (p.points, p.data)
-        }
-        _ => {
-            return Err(FormatError::unsupported(
-                path,
-                "dataset holds no points (only POLYDATA, UNSTRUCTURED_GRID and STRUCTURED_GRID carry particles)",
-            ))
-        }
-    };
-    let coords: Vec<f64> = points.cast_into::<f64>().ok_or_else(|| FormatError::invalid(path, "POINTS are not numeric"))?;
-    if !coords.len().is_multiple_of(3) {
-        return Err(FormatError::invalid(path, "POINTS length is not a multiple of 3"));
-    }
-    let positions: Vec<[f64; 3]> = coords.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let mut arrays = Vec::new();
-    for a in attributes.point {
-        match a {
-            Attribute::DataArray(d) => {
-                let values =
-                    d.data.cast_into::<f64>().ok_or_else(|| FormatError::invalid(path, format!("array '{}' is not numeric", d.name)))?;
-                arrays.push(PointArray { name: d.name, components: d.elem.num_comp() as usize, values });
-            }
-            Attribute::Field { data_array, .. } => {
-                for f in data_array {
-                    let values = f
-                        .data
-                        .cast_into::<f64>()
-                        .ok_or_else(|| FormatError::invalid(path, format!("field array '{}' is not numeric", f.name)))?;
-                    arrays.push(PointArray { name: f.name, components: f.elem as usize, values });
-                }
-            }
-        }
-    }
-    let version = match vtk.version {
-        vtkio::model::Version::Legacy { major, minor } => format!("{major}.{minor}"),
-        other => format!("{other:?}"),
-    };
-    let notes = vec![format!("legacy VTK {version}, {} points", positions.len())];
-    ParticleSet::from_arrays(positions, arrays, names, notes).map_err(|m| FormatError::invalid(path, m))
-}
-
-/// Checks the POINTS line of a legacy file against the memory limit and against what
-/// follows it: enough bytes (binary) or numbers (ASCII) for every point.
-fn check_legacy_points(path: &Path, bytes: &[u8], limits: &Limits) -> Result<()> {
-    let mut lines = bytes.split(|&b| b == b'\n');
-    let binary = lines.nth(2).is_some_and(|l| String::from_utf8_lossy(l).trim().eq_ignore_ascii_case("BINARY"));
-    let Some(at) = bytes.windows(8).position(|w| w == b"\nPOINTS ") else { return Ok(()) };
-    let line_end = bytes[at + 1..].iter().position(|&b| b == b'\n').map_or(bytes.len(), |i| at + 1 + i);
-    let line = String::from_utf8_lossy(&bytes[at + 1..line_end]).into_owned();
-    let mut words = line.split_whitespace().skip(1);
-    let count = words.next().unwrap_or("");
-    let n: u64 = count.parse().map_err(|_| FormatError::invalid(path, format!("POINTS count '{count}' is not a number")))?;
-    let ty = words.next().unwrap_or("float").to_ascii_lowercase();
-    limits.check(path, "POINTS", &[n, 3, 8])?;
-    let rest = bytes.get(line_end + 1..).unwrap_or(&[]);
-    if binary {
-        let size = match ty.as_str() {
-            "double" | "long" | "unsigned_long" | "vtkidtype" => 8,
-            "short" | "unsigned_short" => 2,
-            "char" | "unsigned_char" | "bit" => 1,
-            _ => 4,
-        };
-        let need = n * 3 * size;
-        if (rest.len() as u64) < need {
-            return Err(FormatError::invalid(
-                path,
-                format!("POINTS declares {n} points ({need} bytes of {ty}) but only {} bytes follow", rest.len()),
-            ));
-        }
+    // XML begins with '<' (after any byte-order mark or blank); anything else is legacy.
+    let xml = head[..n].iter().find(|b| !b.is_ascii_whitespace() && !matches!(b, 0xEF | 0xBB | 0xBF)) == Some(&b'<');
+    if xml {
+        crate::vtk_xml::read_vtk_xml(path, names, limits)
     } else {
-        let need = n * 3;
-        let mut found = 0u64;
-        for word in rest.split(|b| b.is_ascii_whitespace()).filter(|w| !w.is_empty()) {
-            if found == need || (word[0].is_ascii_alphabetic() && !word.eq_ignore_ascii_case(b"nan") && !word.eq_ignore_ascii_case(b"inf"))
-            {
-                break;
-            }
-            found += 1;
-        }
-        if found < need {
-            return Err(FormatError::invalid(
-                path,
-                format!("POINTS declares {n} points but only {found} coordinates follow ({need} needed)"),
-            ));
-        }
-    }
-    Ok(())
-}
-
-/// Pieces other than inline ones only occur in XML parallel files.
-fn first_piece<P>(path: &Path, pieces: Vec<vtkio::model::Piece<P>>) -> Result<P> {
-    match pieces.into_iter().next() {
-        Some(vtkio::model::Piece::Inline(p)) => Ok(*p),
-        Some(_) => Err(FormatError::unsupported(path, "piece references another file")),
-        None => Err(FormatError::invalid(path, "dataset has no piece")),
-    }
-}
-
-fn short(s: &str) -> String {
-    let l = s.lines().next().unwrap_or(s);
-    if l.len() > 200 {
-        format!("{}…", &l[..200])
-    } else {
-        l.to_string()
+        crate::vtk_legacy::read_points(path, names, limits)
     }
 }
 

@@ -1,7 +1,8 @@
-//! Legacy VTK `DATASET STRUCTURED_POINTS` (`.vtk`) as a volume, read here rather than by
-//! vtkio: vtkio keeps origin and spacing as f32 and every array whole, where a volume
-//! wants f64 geometry and only its scalars. VTK's coordinates are taken as world
-//! coordinates (VTK has no anatomical frame): world = ORIGIN + SPACING ⊙ index.
+//! Legacy VTK `DATASET STRUCTURED_POINTS` (`.vtk`) as a volume, read here (through
+//! `vtk_legacy::Cursor`) rather than by vtkio: vtkio keeps origin and spacing as f32 and
+//! every array whole, where a volume wants f64 geometry and only its scalars. VTK's
+//! coordinates are taken as world coordinates (VTK has no anatomical frame): world =
+//! ORIGIN + SPACING ⊙ index.
 //!
 //! Read: ASCII and BINARY (big-endian, as the format defines), the first `SCALARS` of the
 //! POINT_DATA (other attributes before it skipped by their declared sizes; a one-component
@@ -12,6 +13,7 @@
 use crate::error::{FormatError, Result};
 use crate::memory::Limits;
 use crate::volume::{ScalarType, Volume, VoxelData};
+use crate::vtk_legacy::Cursor;
 use std::path::Path;
 
 /// What DATASET a legacy file declares (None: no DATASET line in its first 4 KiB).
@@ -27,80 +29,35 @@ pub fn legacy_dataset(path: &Path) -> Result<Option<String>> {
     Ok(text.lines().find_map(|l| l.trim().strip_prefix("DATASET ").map(|d| d.trim().to_ascii_uppercase())))
 }
 
-/// A cursor over the file: header words and lines, then data.
-struct Cursor<'a> {
-    path: &'a Path,
-    b: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Cursor<'a> {
-    /// The next non-empty line, trimmed.
-    fn line(&mut self) -> Option<String> {
-        while self.pos < self.b.len() {
-            let end = self.b[self.pos..].iter().position(|&c| c == b'\n').map_or(self.b.len(), |i| self.pos + i);
-            let l = String::from_utf8_lossy(&self.b[self.pos..end]).trim().to_string();
-            self.pos = end + 1;
-            if !l.is_empty() {
-                return Some(l);
-            }
-        }
-        None
+/// `count` values of `ty` for a volume: binary big-endian bytes, or ASCII numbers.
+fn voxel_values(c: &mut Cursor, binary: bool, ty: &str, count: usize, limits: &Limits) -> Result<(ScalarType, VoxelData)> {
+    let st = scalar_type(c.path, ty)?;
+    limits.check(c.path, "scalars", &[count as u64, st.size() as u64])?;
+    if binary {
+        let want = count * st.size();
+        let bytes = c.b.get(c.pos..c.pos + want).ok_or_else(|| {
+            FormatError::invalid(
+                c.path,
+                format!("file is truncated: {count} {ty} values need {want} bytes, {} remain", c.b.len().saturating_sub(c.pos)),
+            )
+        })?;
+        c.pos += want;
+        return Ok((st, VoxelData::from_bytes(st, bytes, true)));
     }
-    fn expect_line(&mut self, what: &str) -> Result<String> {
-        self.line().ok_or_else(|| FormatError::invalid(self.path, format!("file is truncated: no {what}")))
+    let mut v = Vec::with_capacity(count.min(1 << 24));
+    while v.len() < count {
+        while c.pos < c.b.len() && c.b[c.pos].is_ascii_whitespace() {
+            c.pos += 1;
+        }
+        let end = c.b[c.pos..].iter().position(|ch| ch.is_ascii_whitespace()).map_or(c.b.len(), |i| c.pos + i);
+        if end == c.pos {
+            return Err(FormatError::invalid(c.path, format!("file is truncated: {} of {count} values", v.len())));
+        }
+        let w = String::from_utf8_lossy(&c.b[c.pos..end]);
+        v.push(w.parse::<f64>().map_err(|_| FormatError::invalid(c.path, format!("'{w}' is not a number")))?);
+        c.pos = end;
     }
-    /// `count` values of `ty`: binary big-endian bytes, or ASCII numbers.
-    fn values(&mut self, binary: bool, ty: &str, count: usize, limits: &Limits) -> Result<(ScalarType, VoxelData)> {
-        let st = scalar_type(self.path, ty)?;
-        limits.check(self.path, "scalars", &[count as u64, st.size() as u64])?;
-        if binary {
-            let want = count * st.size();
-            let bytes = self.b.get(self.pos..self.pos + want).ok_or_else(|| {
-                FormatError::invalid(
-                    self.path,
-                    format!("file is truncated: {count} {ty} values need {want} bytes, {} remain", self.b.len().saturating_sub(self.pos)),
-                )
-            })?;
-            self.pos += want;
-            return Ok((st, VoxelData::from_bytes(st, bytes, true)));
-        }
-        let mut v = Vec::with_capacity(count.min(1 << 24));
-        while v.len() < count {
-            while self.pos < self.b.len() && self.b[self.pos].is_ascii_whitespace() {
-                self.pos += 1;
-            }
-            let end = self.b[self.pos..].iter().position(|c| c.is_ascii_whitespace()).map_or(self.b.len(), |i| self.pos + i);
-            if end == self.pos {
-                return Err(FormatError::invalid(self.path, format!("file is truncated: {} of {count} values", v.len())));
-            }
-            let w = String::from_utf8_lossy(&self.b[self.pos..end]);
-            v.push(w.parse::<f64>().map_err(|_| FormatError::invalid(self.path, format!("'{w}' is not a number")))?);
-            self.pos = end;
-        }
-        Ok((st, crate::raw::from_f64s(st, v)))
-    }
-    /// Skips `count` values of `ty` (binary: by size; ASCII: by words).
-    fn skip(&mut self, binary: bool, ty: &str, count: usize) -> Result<()> {
-        if binary {
-            let size = scalar_type(self.path, ty).map(ScalarType::size).unwrap_or(8);
-            self.pos = self.pos.saturating_add(count.saturating_mul(size));
-            return Ok(());
-        }
-        // Stops at the end of the data: a lying count must not spin past it.
-        for _ in 0..count {
-            if self.pos >= self.b.len() {
-                break;
-            }
-            while self.pos < self.b.len() && self.b[self.pos].is_ascii_whitespace() {
-                self.pos += 1;
-            }
-            while self.pos < self.b.len() && !self.b[self.pos].is_ascii_whitespace() {
-                self.pos += 1;
-            }
-        }
-        Ok(())
-    }
+    Ok((st, crate::raw::from_f64s(st, v)))
 }
 
 fn scalar_type(path: &Path, ty: &str) -> Result<ScalarType> {
@@ -209,14 +166,14 @@ pub fn read_structured_points(path: &Path, limits: &Limits) -> Result<Volume> {
                         format!("SCALARS '{}' has {comps} components: a volume holds one value per voxel", w.get(1).unwrap_or(&"")),
                     ));
                 }
-                let (_, data) = c.values(binary, ty, n, limits)?;
+                let (_, data) = voxel_values(&mut c, binary, ty, n, limits)?;
                 break (w.get(1).unwrap_or(&"scalars").to_string(), data);
             }
-            "VECTORS" | "NORMALS" => c.skip(binary, w.get(2).copied().unwrap_or("float"), 3 * n)?,
-            "TENSORS" => c.skip(binary, w.get(2).copied().unwrap_or("float"), 9 * n)?,
+            "VECTORS" | "NORMALS" => c.skip(binary, w.get(2).copied().unwrap_or("float"), 3 * n, &l)?,
+            "TENSORS" => c.skip(binary, w.get(2).copied().unwrap_or("float"), 9 * n, &l)?,
             "TEXTURE_COORDINATES" => {
                 let dim: usize = w.get(2).and_then(|x| x.parse().ok()).unwrap_or(2);
-                c.skip(binary, w.get(3).copied().unwrap_or("float"), dim * n)?
+                c.skip(binary, w.get(3).copied().unwrap_or("float"), dim * n, &l)?
             }
             "COLOR_SCALARS" => return Err(FormatError::unsupported(path, "COLOR_SCALARS before SCALARS: colours are not a scalar volume")),
             "FIELD" => {
@@ -231,9 +188,9 @@ pub fn read_structured_points(path: &Path, limits: &Limits) -> Result<Volume> {
                     );
                     let ty = f.get(3).copied().unwrap_or("float");
                     if found.is_none() && comps == 1 && tuples == n {
-                        found = Some((f[0].to_string(), c.values(binary, ty, n, limits)?.1));
+                        found = Some((f[0].to_string(), voxel_values(&mut c, binary, ty, n, limits)?.1));
                     } else {
-                        c.skip(binary, ty, comps.saturating_mul(tuples))?;
+                        c.skip(binary, ty, comps.saturating_mul(tuples), &a)?;
                     }
                 }
                 if let Some(f) = found {

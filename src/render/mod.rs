@@ -266,18 +266,28 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 limits: *scene.limits(),
             };
             let prepared = timed(&mut prepare, || cache.smoke(&particles, &input, s)).with_context(|| format!("node '{}'", desc.name))?;
-            prepared.render(&rays, s).with_context(|| format!("node '{}'", desc.name))?
+            let mut frame = prepared.render(&rays, s).with_context(|| format!("node '{}'", desc.name))?;
+            frame.stats.notes.extend(particle_notes(&particles, &desc.name));
+            frame
         }
         (NodeSettings::Points(s), Loaded::Data(NodeData::Particles(particles))) => {
             let input =
                 points::PointsInput { particles: &particles, node_to_world, color_by: desc.color_by.as_deref(), range: desc.color_range };
-            points::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
+            let mut frame = points::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?;
+            frame.stats.notes.extend(particle_notes(&particles, &desc.name));
+            frame
         }
         _ => unreachable!("the scene checked that the node's data is of its kind and its renderer draws that kind"),
     };
     let render = t.elapsed().as_secs_f64() - prepare;
     frame.stats.nodes.push(NodeTime { node: desc.name.clone(), renderer: frame.stats.renderer.clone(), load, prepare, render });
     Ok(Some(frame))
+}
+
+/// What the reader noted of a node's particles (those left out for positions that are
+/// not finite, defaults filled in), said with the frame.
+fn particle_notes<'a>(particles: &'a volterra_formats::ParticleSet, node: &'a str) -> impl Iterator<Item = String> + 'a {
+    particles.notes.iter().map(move |n| format!("node '{node}': {n}"))
 }
 
 /// A node's data as its renderer takes it.

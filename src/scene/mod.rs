@@ -385,8 +385,11 @@ impl From<Dataset> for NodeData {
         match d {
             Dataset::Volume(v) => NodeData::Volume(Arc::new(v)),
             Dataset::Heightfield(h) => NodeData::Heightfield(Arc::new(h)),
-            Dataset::Particles(mut p) => {
-                // Renderers need mass, h and density: fill the documented defaults.
+            Dataset::Particles(p) => {
+                // Particles at positions that are not finite are left out (the reader's
+                // note says how many); renderers need mass, h and density: fill the
+                // documented defaults.
+                let mut p = p.drawable();
                 volterra_formats::sph::fill_defaults(&mut p);
                 NodeData::Particles(Arc::new(p))
             }

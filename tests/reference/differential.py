@@ -325,6 +325,139 @@ def write_fixtures(work):
     return out
 
 
+# --- particles: points and every point array, as pyvista reads them --------------------------
+def particle_fixtures(work):
+    """Point sets as pyvista / VTK 9 write them (the way most users make a .vtk today):
+    PolyData.save as legacy 5.1 (VERTICES with OFFSETS / CONNECTIVITY; the active scalars as
+    SCALARS, normals, texture coordinates, colours as COLOR_SCALARS, every other array in a
+    FIELD block; a dataset-level FIELD block before POINTS), binary and ASCII, with NaN and
+    infinite values in positions and arrays; VTK's 4.2 writer; XML .vtp and .vtu; an
+    UnstructuredGrid as legacy .vtk; a .vtp named .vtk. (path, reference path): VTK's own
+    ASCII readers cannot read NaN ("Unrecognized keyword: nan"), so an ASCII file with NaN is
+    compared with pyvista's reading of its binary twin; the values are multiples of 1/64,
+    which ASCII's 6 significant digits hold exactly."""
+    import pyvista as pv
+    import vtk
+
+    rng = np.random.default_rng(23)
+    n = 57
+    q = lambda a: np.round(a * 64) / 64  # below 1 in magnitude: exact in 6 significant digits
+    pts = (np.round(rng.random((n, 3)) * [128, 32, 120]) / [64, 64, 4] - 1.0).astype(np.float32)
+
+    def cloud(with_nan):
+        p = pts.copy()
+        h = q(rng.random(n) * 10 + 1) / 1000
+        if with_nan:
+            p[5, 0], p[9, 2], h[3] = np.nan, np.inf, np.nan
+        pd = pv.PolyData(p)
+        pd.point_data["mass"] = q(rng.random(n)).astype(np.float32)
+        pd.point_data["h"] = h
+        pd.point_data["velocity"] = q(np.clip(rng.normal(0, 0.5, (n, 3)), -0.98, 0.98)).astype(np.float32)
+        pd.point_data["id"] = np.arange(n, dtype=np.int32)
+        pd.point_data["particle age"] = np.round(rng.random(n) * 400) / 4
+        pd.point_data["n"] = q(np.clip(rng.normal(0, 0.5, (n, 3)), -0.98, 0.98)).astype(np.float32)
+        pd.point_data.active_normals_name = "n"
+        pd.point_data["uv"] = q(rng.random((n, 2))).astype(np.float32)
+        pd.point_data.active_texture_coordinates_name = "uv"
+        pd.point_data["rgb"] = (rng.random((n, 3)) * 255).astype(np.uint8)
+        pd.point_data.active_scalars_name = "mass"
+        pd.field_data["time"] = np.array([1.5])
+        pd.field_data["title"] = np.array([3, 4, 5], dtype=np.int16)
+        return pd
+
+    out = []
+
+    def save(mesh, name, binary, reference=None):
+        p = os.path.join(work, name)
+        mesh.save(p, binary=binary)
+        out.append((p, os.path.join(work, reference) if reference else p))
+
+    clean, nan = cloud(False), cloud(True)
+    for ext in ["vtk", "vtp"]:
+        save(clean, f"pyvista_binary.{ext}", True)
+        save(clean, f"pyvista_ascii.{ext}", False)
+        save(nan, f"pyvista_nan_binary.{ext}", True)
+        save(nan, f"pyvista_nan_ascii.{ext}", False, f"pyvista_nan_binary.{ext}")
+    colours = clean.copy()
+    colours.point_data.active_scalars_name = "rgb"
+    save(colours, "colours_binary.vtk", True)
+    save(colours, "colours_ascii.vtk", False)
+    for ftype in ["binary", "ascii"]:
+        p = os.path.join(work, f"vtk42_{ftype}.vtk")
+        w = vtk.vtkPolyDataWriter()
+        w.SetInputData(clean)
+        w.SetFileName(p)
+        w.SetFileVersion(42)
+        w.SetFileTypeToBinary() if ftype == "binary" else w.SetFileTypeToASCII()
+        w.Write()
+        out.append((p, p))
+    grid = pv.UnstructuredGrid({pv.CellType.VERTEX: np.arange(n).reshape(-1, 1)}, pts.astype(np.float64))
+    grid.point_data["mass"] = clean.point_data["mass"]
+    grid.point_data["h"] = clean.point_data["h"]
+    save(grid, "ugrid.vtk", True)
+    save(grid, "ugrid_ascii.vtk", False)
+    save(grid, "ugrid.vtu", True)
+    xml = os.path.join(work, "xml_named.vtk")
+    with open(os.path.join(work, "pyvista_nan_binary.vtp"), "rb") as src, open(xml, "wb") as dst:
+        dst.write(src.read())
+    out.append((xml, os.path.join(work, "pyvista_nan_binary.vtp")))
+    return out
+
+
+def particle_reference(path):
+    """Points (f64) and every point array (f64, one row per point) as pyvista reads them."""
+    import pyvista as pv
+
+    mesh = pv.read(path)
+    pts = np.asarray(mesh.points, dtype=np.float64)
+    arrays = {k: np.asarray(mesh.point_data[k], dtype=np.float64).reshape(len(pts), -1) for k in mesh.point_data.keys()}
+    return pts, arrays
+
+
+def same_values(a, b):
+    """Equal where finite (exactly, as f32 where volterra writes f32), NaN and infinities in
+    the same places."""
+    if a.shape != b.shape:
+        return False
+    if not np.array_equal(np.isnan(a), np.isnan(b)):
+        return False
+    fin = np.isfinite(a) & np.isfinite(b)
+    if not np.array_equal(a[~np.isnan(a) & ~fin], b[~np.isnan(b) & ~fin]):
+        return False
+    return np.array_equal(a[fin], b[fin]) or np.array_equal(a[fin].astype(np.float32), b[fin].astype(np.float32))
+
+
+def compare_particles(path, reference_path, work):
+    """`volterra convert FILE out.vtp`, read back by pyvista, against pyvista's reading of
+    the original: (verdict, detail)."""
+    try:
+        ref = particle_reference(reference_path)
+    except Exception as e:
+        ref = None
+        why = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+    out = os.path.join(work, "out.vtp")
+    if os.path.exists(out):
+        os.remove(out)
+    r = subprocess.run([VOLTERRA, "convert", path, out], capture_output=True, text=True, timeout=120)
+    if r.returncode != 0:
+        err = r.stderr.strip().splitlines()
+        if r.returncode == 101 or any("panicked" in line for line in err):
+            return "wrong", "panicked: " + " ".join(err)[:300], ""
+        reason = (err[-1] if err else f"exit {r.returncode}").removeprefix("error: ").replace(path, os.path.basename(path))
+        return "refused", reason, justify(reason) if ref is not None else f"the reference cannot read it either ({why})"
+    if ref is None:
+        return "no reference", f"the reference cannot read it ({why}); volterra reads it", ""
+    pts, arrays = particle_reference(out)
+    if not same_values(ref[0], pts):
+        return "wrong", f"points differ ({len(pts)} read, {len(ref[0])} in the reference)", ""
+    if sorted(arrays) != sorted(ref[1]):
+        return "wrong", f"point arrays {sorted(arrays)}, reference {sorted(ref[1])}", ""
+    for k, v in ref[1].items():
+        if not same_values(v, arrays[k]):
+            return "wrong", f"point array '{k}' differs", ""
+    return "equal", f"{len(pts)} points, arrays {', '.join(sorted(ref[1]))}", ""
+
+
 # --- the comparison -------------------------------------------------------------------------
 def volterra_convert(path, work):
     out = os.path.join(work, "out.nii")
@@ -437,8 +570,18 @@ def main():
                     cases.append(("shared", p, "metaimage"))
                 elif f.endswith((".nrrd", ".nhdr")):
                     cases.append(("shared", p, "nrrd"))
+    particle_cases = []
+    if SHARED:
+        pdir = os.path.join(SHARED, "particles")
+        for f in sorted(os.listdir(pdir)) if os.path.isdir(pdir) else []:
+            if f.endswith((".vtk", ".vtp", ".vtu")):
+                particle_cases.append(("shared particles", os.path.join(pdir, f), os.path.join(pdir, f), pdir))
     rows = []
     with tempfile.TemporaryDirectory() as work, tempfile.TemporaryDirectory() as written:
+        particle_cases += [("written particles", p, ref, written) for p, ref in particle_fixtures(written)]
+        for suite, path, reference_path, base in particle_cases:
+            verdict, detail, why = compare_particles(path, reference_path, work)
+            rows.append((suite, os.path.relpath(path, base), verdict, detail, why))
         cases += [("written", p, kind) for p, kind in write_fixtures(written)]
         readers = {"dicom-series": series_reference, "dicom": dicom_reference, "nifti": nifti_reference,
                    "vtk": vtk_reference, "metaimage": metaimage_reference, "nrrd": nrrd_reference}
@@ -530,6 +673,11 @@ def write_table(rows):
         f.write("the reference library's reading of the original: values after rescale, dims, and the\n")
         f.write("voxel-to-world affine (RAS+ mm). Files without pixel data (reports, plans, structure sets) are\n")
         f.write("left out. Lossy transfer syntaxes allow 2 grey levels between decoders.\n\n")
+        f.write("Particles (suites `shared particles` and `written particles`: every point file in\n")
+        f.write("../shared/data, and files pyvista and VTK write at test time: legacy 5.1 and 4.2, binary\n")
+        f.write("and ASCII, NaN and infinite values, XML .vtp/.vtu, a .vtp named .vtk) are converted with\n")
+        f.write("`volterra convert FILE out.vtp`, read back by pyvista and compared with pyvista's reading\n")
+        f.write("of the original: every point, every point array by name, NaN and infinities in place.\n\n")
         f.write("| suite | equal | refused | wrong | no reference |\n|---|---|---|---|---|\n")
         for s, c in counts.items():
             f.write(f"| {s} | {c['equal']} | {c['refused']} | {c['wrong']} | {c['no reference']} |\n")

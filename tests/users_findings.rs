@@ -1,0 +1,90 @@
+//! What three new users hit on unseen data (issue 44), each reproduced: results that were
+//! wrong or misleading without a word, and the conventions of the tools they came from.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn volterra(args: &[&str]) -> std::process::Output {
+    Command::new(common::volterra_bin()).args(args).output().unwrap()
+}
+
+/// `volterra render SCENE -o OUT` in `dir`: its stderr (it must succeed).
+fn render(scene: &Path, out: &Path) -> String {
+    let o = volterra(&["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{}: {err}", scene.display());
+    err
+}
+
+fn exr_pixels(path: &Path) -> Vec<f32> {
+    let img = volterra_formats::exr_io::read_exr(path, &Default::default()).unwrap();
+    img.channels.into_iter().flat_map(|(_, values)| values).collect()
+}
+
+/// A small plume scene over `file`, drawn by `renderer`.
+fn particle_scene(dir: &Path, name: &str, file: &str, renderer: &str) -> PathBuf {
+    let settings = if renderer == "smoke" {
+        "medium = { c_ext = 10.0, albedo = 0.9, g = 0.3 }\nsettings = { photons = 3000, samples = 1 }"
+    } else {
+        "color_by = \"density\""
+    };
+    let scene = dir.join(name);
+    std::fs::write(
+        &scene,
+        format!(
+            "[image]\nwidth = 40\nheight = 32\n[camera]\nposition = [0.5, -1.6, 0.5]\nfocal_point = [0.5, 0.5, 0.45]\n\
+             [[light]]\nkind = \"directional\"\ndirection = [-1.0, 0.6, -0.5]\nintensity = 3.0\n\
+             [[node]]\nname = \"plume\"\nkind = \"particles\"\nfile = \"{file}\"\nrenderer = \"{renderer}\"\n{settings}\n"
+        ),
+    )
+    .unwrap();
+    scene
+}
+
+/// Particles at NaN or infinite positions: one rule for both particle renderers — left
+/// out, counted by `info` (bounds of the finite ones) and said in the frame's notes. Each
+/// renderer's image is the image of the file without them, bit for bit. (Before, the points
+/// renderer drew them silently and smoke refused them.)
+#[test]
+fn particles_at_positions_that_are_not_finite_are_counted_left_out_and_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let clean = volterra::samples::smoke_plume(2000, 5);
+    let mut broken = clean.clone();
+    let bad = [(17, [f64::NAN, 0.5, 0.5]), (400, [0.5, f64::INFINITY, 0.5]), (1999, [0.2, 0.3, f64::NEG_INFINITY])];
+    // Insert the bad particles (each with every array's values) among the clean ones.
+    for (at, p) in bad {
+        broken.positions.insert(at, p);
+        for v in [&mut broken.mass, &mut broken.density, &mut broken.smoothing_length].into_iter().flatten() {
+            v.insert(at, v[0]);
+        }
+        for a in &mut broken.arrays {
+            let first: Vec<f64> = a.values[..a.components].to_vec();
+            a.values.splice(at * a.components..at * a.components, first);
+        }
+    }
+    let names = Default::default();
+    volterra_formats::vtk::write_vtp(&dir.path().join("clean.vtp"), &clean, &names).unwrap();
+    volterra_formats::vtk::write_vtp(&dir.path().join("broken.vtp"), &broken, &names).unwrap();
+
+    let o = volterra(&["info", "--json", dir.path().join("broken.vtp").to_str().unwrap()]);
+    assert!(o.status.success());
+    let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(info["count"], 2003);
+    assert_eq!(info["non_finite_positions"], 3);
+    let (lo, hi) = clean.bounds().unwrap();
+    assert_eq!(info["bounds"], serde_json::json!([lo, hi]), "bounds of the finite positions");
+    assert!(info["notes"].to_string().contains("3 of 2003 particles are at positions that are not finite"), "{info}");
+    let text = String::from_utf8_lossy(&volterra(&["info", dir.path().join("broken.vtp").to_str().unwrap()]).stdout).into_owned();
+    assert!(text.contains("2003 (3 at positions that are not finite)") && text.contains("particle 17, at (NaN, 0.5, 0.5)"), "{text}");
+
+    let renderers: &[&str] = if common::gpu().is_some() { &["smoke", "points"] } else { &["smoke"] };
+    for renderer in renderers {
+        let (a, b) = (dir.path().join(format!("{renderer}_clean.exr")), dir.path().join(format!("{renderer}_broken.exr")));
+        render(&particle_scene(dir.path(), &format!("{renderer}_clean.toml"), "clean.vtp", renderer), &a);
+        let err = render(&particle_scene(dir.path(), &format!("{renderer}_broken.toml"), "broken.vtp", renderer), &b);
+        assert!(err.contains("3 of 2003 particles are at positions that are not finite"), "{renderer}: {err}");
+        assert!(exr_pixels(&a) == exr_pixels(&b), "{renderer}: the image differs from the image without those particles");
+    }
+}
