@@ -41,9 +41,9 @@ pub struct RenderCache {
     /// Keyed by the heightfield's and texture's addresses; one placement each (a new one,
     /// such as the viewer's exaggeration slider, replaces the entry instead of adding one).
     terrain: Mutex<HashMap<TerrainKey, PreparedTerrain>>,
-    /// The second volume of each fused pair resampled onto the first's grid and prepared,
-    /// keyed by both volumes' addresses and the second's placement relative to the first.
-    fused: Mutex<HashMap<FusedKey, PreparedSecond>>,
+    /// Each fused pair on its grid (`shear_warp::fusion::FusionGrid`), prepared: keyed by
+    /// both volumes' addresses and the second's placement relative to the first.
+    fused: Mutex<HashMap<FusedKey, PreparedPair>>,
     /// Keyed by the particles' address; one preparation each (other settings, a medium or
     /// lights edited in the viewer, replace the entry instead of adding one).
     smoke: Mutex<HashMap<usize, PreparedSmoke>>,
@@ -54,9 +54,17 @@ pub struct RenderCache {
 type PreparedSmoke = (Arc<volterra_formats::ParticleSet>, u64, Arc<smoke::prepare::Prepared>);
 
 type FusedKey = (usize, usize, [u64; 16]);
-/// Both volumes (held so their addresses stay taken) and the second's preparation on the
-/// first's grid.
-type PreparedSecond = (Arc<Volume>, Arc<Volume>, Arc<shear_warp::Prepared>);
+/// Both volumes (held so their addresses stay taken) and the pair's preparations on its
+/// grid: the first's (its own where the grid is not refined), the second's.
+type PreparedPair = (Arc<Volume>, Arc<Volume>, FusedPreparation);
+
+/// A fused pair as shear-warp draws it: both volumes prepared on one grid.
+#[derive(Clone)]
+pub struct FusedPreparation {
+    pub grid: shear_warp::fusion::FusionGrid,
+    pub first: Arc<shear_warp::Prepared>,
+    pub second: Arc<shear_warp::Prepared>,
+}
 
 /// A volume and its shear-warp preparation (the volume is held so its address stays taken).
 type PreparedVolume = (Arc<Volume>, Arc<shear_warp::Prepared>);
@@ -119,21 +127,31 @@ impl RenderCache {
         Ok(p)
     }
 
-    /// `second` resampled onto `first`'s grid (`shear_warp::fusion`) and prepared, kept
-    /// while both volumes and the placement stay.
-    fn fused_second(
+    /// The pair on its grid (`shear_warp::fusion`: the first's, refined where the second is
+    /// finer), both resampled onto it where needed and prepared, kept while both volumes
+    /// and the placement stay.
+    fn fused_pair(
         &self,
         (first, first_to_world): (&Arc<Volume>, glam::DMat4),
         (second, second_to_world): (&Arc<Volume>, glam::DMat4),
         limits: &Limits,
-    ) -> Result<Arc<shear_warp::Prepared>> {
+    ) -> Result<FusedPreparation> {
+        use shear_warp::fusion;
         let relative = (first_to_world.inverse() * second_to_world).to_cols_array().map(f64::to_bits);
         let key = (Arc::as_ptr(first) as usize, Arc::as_ptr(second) as usize, relative);
         if let Some((_, _, p)) = self.fused.lock().unwrap().get(&key) {
             return Ok(p.clone());
         }
-        let resampled = shear_warp::fusion::resample_onto(first, first_to_world, second, second_to_world, limits)?;
-        let p = Arc::new(shear_warp::Prepared::shared(Arc::new(resampled), limits)?);
+        let grid = fusion::FusionGrid::of(first, first_to_world, second, second_to_world);
+        let (on_grid, first_prepared) = if grid.is_refined() {
+            let refined = Arc::new(fusion::refine(first, grid.factor, limits)?);
+            (refined.clone(), Arc::new(shear_warp::Prepared::shared(refined, limits)?))
+        } else {
+            (first.clone(), self.shear_warp(first, limits)?)
+        };
+        let resampled = fusion::resample_onto(&on_grid, first_to_world, second, second_to_world, limits)?;
+        let second_prepared = Arc::new(shear_warp::Prepared::shared(Arc::new(resampled), limits)?);
+        let p = FusedPreparation { grid, first: first_prepared, second: second_prepared };
         self.fused.lock().unwrap().insert(key, (first.clone(), second.clone(), p.clone()));
         Ok(p)
     }
@@ -421,6 +439,19 @@ pub fn shear_warp_pair(scene: &Scene, nodes: &[usize]) -> Result<(usize, usize),
     if tf.opacity(lowest) > 0.0 {
         return Err(format!("'{}' is not transparent at its lowest value", named(second)));
     }
+    // The grid both are sampled on (the first's, refined to the second's voxel size where
+    // that is finer) must fit the memory limit; else the reference, on each volume's own
+    // grid, draws them.
+    let (v1, v2) = (scene.volume(first).map_err(|e| format!("{e:#}"))?, scene.volume(second).map_err(|e| format!("{e:#}"))?);
+    let grid = shear_warp::fusion::FusionGrid::of(&v1, scene.world_transform(first), &v2, scene.world_transform(second));
+    if let Err(e) = scene.limits().check(&scene.source, "the fused pair's grid", &[grid.voxels(), grid.bytes_per_voxel()]) {
+        let [dx, dy, dz] = grid.dims;
+        return Err(format!(
+            "sampled at the voxel size of '{}', the pair's grid of {dx}×{dy}×{dz} voxels does not fit: {}",
+            named(second),
+            e.message
+        ));
+    }
     Ok((first, second))
 }
 
@@ -439,30 +470,38 @@ pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size:
         let load = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (m1, m2) = (scene.world_transform(first), scene.world_transform(second));
-        let p1 = cache.shear_warp(&v1, scene.limits())?;
-        let p2 = cache.fused_second((&v1, m1), (&v2, m2), scene.limits())?;
+        let pair = cache.fused_pair((&v1, m1), (&v2, m2), scene.limits())?;
         let prepare = t.elapsed().as_secs_f64();
         let (tf1, tf2) = (scene.classification(first)?, scene.classification(second)?);
         let (shading1, shading2) = (scene.shading(first), scene.shading(second));
         let Some(NodeSettings::ShearWarp(settings)) = scene.node_settings(first) else { unreachable!("shear_warp_pair checked") };
         let input = shear_warp::Input {
-            prepared: &p1,
+            prepared: &pair.first,
             node_to_world: m1,
             tf: &tf1,
             blend: crate::scene::BlendMode::Composite,
             shading: shading1.as_ref(),
             lights: &scene.file.lights,
             crop: &[],
-            second: Some(shear_warp::fusion::Second { prepared: &p2, tf: &tf2, shading: shading2.as_ref() }),
+            second: Some(shear_warp::fusion::Second { prepared: &pair.second, tf: &tf2, shading: shading2.as_ref() }),
         };
         let t = Instant::now();
         let mut frame = shear_warp::render(&input, &camera.rays(size.0, size.1), settings)?;
-        frame.stats.notes.push(format!(
-            "volumes {} overlap: fused along each ray by shear-warp, '{}' resampled onto the grid of '{}'",
-            names.join(", "),
-            scene.nodes()[second].name,
-            scene.nodes()[first].name
-        ));
+        let (inner, outer) = (&scene.nodes()[second].name, &scene.nodes()[first].name);
+        frame.stats.notes.push(if pair.grid.is_refined() {
+            let [fx, fy, fz] = pair.grid.factor;
+            let [dx, dy, dz] = pair.grid.dims;
+            format!(
+                "volumes {} overlap: fused along each ray by shear-warp on the grid of '{outer}' refined {fx}×{fy}×{fz} \
+                 ({dx}×{dy}×{dz} voxels) to the voxel size of '{inner}', so neither loses detail",
+                names.join(", ")
+            )
+        } else {
+            format!(
+                "volumes {} overlap: fused along each ray by shear-warp, '{inner}' resampled onto the grid of '{outer}'",
+                names.join(", ")
+            )
+        });
         frame.stats.nodes.push(NodeTime {
             node: names.join("+"),
             renderer: format!("{} (fused)", shear_warp::RENDERER.name),
