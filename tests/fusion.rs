@@ -278,15 +278,20 @@ fn scenes_fuse_overlapping_volume_nodes_by_themselves() {
         "{:?}",
         frame.stats.notes
     );
-    // A volume inside another, both shear-warp: fused by shear-warp, the inner one resampled
-    // onto the outer one's grid (whichever is listed first).
+    // A volume inside another, both shear-warp: fused by shear-warp on the outer one's grid
+    // (whichever is listed first), refined ×2 to the inner one's 1.5 mm (the outer's 2 mm
+    // would lose its detail).
     let inner = placed([8, 8, 8], 1.5, 10.0, [6.0, 4.0, 4.0], |p| ((p - DVec3::new(10.0, 9.5, 9.0)).length() < 4.0) as u8 as f32);
     volterra_formats::nifti::write_nifti(&dir.path().join("inner.nii"), &inner).unwrap();
     let scene = load(format!("{head}{}{}", node("inner", "shear-warp"), node("a", "shear-warp")));
     assert_eq!(volterra::render::shear_warp_pair(&scene, &[0, 1]), Ok((1, 0)));
     let frame = volterra::render::render_scene(&scene, None).unwrap();
     assert!(
-        frame.stats.notes.iter().any(|n| n.contains("by shear-warp, 'inner' resampled onto the grid of 'a'")),
+        frame
+            .stats
+            .notes
+            .iter()
+            .any(|n| n.contains("by shear-warp on the grid of 'a' refined 2×2×2 (23×23×23 voxels) to the voxel size of 'inner'")),
         "{:?}",
         frame.stats.notes
     );
