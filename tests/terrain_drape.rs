@@ -251,3 +251,62 @@ fn a_drape_in_another_crs_or_off_the_dem_is_refused() {
     let e = Drape::load(&path, Some(colours), &Default::default()).unwrap_err().to_string();
     assert!(e.contains("single-band"), "{e}");
 }
+
+/// A PNG drape of the DEM's own size has its texel centres on the sample centres (issue 44:
+/// its outer texel edges were stretched to the first and last sample centres, up to half a
+/// cell off): it draws bit for bit as the same pixels written as a GeoTIFF on the DEM's own
+/// grid, GPU and reference; a PNG one texel shorter than the samples (1024² over 1025²)
+/// draws as a GeoTIFF whose pixel edges lie on the sample centres. And a drape that
+/// covers the whole terrain, GeoTIFF or PNG, leaves no elevation scalar bar (its tints show
+/// nowhere); one that covers part of it keeps it.
+#[test]
+fn a_png_drape_of_the_dems_size_lies_texel_on_sample_as_the_same_geotiff() {
+    let dir = tempfile::tempdir().unwrap();
+    let hf = dem();
+    let pattern = |w: usize, h: usize| -> Vec<u8> {
+        (0..w * h)
+            .flat_map(|i| [((i % w) * 255 / w) as u8, ((i / w) * 255 / h) as u8, ((i % w * 7 + i / w * 13) % 17 * 15) as u8])
+            .collect()
+    };
+    let [x0, y0] = hf.origin;
+    // (texels, the GeoTIFF's north-west pixel centre): the DEM's own grid, and pixels
+    // whose edges lie on the sample centres.
+    let cases = [(N, [x0, y0]), (N - 1, [x0 + 0.5 * CELL, y0 - 0.5 * CELL])];
+    for (texels, origin) in cases {
+        let rgb = pattern(texels, texels);
+        let png = dir.path().join(format!("drape{texels}.png"));
+        volterra_formats::image::write_png_rgb8(&png, &volterra_formats::RgbImage { width: texels, height: texels, data: rgb.clone() })
+            .unwrap();
+        let tif = dir.path().join(format!("drape{texels}.tif"));
+        let grid = drape_grid(texels, texels, CELL, origin, utm(32610));
+        volterra_formats::geotiff::write_band(&tif, &grid.georef(), volterra_formats::geotiff::Band::Rgb8(&rgb), None, false).unwrap();
+        let (png_drape, tif_drape) =
+            (Drape::load(&png, None, &Default::default()).unwrap(), Drape::load(&tif, None, &Default::default()).unwrap());
+        let (a, b) =
+            (terrain::drape_placement(&hf.georef(), &png_drape).unwrap(), terrain::drape_placement(&hf.georef(), &tif_drape).unwrap());
+        for k in 0..4 {
+            assert!((a[k] - b[k]).abs() < 1e-12, "{texels} texels: placement {a:?}, the GeoTIFF's {b:?}");
+        }
+        let (gpu_png, ref_png, _) = top_down(&hf, Some(&png_drape)).unwrap();
+        let (gpu_tif, ref_tif, _) = top_down(&hf, Some(&tif_drape)).unwrap();
+        assert!(ref_png.rgba == ref_tif.rgba, "{texels} texels: the reference's pictures differ");
+        assert!(gpu_png.rgba == gpu_tif.rgba, "{texels} texels: the GPU's pictures differ");
+        // Both cover the whole terrain: no elevation scalar bar.
+        assert!(ref_png.scales.is_empty() && ref_tif.scales.is_empty(), "{:?} {:?}", ref_png.scales, ref_tif.scales);
+    }
+    // The DEM's own size, in texel units: sample c lies at texel coordinate c (centres).
+    let png_drape = Drape::stretched(&volterra_formats::RgbImage { width: N, height: N, data: pattern(N, N) });
+    let [s0, s1, t0, t1] = terrain::drape_placement(&hf.georef(), &png_drape).unwrap();
+    for c in [0, 10, N - 1] {
+        assert!(((s0 + s1 * c as f64) * N as f64 - 0.5 - c as f64).abs() < 1e-9, "column {c}");
+        // Grid row gy counts from the south; texel rows from the north.
+        assert!(((t0 + t1 * c as f64) * N as f64 - 0.5 - (N - 1 - c) as f64).abs() < 1e-9, "row {c}");
+    }
+    // A GeoTIFF drape over part of the DEM: the elevation colours show, with their bar.
+    let part = drape_grid(20, 20, CELL, hf.origin, utm(32610));
+    let tif = dir.path().join("part.tif");
+    volterra_formats::geotiff::write_band(&tif, &part.georef(), volterra_formats::geotiff::Band::Rgb8(&pattern(20, 20)), None, false)
+        .unwrap();
+    let (_, reference, _) = top_down(&hf, Some(&Drape::load(&tif, None, &Default::default()).unwrap())).unwrap();
+    assert_eq!(reference.scales.len(), 1, "part of the terrain shows its elevation colours");
+}

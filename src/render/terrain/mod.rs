@@ -178,11 +178,24 @@ pub struct Prepared {
 
 /// Where a drape lies over the grid of `hf`: [s0, s1, t0, t1] with texture coordinates
 /// s = s0 + s1·gx, t = t0 + t1·gy of grid point (gx, gy) (sample column gx, gy rows north
-/// of the southern row). A stretched drape spans the samples' extent; a georeferenced one
-/// lies where its georeferencing says, and must be in the heightfield's CRS and overlap it.
+/// of the southern row; s = 0 and 1 are the image's west and east edges, t = 0 and 1 its
+/// north and south). A georeferenced drape lies where its georeferencing says, and must be
+/// in the heightfield's CRS and overlap it. A stretched one (a PNG) spans, along each axis,
+/// the samples' cells — the raster's outer edges, half a cell beyond the first and last
+/// sample centres, as GDAL places a raster — so an image of the DEM's own size has its
+/// texel centres on the sample centres; except an image one texel shorter than the samples
+/// (a 1024² texture over a 1025² height map), whose texel edges fall on the sample centres:
+/// it spans the first to the last sample centre.
 pub fn drape_placement(hf: &GridGeoref, drape: &Drape) -> Result<[f64; 4]> {
     let (cx, cy) = ((hf.width - 1) as f64, (hf.height - 1) as f64);
-    let Some(g) = &drape.georef else { return Ok([0.0, 1.0 / cx, 1.0, -1.0 / cy]) };
+    let Some(g) = &drape.georef else {
+        // Along an axis of n samples and m texels: s(g) = (g + o) / (n − 1 + 2o), with
+        // o = 0 (vertex-registered, m = n − 1) or ½ (cell-registered, any other m).
+        let offset = |samples: usize, texels: usize| if texels + 1 == samples { 0.0 } else { 0.5 };
+        let (ox, oy) = (offset(hf.width, drape.width), offset(hf.height, drape.height));
+        let (sx, sy) = (1.0 / (cx + 2.0 * ox), 1.0 / (cy + 2.0 * oy));
+        return Ok([ox * sx, sx, 1.0 - oy * sy, -sy]);
+    };
     if g.crs.epsg.is_none() || g.crs.epsg != hf.crs.epsg || g.crs.geographic != hf.crs.geographic {
         bail!(
             "the texture is in {}, the heightfield in {}: a drape must be in the heightfield's CRS (gdalwarp -t_srs …)",
@@ -288,10 +301,15 @@ impl Prepared {
 
     /// The elevation colours' scalar bar for the PNG preview: the colour map over
     /// `colour_range`, else from the lowest to the highest valid elevation (metres) — unless
-    /// a stretched drape covers it all.
+    /// an opaque drape (a PNG, or a GeoTIFF placed over all of it) covers the whole grid,
+    /// so that no elevation colour shows.
     fn elevation_scale(&self, colormap: Colormap, colour_range: Option<[f64; 2]>) -> Option<super::colormap::ColourScale> {
-        let covered = self.texture.as_ref().is_some_and(|t| t.georef.is_none() && t.rgba.chunks_exact(4).all(|p| p[3] == 255));
         let g = &self.grid;
+        let [s0, s1, t0, t1] = self.placement;
+        let (cx, cy) = ((g.nx - 1) as f64, (g.ny - 1) as f64);
+        let inside = |v: f64| (-1e-9..=1.0 + 1e-9).contains(&v);
+        let spans = inside(s0) && inside(s0 + s1 * cx) && inside(t0) && inside(t0 + t1 * cy);
+        let covered = spans && self.texture.as_ref().is_some_and(|t| t.rgba.chunks_exact(4).all(|p| p[3] == 255));
         (!covered && g.any_valid).then(|| super::colormap::ColourScale {
             title: "elevation (m)".into(),
             colormap,
