@@ -4,7 +4,8 @@
 //! 127.0.0.1, free ports, no accounting, proctrack/linuxproc, task/none); a 24-step series
 //! rendered serially, by 2 shards and by a job array gives the same files bit for bit; a job
 //! array for the built-in plume series is checked against the serial render the same way; then kills one task mid-frame and checks that a resubmission with --resume
-//! renders only what is missing and that no partial file is left. The daemons are stopped
+//! renders only what is missing and that no partial file is left; two failed tasks of an
+//! array submitted again alone (`sbatch --array=1,3`) render their own frames. The daemons are stopped
 //! by PID when the test ends, also when a check fails. Without Slurm the test skips
 //! locally and fails under CI.
 
@@ -315,4 +316,32 @@ fn twenty_four_frames_serially_by_two_shards_and_by_the_array(conf: &Path) {
             assert_eq!(std::fs::read(dirs[0].join(f)).unwrap(), std::fs::read(d.join(f)).unwrap(), "{} {f}", d.display());
         }
     }
+
+    // Slurm's way to re-run failed tasks: two tasks fail (a folder stands where each one's
+    // first frame goes), and only those two are submitted again (`sbatch --array=1,3`).
+    // Each renders its own frames — the script names the array's size — and the whole
+    // animation is the serial one, bit for bit.
+    let subset = work.path().join("subset");
+    std::fs::create_dir_all(&subset).unwrap();
+    for f in ["f_0001.exr", "f_0003.exr"] {
+        std::fs::create_dir(subset.join(f)).unwrap();
+    }
+    let out = subset.join("f.exr").display().to_string();
+    let r = volterra(&["slurm", s, "-o", &out, "--frames", "--tasks", "4", "--submit", "--wait"], Some(conf));
+    assert!(!r.status.success(), "two tasks could not write their frames: {}", String::from_utf8_lossy(&r.stderr));
+    let written = exr_frames(&subset).into_iter().filter(|f| subset.join(f).is_file()).count();
+    assert_eq!(written, 12, "tasks 0 and 2 rendered their frames, 1 and 3 none: {:?}", exr_frames(&subset));
+    for f in ["f_0001.exr", "f_0003.exr"] {
+        std::fs::remove_dir(subset.join(f)).unwrap();
+    }
+    let script = subset.join("volterra-plume24.sbatch");
+    let again =
+        Command::new(which("sbatch").unwrap()).args(["--array=1,3", "--wait"]).arg(&script).env("SLURM_CONF", conf).output().unwrap();
+    assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
+    assert_eq!(exr_frames(&subset), serial);
+    for f in &serial {
+        assert_eq!(std::fs::read(dirs[0].join(f)).unwrap(), std::fs::read(subset.join(f)).unwrap(), "re-run subset: {f}");
+    }
+    let text = std::fs::read_to_string(&script).unwrap();
+    assert!(text.contains("/4\"") && text.contains("LP_NUM_THREADS"), "{text}");
 }

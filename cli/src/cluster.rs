@@ -1,6 +1,9 @@
 //! `volterra slurm`: an animation as a Slurm job array. The batch script runs this same
-//! executable's `render --frames --shard auto` in every array task, so task K of M renders
-//! the frames i with i mod M = K, each written atomically; `--resume` in the script lets a
+//! executable's `render --frames --shard $SLURM_ARRAY_TASK_ID/M` in every array task, so
+//! task K of M renders the frames i with i mod M = K, each written atomically. The script
+//! names M itself rather than reading it from the array at run time, so any subset of the
+//! array can be submitted again (`sbatch --array=1,3 SCRIPT`, Slurm's way to re-run failed
+//! tasks) and each task still renders its own frames; `--resume` in the script lets a
 //! resubmission render only what is missing.
 
 use anyhow::{anyhow, bail, Context, Result};
@@ -27,9 +30,19 @@ pub struct SlurmJob<'a> {
     pub wait: bool,
 }
 
-/// A path made absolute against the working directory (the job runs elsewhere).
+/// A path made absolute against the working directory (the job runs elsewhere) and
+/// normalised: `.`, `..` and symbolic links of the folders that exist resolved (a script
+/// written from another folder, or through a link, still names the same files).
 fn absolute(p: &Path) -> Result<PathBuf> {
-    std::path::absolute(p).with_context(|| format!("{}: cannot make the path absolute", p.display()))
+    let abs = std::path::absolute(p).with_context(|| format!("{}: cannot make the path absolute", p.display()))?;
+    if let Ok(c) = abs.canonicalize() {
+        return Ok(c);
+    }
+    // A file not written yet: its folder resolved, its name kept.
+    match (abs.parent().and_then(|d| d.canonicalize().ok()), abs.file_name()) {
+        (Some(dir), Some(name)) => Ok(dir.join(name)),
+        _ => Ok(abs),
+    }
 }
 
 /// A word for bash: single-quoted, with any single quote closed, escaped and reopened.
@@ -76,13 +89,15 @@ pub fn run(job: &SlurmJob) -> Result<()> {
     if let Some(n) = job.frames {
         render.push(n.to_string());
     }
-    render.extend(["--shard".into(), "auto".into()]);
+    // The task's own index over the total named here (see the module's doc).
+    render.extend(["--shard".into(), format!("\"${{SLURM_ARRAY_TASK_ID:?submit this script with sbatch}}/{tasks}\"")]);
     if job.resume {
         render.push("--resume".into());
     }
     let mut text = format!(
         "#!/bin/bash\n# Written by `volterra slurm`: the {} frames of {} as a Slurm job array; task K\n\
-         # renders the frames i with i mod {tasks} = K (`render --shard auto`).\n\
+         # renders the frames i with i mod {tasks} = K (`render --shard K/{tasks}`). Failed tasks can be\n\
+         # submitted again alone: sbatch --array=K1,K2 THIS_SCRIPT\n\
          #SBATCH --job-name={}\n#SBATCH --array=0-{}\n#SBATCH --cpus-per-task={}\n#SBATCH --output={}\n",
         frames.len(),
         job.scene.display(),
@@ -98,7 +113,8 @@ pub fn run(job: &SlurmJob) -> Result<()> {
         text += &format!("#SBATCH --partition={}\n", quoted(p));
     }
     text += &format!(
-        "set -eu\n# As many render threads as the task has CPUs.\nexport RAYON_NUM_THREADS=\"${{SLURM_CPUS_PER_TASK:-1}}\"\nexec {}\n",
+        "set -eu\n# As many render threads as the task has CPUs (rayon's, and lavapipe's for GPU renderers).\n\
+         export RAYON_NUM_THREADS=\"${{SLURM_CPUS_PER_TASK:-1}}\" LP_NUM_THREADS=\"${{SLURM_CPUS_PER_TASK:-1}}\"\nexec {}\n",
         render.join(" ")
     );
     volterra_formats::atomic::write_bytes_atomically(&script, text.as_bytes())?;
