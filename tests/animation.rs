@@ -301,3 +301,93 @@ fn an_animation_holds_one_step_at_a_time() {
     // add 10 MB.
     assert!(all < one + 0.5 * step_bytes as f64, "8 frames peak at {all:.0} B, one frame at {one:.0} B (a step is {step_bytes} B)");
 }
+
+/// A series' automatic scales are taken over all its steps (issue 44): with no
+/// `color_range`, every frame of a points series is coloured over its array's range over
+/// every step (each step's own ranges differ: 0–1, 0–2, 0–3), and frame k draws bit for bit
+/// as step k alone with that range given; smoke without `c_ext` gets the c_ext of the
+/// densest step in every frame, which each frame's note says. `scale_over = "step"` takes
+/// each step's own, as before.
+#[test]
+fn a_series_is_coloured_and_its_smoke_extinguished_over_all_its_steps() {
+    use volterra::render::{render_view, RenderCache};
+    let dir = tempfile::tempdir().unwrap();
+    let base = volterra::samples::smoke_plume(1500, 9);
+    let mut pvd = String::from("<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n<Collection>\n");
+    for k in 0..3 {
+        // Step k: heat over [0, k + 1]; the plume compressed sideways (denser) each step.
+        let mut step = base.clone();
+        let n = step.len();
+        step.arrays.push(volterra_formats::PointArray {
+            name: "heat".into(),
+            components: 1,
+            values: (0..n).map(|i| (k + 1) as f64 * i as f64 / (n - 1) as f64).collect(),
+        });
+        for p in &mut step.positions {
+            p[0] = 0.5 + (p[0] - 0.5) / (1.0 + 0.5 * k as f64);
+        }
+        volterra_formats::vtk::write_vtp(&dir.path().join(format!("s_{k}.vtp")), &step, &Default::default()).unwrap();
+        pvd += &format!("  <DataSet timestep=\"{k}\" file=\"s_{k}.vtp\"/>\n");
+    }
+    pvd += "</Collection>\n</VTKFile>\n";
+    std::fs::write(dir.path().join("s.pvd"), pvd).unwrap();
+    let scene_text = |file: &str, renderer: &str, extra: &str| {
+        format!(
+            "[image]\nwidth = 40\nheight = 32\n[camera]\nposition = [0.5, -1.6, 0.5]\nfocal_point = [0.5, 0.5, 0.45]\n\
+             [[light]]\nkind = \"directional\"\ndirection = [-1.0, 0.6, -0.5]\nintensity = 3.0\n\
+             [[node]]\nname = \"plume\"\nkind = \"particles\"\nfile = \"{file}\"\nrenderer = \"{renderer}\"\n{extra}"
+        )
+    };
+    let load = |text: String| {
+        std::fs::write(dir.path().join("scene.toml"), text).unwrap();
+        Scene::load(&dir.path().join("scene.toml"), &[]).unwrap()
+    };
+    // Every frame of the series through one cache, as `render --frames` draws them.
+    let frames = |scene: &Scene| -> Vec<volterra::render::Frame> {
+        let cache = RenderCache::default();
+        let camera = scene.camera(None).unwrap();
+        animation::frames(scene, None)
+            .unwrap()
+            .iter()
+            .map(|f| render_view(&scene.at_time(f.time.unwrap()), &camera, (40, 32), &cache).unwrap())
+            .collect()
+    };
+    if common::gpu().is_some() {
+        let series = frames(&load(scene_text("s.pvd", "points", "color_by = \"heat\"\n")));
+        for (k, f) in series.iter().enumerate() {
+            assert_eq!(f.scales[0].range, [0.0, 3.0], "frame {k}: coloured over the series' range");
+            assert!(f.stats.notes.iter().any(|n| n.contains("across the series' 3 steps")), "{:?}", f.stats.notes);
+            // Step k alone with that range: the same picture.
+            let alone = load(scene_text(&format!("s_{k}.vtp"), "points", "color_by = \"heat\"\ncolor_range = [0.0, 3.0]\n"));
+            let still = render_view(&alone, &alone.camera(None).unwrap(), (40, 32), &RenderCache::default()).unwrap();
+            assert!(still.rgba == f.rgba, "frame {k} differs from step {k} drawn alone over the series' range");
+        }
+        let per_step = frames(&load(scene_text("s.pvd", "points", "color_by = \"heat\"\nscale_over = \"step\"\n")));
+        let ranges: Vec<[f64; 2]> = per_step.iter().map(|f| f.scales[0].range).collect();
+        assert_eq!(ranges, [[0.0, 1.0], [0.0, 2.0], [0.0, 3.0]], "each step over its own range");
+    }
+    // Smoke: one c_ext, the densest step's, in every frame.
+    let smoke = "medium = { albedo = 0.9, g = 0.3 }\nsettings = { photons = 2000, samples = 1 }\n";
+    let series = frames(&load(scene_text("s.pvd", "smoke", smoke)));
+    let notes: Vec<String> =
+        series.iter().map(|f| f.stats.notes.iter().find(|n| n.contains("c_ext")).cloned().unwrap_or_default()).collect();
+    assert!(
+        notes.iter().all(|n| n == &notes[0] && n.contains("for every step, chosen from the series' densest step (3 of 3")),
+        "{notes:?}"
+    );
+    // Each step alone chooses its own, and the series' is the smallest of them.
+    let own: Vec<f64> = (0..3)
+        .map(|k| {
+            let alone = load(scene_text(&format!("s_{k}.vtp"), "smoke", smoke));
+            let f = render_view(&alone, &alone.camera(None).unwrap(), (40, 32), &RenderCache::default()).unwrap();
+            let note = f.stats.notes.iter().find(|n| n.contains("c_ext chosen from the data")).unwrap().clone();
+            note.split("data: ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap()
+        })
+        .collect();
+    assert!(own[0] > 1.2 * own[2], "the steps' own c_ext differ: {own:?}");
+    let series_c: f64 = notes[0].split("c_ext ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
+    let smallest = own.iter().cloned().fold(f64::INFINITY, f64::min);
+    assert!((series_c - smallest).abs() <= 1e-6 * smallest, "{series_c} vs the steps' {own:?}");
+    let per_step = frames(&load(scene_text("s.pvd", "smoke", &format!("{smoke}scale_over = \"step\"\n"))));
+    assert!(per_step.iter().all(|f| f.stats.notes.iter().any(|n| n.contains("c_ext chosen from the data"))));
+}

@@ -11,6 +11,7 @@ pub mod points;
 pub mod reference_volume;
 pub mod registry;
 pub mod scalar_bar;
+pub mod series_scale;
 pub mod settings;
 pub mod shear_warp;
 pub mod smoke;
@@ -47,7 +48,13 @@ pub struct RenderCache {
     /// Keyed by the particles' address; one preparation each (other settings, a medium or
     /// lights edited in the viewer, replace the entry instead of adding one).
     smoke: Mutex<HashMap<usize, PreparedSmoke>>,
+    /// The automatic scales over each particle series (`series_scale`), keyed by the
+    /// series' address, the node, what is coloured and the placement: found in one pass
+    /// over its steps, kept for every frame.
+    series: Mutex<HashMap<SeriesKey, Arc<series_scale::SeriesScale>>>,
 }
+
+type SeriesKey = (usize, usize, Option<String>, [u64; 16], bool);
 
 /// The particles (held so their address stays taken), the preparation's key
 /// (`smoke::prepare::Prepared::key`) and the preparation.
@@ -113,6 +120,29 @@ impl RenderCache {
         let p = Arc::new(smoke::prepare::Prepared::new(input, s)?);
         self.smoke.lock().unwrap().insert(addr, (particles.clone(), key, p.clone()));
         Ok(p)
+    }
+
+    /// The automatic scales over node `node`'s series (see `series_scale`), where it is one
+    /// and takes its scales over the series; None otherwise.
+    fn series_scale(
+        &self,
+        scene: &Scene,
+        node: usize,
+        node_to_world: glam::DMat4,
+        column: bool,
+    ) -> Result<Option<Arc<series_scale::SeriesScale>>> {
+        let desc = &scene.nodes()[node];
+        let Some(series) = scene.series(node) else { return Ok(None) };
+        if desc.scale_over != crate::scene::ScaleOver::Series || series.steps.len() < 2 {
+            return Ok(None);
+        }
+        let key = (series as *const _ as usize, node, desc.color_by.clone(), node_to_world.to_cols_array().map(f64::to_bits), column);
+        if let Some(s) = self.series.lock().unwrap().get(&key) {
+            return Ok(Some(s.clone()));
+        }
+        let s = Arc::new(series_scale::of_particles(scene, node, desc.color_by.as_deref(), node_to_world, column)?);
+        self.series.lock().unwrap().insert(key, s.clone());
+        Ok(Some(s))
     }
 
     fn shear_warp(&self, volume: &Arc<Volume>, limits: &Limits) -> Result<Arc<shear_warp::Prepared>> {
@@ -276,22 +306,55 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             frame
         }
         (NodeSettings::Smoke(s), Loaded::Data(NodeData::Particles(particles))) => {
+            // No c_ext given: a series takes the one of its densest step for every frame.
+            let mut medium = medium()?.clone();
+            let mut series_note = None;
+            if medium.c_ext.is_none() {
+                let scale = timed(&mut prepare, || cache.series_scale(scene, node, node_to_world, true))?;
+                if let Some((sc, c_ext)) = scale.as_ref().and_then(|sc| Some((sc, sc.c_ext()?))) {
+                    medium.c_ext = Some(c_ext);
+                    let (column, step) = sc.column.expect("c_ext comes from a column");
+                    series_note = Some(format!(
+                        "node '{}': c_ext {c_ext:.6e} for every step, chosen from the series' densest step ({} of {}: optical depth {} through its \
+                         densest column, {column:.6e} mass per area); scale_over = \"step\" chooses it per step",
+                        desc.name,
+                        step + 1,
+                        sc.steps,
+                        smoke::extinction::TARGET_DEPTH
+                    ));
+                }
+            }
             let input = smoke::SmokeInput {
                 particles: &particles,
                 node_to_world,
-                medium: medium()?,
+                medium: &medium,
                 lights: &scene.file.lights,
                 limits: *scene.limits(),
             };
             let prepared = timed(&mut prepare, || cache.smoke(&particles, &input, s)).with_context(|| format!("node '{}'", desc.name))?;
             let mut frame = prepared.render(&rays, s).with_context(|| format!("node '{}'", desc.name))?;
+            frame.stats.notes.extend(series_note);
             frame.stats.notes.extend(particle_notes(&particles, &desc.name));
             frame
         }
         (NodeSettings::Points(s), Loaded::Data(NodeData::Particles(particles))) => {
-            let input =
-                points::PointsInput { particles: &particles, node_to_world, color_by: desc.color_by.as_deref(), range: desc.color_range };
+            // No colour range given: a series is coloured over its array's range over all
+            // its steps.
+            let mut range = desc.color_range;
+            let mut series_note = None;
+            if range.is_none() {
+                let scale = timed(&mut prepare, || cache.series_scale(scene, node, node_to_world, false))?;
+                if let Some((sc, (array, r))) = scale.as_ref().and_then(|sc| Some((sc, sc.colour.clone()?))) {
+                    range = Some(r);
+                    series_note = Some(format!(
+                        "node '{}': colours over '{array}' {} … {} across the series' {} steps; scale_over = \"step\" colours each step over its own range",
+                        desc.name, r[0], r[1], sc.steps
+                    ));
+                }
+            }
+            let input = points::PointsInput { particles: &particles, node_to_world, color_by: desc.color_by.as_deref(), range };
             let mut frame = points::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?;
+            frame.stats.notes.extend(series_note);
             frame.stats.notes.extend(particle_notes(&particles, &desc.name));
             frame
         }

@@ -60,6 +60,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
         medium: None,
         color_by: None,
         color_range: None,
+        scale_over: Default::default(),
     };
     // The fast renderer for the kind (shear-warp, the GPU terrain ray-caster, points;
     // smoke is a click away: the node keeps a medium and a light for it).

@@ -77,6 +77,25 @@ pub enum BlendMode {
     Mip,
 }
 
+/// What a time series node's automatic scales are taken over: the colour range of a
+/// particle node without `color_range`, and smoke's c_ext where its medium gives none.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ScaleOver {
+    /// Every step of the series (ParaView's "over all timesteps"): a colour means one
+    /// value in every frame, and the smoke's extinction does not change from step to step.
+    #[default]
+    Series,
+    /// Each step on its own (its own range, its own c_ext).
+    Step,
+}
+
+impl ScaleOver {
+    fn is_series(&self) -> bool {
+        *self == ScaleOver::Series
+    }
+}
+
 /// A node's placement relative to its parent: `matrix` (4×4, row-major), or scale, then
 /// rotate (degrees about x, then y, then z), then translate.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
@@ -195,8 +214,13 @@ pub struct NodeDesc {
     pub medium: Option<Medium>,
     /// The point array the `points` renderer colours by (default: density).
     pub color_by: Option<String>,
-    /// The values at the colour map's ends (default: the array's range).
+    /// The values at the colour map's ends (default: the array's range — over every step
+    /// of a time series, unless `scale_over = "step"`).
     pub color_range: Option<[f64; 2]>,
+    /// For a time series: whether automatic scales (the colour range, smoke's c_ext) are
+    /// taken over the whole series (default) or each step.
+    #[serde(default, skip_serializing_if = "ScaleOver::is_series")]
+    pub scale_over: ScaleOver,
 }
 
 fn yes() -> bool {
@@ -652,6 +676,9 @@ impl Scene {
             if n.kind != NodeKind::Particles && (n.color_by.is_some() || n.color_range.is_some()) {
                 bail!("{src}: node '{}': color_by and color_range apply to particle nodes only", n.name);
             }
+            if n.scale_over != ScaleOver::Series && n.kind != NodeKind::Particles {
+                bail!("{src}: node '{}': scale_over applies to particle nodes only", n.name);
+            }
             if let Some([lo, hi]) = n.color_range {
                 if !(lo.is_finite() && hi.is_finite() && lo < hi) {
                     bail!("{src}: node '{}': color_range [{lo}, {hi}] must be two finite values, the first smaller", n.name);
@@ -1068,16 +1095,28 @@ impl Scene {
         cell.get_or_init(|| self.read_node(node).map_err(SharedError::new)).clone().map_err(anyhow::Error::new)
     }
 
+    /// Step `k` of node `node`'s series, read now and not kept (a pass over a whole series
+    /// holds one step at a time), as the renderers take it.
+    pub fn step_data(&self, node: usize, k: usize) -> Result<NodeData> {
+        let (path, opts) = self.load_plan_at(node, Some(k))?;
+        Ok(NodeData::from(volterra_formats::load(&path, &opts)?))
+    }
+
     /// The file node `node` reads (its series' step now, where it has one) and how.
     fn load_plan(&self, node: usize) -> Result<(PathBuf, LoadOptions)> {
+        self.load_plan_at(node, self.step(node))
+    }
+
+    /// The file node `node` reads at step `step` of its series (None: no series) and how.
+    fn load_plan_at(&self, node: usize, step: Option<usize>) -> Result<(PathBuf, LoadOptions)> {
         let n = &self.file.nodes[node];
         let mut path = self.base_dir.join(n.file.as_ref().ok_or_else(|| anyhow!("node '{}' has no file", n.name))?);
         let mut opts = LoadOptions { limits: self.limits, ..LoadOptions::default() };
         opts.dicom.series = n.series.clone();
         opts.dicom.resample = n.resample;
         opts.nifti.volume_index = n.volume_index;
-        if let (Some(s), Some(k)) = (&self.series[node], self.step(node)) {
-            let step = &s.steps[k];
+        if let (Some(s), Some(k)) = (&self.series[node], step) {
+            let step = s.steps.get(k).ok_or_else(|| anyhow!("node '{}': its series has {} steps, not {}", n.name, s.steps.len(), k + 1))?;
             path = step.file.clone();
             opts.nifti.volume_index = step.volume_index.unwrap_or(n.volume_index);
         }

@@ -93,7 +93,7 @@ pub struct Sphere {
 }
 
 /// The values `color_by` names, one per particle, and the name used (None: no array).
-fn values<'a>(p: &'a ParticleSet, color_by: Option<&'a str>) -> Result<Option<(String, Vec<f64>)>> {
+pub fn values<'a>(p: &'a ParticleSet, color_by: Option<&'a str>) -> Result<Option<(String, Vec<f64>)>> {
     let f32s = |v: &Vec<f32>| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();
     let name = match color_by {
         Some(n) => n,

@@ -29,15 +29,25 @@ pub struct AutoExtinction {
 /// None when the particles have no mass (nothing to see).
 pub fn auto_extinction(m: &SphMedium) -> Option<AutoExtinction> {
     let n = m.len();
+    let positions: Vec<DVec3> = (0..n).map(|i| m.position(i)).collect();
+    let mass: Vec<f64> = (0..n).map(|i| m.mass(i)).collect();
+    let h: Vec<f64> = (0..n).map(|i| m.smoothing_length(i)).collect();
+    densest_column(&positions, &mass, &h).map(|column| AutoExtinction { c_ext: TARGET_DEPTH / column, column })
+}
+
+/// Σ*, the column density the rule above sets c_ext by, of particles at `positions` (world
+/// coordinates) with masses `mass` and smoothing lengths `h` (world units); None where they
+/// have no mass. (A time series takes the largest over its steps: `render::series_scale`.)
+pub fn densest_column(positions: &[DVec3], mass: &[f64], h: &[f64]) -> Option<f64> {
+    let n = positions.len();
     if n == 0 {
         return None;
     }
-    let mut h: Vec<f64> = (0..n).map(|i| m.smoothing_length(i)).collect();
+    let mut h = h.to_vec();
     h.sort_by(f64::total_cmp);
     let h = h[n / 2];
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for i in 0..n {
-        let p = m.position(i);
+    for &p in positions {
         lo = lo.min(p);
         hi = hi.max(p);
     }
@@ -48,12 +58,12 @@ pub fn auto_extinction(m: &SphMedium) -> Option<AutoExtinction> {
     }
     let dims = ((hi - lo) / cell).floor().as_uvec3().min(glam::UVec3::splat(63)) + 1;
     let [nx, ny, nz] = [dims.x as usize, dims.y as usize, dims.z as usize];
-    let mut mass = vec![0.0f64; nx * ny * nz];
-    for i in 0..n {
-        let c = ((m.position(i) - lo) / cell).floor().as_uvec3().min(dims - 1);
-        mass[c.x as usize + nx * (c.y as usize + ny * c.z as usize)] += m.mass(i);
+    let mut binned = vec![0.0f64; nx * ny * nz];
+    for (&p, &m) in positions.iter().zip(mass) {
+        let c = ((p - lo) / cell).floor().as_uvec3().min(dims - 1);
+        binned[c.x as usize + nx * (c.y as usize + ny * c.z as usize)] += m;
     }
-    let at = |x: usize, y: usize, z: usize| mass[x + nx * (y + ny * z)];
+    let at = |x: usize, y: usize, z: usize| binned[x + nx * (y + ny * z)];
     let area = cell * cell;
     // The largest column along each axis.
     let mut best = [0.0f64; 3];
@@ -74,5 +84,5 @@ pub fn auto_extinction(m: &SphMedium) -> Option<AutoExtinction> {
     }
     best.sort_by(f64::total_cmp);
     let column = best[1];
-    (column > 0.0 && column.is_finite()).then(|| AutoExtinction { c_ext: TARGET_DEPTH / column, column })
+    (column > 0.0 && column.is_finite()).then_some(column)
 }
