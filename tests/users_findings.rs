@@ -88,3 +88,56 @@ fn particles_at_positions_that_are_not_finite_are_counted_left_out_and_said() {
         assert!(exr_pixels(&a) == exr_pixels(&b), "{renderer}: the image differs from the image without those particles");
     }
 }
+
+/// A DICOM folder of two series: `view --screenshot` ends at once with the one-line error
+/// that says to choose one (it waited for ever for a click in the series browser), and
+/// `view` takes `--series`; a scene node on such a folder names the node's own key
+/// (`series = N`), not a CLI flag, and lists the series by number, description and size
+/// before their UIDs.
+#[test]
+fn a_folder_of_several_series_says_how_to_choose_one_wherever_it_is_opened() {
+    let folder = common::repo_path("tests/fixtures/dicom/two_series");
+    let dir = tempfile::tempdir().unwrap();
+    let shot = dir.path().join("never.png");
+    let mut child = Command::new(common::volterra_bin())
+        .args(["view", folder.to_str().unwrap(), "--screenshot", shot.to_str().unwrap()])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > std::time::Duration::from_secs(60) {
+            let _ = child.kill();
+            panic!("view --screenshot still waits after 60 s for a series to be chosen");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("holds 2 series, choose one with --series: 1: '"), "{err}");
+    assert!(!shot.exists());
+    let help = String::from_utf8_lossy(&volterra(&["view", "--help"]).stdout).into_owned();
+    assert!(help.contains("--series"), "{help}");
+    // A scene node on the folder.
+    let scene = dir.path().join("s.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "[image]\nwidth = 16\nheight = 16\n[camera]\nposition = [0.0, -300.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\n\
+             [[node]]\nname = \"mr\"\nkind = \"volume\"\nfile = {:?}\nrenderer = \"reference\"\n",
+            folder.display().to_string()
+        ),
+    )
+    .unwrap();
+    let o = volterra(&["render", scene.to_str().unwrap(), "-o", dir.path().join("x.exr").to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("node 'mr'") && err.contains("give series = N") && !err.contains("--series"), "{err}");
+    let listing = err.split("UID: ").nth(1).unwrap_or(&err);
+    assert!(listing.starts_with("1: '") && listing.contains(" files of ") && listing.contains("(UID "), "{err}");
+}

@@ -818,7 +818,16 @@ fn cmd_info(path: &Path, json: bool, whole_series: bool, opts: &LoadOptions) -> 
             } else {
                 println!("{} series (choose one with --series):", list.len());
                 for (i, s) in list.iter().enumerate() {
-                    println!("  {}: {} '{}' {} {}×{}, {} files", i + 1, s.uid, s.description, s.modality, s.columns, s.rows, s.files);
+                    println!(
+                        "  {}: '{}' {}, {} files of {}×{} (UID {})",
+                        i + 1,
+                        s.description,
+                        s.modality,
+                        s.files,
+                        s.columns,
+                        s.rows,
+                        s.uid
+                    );
                 }
             }
             return Ok(());

@@ -747,20 +747,33 @@ fn attribute(attributes: &[(String, String)], name: &str) -> String {
 
 /// The series in a directory, for `info` and for choosing one.
 pub fn list_series(dir: &Path, limits: &Limits) -> Result<Vec<SeriesSummary>> {
-    Ok(scan(dir, limits)?
-        .into_iter()
-        .map(|(uid, v)| SeriesSummary {
-            uid,
-            description: v[0].series_description.clone(),
-            modality: v[0].modality.clone(),
-            files: v.len(),
-            rows: v[0].rows,
-            columns: v[0].columns,
-            patient: attribute(&v[0].attributes, "patient"),
-            study: attribute(&v[0].attributes, "study"),
-            study_date: attribute(&v[0].attributes, "study date"),
+    Ok(scan(dir, limits)?.into_iter().map(|(uid, v)| summary(uid, &v)).collect())
+}
+
+fn summary(uid: String, v: &[ImageInfo]) -> SeriesSummary {
+    SeriesSummary {
+        uid,
+        description: v[0].series_description.clone(),
+        modality: v[0].modality.clone(),
+        files: v.len(),
+        rows: v[0].rows,
+        columns: v[0].columns,
+        patient: attribute(&v[0].attributes, "patient"),
+        study: attribute(&v[0].attributes, "study"),
+        study_date: attribute(&v[0].attributes, "study date"),
+    }
+}
+
+/// Series as people pick them, on one line: by number, description, modality and size
+/// first, the UID last (`1: 'AX T1' MR, 20 files of 512×512 (UID 1.2.840…)`).
+pub fn series_listing(list: &[SeriesSummary]) -> String {
+    list.iter()
+        .enumerate()
+        .map(|(n, s)| {
+            format!("{}: '{}' {}, {} files of {}×{} (UID {})", n + 1, s.description, s.modality, s.files, s.columns, s.rows, s.uid)
         })
-        .collect())
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 pub fn read_dicom(path: &Path, opts: &DicomOptions, limits: &Limits) -> Result<Volume> {
@@ -778,12 +791,7 @@ fn read_series_dir(dir: &Path, opts: &DicomOptions, limits: &Limits) -> Result<V
     let uid = if series.len() == 1 {
         series.keys().next().unwrap().clone()
     } else {
-        let listing = series
-            .iter()
-            .enumerate()
-            .map(|(n, (uid, v))| format!("{}: {uid} '{}' {} ({} files)", n + 1, v[0].series_description, v[0].modality, v.len()))
-            .collect::<Vec<_>>()
-            .join("; ");
+        let listing = series_listing(&series.iter().map(|(uid, v)| summary(uid.clone(), v)).collect::<Vec<_>>());
         match &opts.series {
             None => {
                 return Err(FormatError::new(

@@ -1142,7 +1142,21 @@ impl Scene {
     fn read_node(&self, node: usize) -> Result<NodeData> {
         let n = &self.file.nodes[node];
         let (path, opts) = self.load_plan(node)?;
-        let d = volterra_formats::load(&path, &opts)?;
+        let d = match volterra_formats::load(&path, &opts) {
+            // A folder of several series: the node's own key chooses, not a CLI flag.
+            Err(e) if e.kind == volterra_formats::ErrorKind::Ambiguous && path.is_dir() => {
+                let list = volterra_formats::dicom::list_series(&path, &self.limits)?;
+                let which = if n.series.is_some() { "matches none or several of them" } else { "names none of them" };
+                bail!(
+                    "{}: node '{}': the folder holds {} series and the node's series = … {which}; give series = N (the number) or its UID: {}",
+                    path.display(),
+                    n.name,
+                    list.len(),
+                    volterra_formats::dicom::series_listing(&list)
+                );
+            }
+            r => r?,
+        };
         let data = NodeData::from(d);
         if data.kind() != n.kind {
             bail!("{}: node '{}' is a {:?} node but the file holds other data", path.display(), n.name, n.kind);

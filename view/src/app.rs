@@ -309,6 +309,14 @@ impl Viewer {
         Ok(())
     }
 
+    /// Opens `path` now; a DICOM folder of several series without `--series` is an error
+    /// (for `--screenshot`, where no one is there to choose in the series browser).
+    pub fn open_without_choosing(&mut self, path: &Path) -> Result<()> {
+        let opened = load_document(path, &self.load)?;
+        self.install(opened);
+        Ok(())
+    }
+
     fn take_loaded(&mut self, loaded: Loaded) {
         match loaded {
             Loaded::Document(o) => self.install(*o),

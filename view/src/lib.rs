@@ -35,7 +35,9 @@ pub fn run(target: Option<PathBuf>, load: LoadOptions, screenshot: Option<PathBu
     // With a screenshot to take, a file that cannot be read is an error of the command;
     // otherwise the window opens at once and reads the file in the background.
     match (&target, &screenshot) {
-        (Some(p), Some(_)) => viewer.open(p)?,
+        // No one is there to choose a series: a folder of several is the reader's one-line
+        // error (choose one with --series), not a browser waiting for a click.
+        (Some(p), Some(_)) => viewer.open_without_choosing(p)?,
         (Some(p), None) => viewer.open_in_background(p.clone()),
         _ => {}
     }
