@@ -2,7 +2,7 @@
 
 use serde_json::{json, Value};
 use volterra_formats::geotiff_rows::GeoTiffRows;
-use volterra_formats::heightfield::{GridGeoref, RowsSummary};
+use volterra_formats::heightfield::{summarise, GridGeoref, RowsSummary};
 use volterra_formats::{dicom, Dataset, Heightfield, ParticleArrayNames, ParticleSet, Volume};
 
 /// A number as people read it: integers without decimals, others to 6 significant digits
@@ -60,40 +60,48 @@ pub fn corners(g: &GridGeoref) -> [(&'static str, [f64; 2]); 5] {
 }
 
 /// What `info` shows of an elevation raster, whether held (`Heightfield`) or read by rows
-/// (`GeoTiffRows`, which finds the range and NoData count in one pass over its rows).
+/// (`GeoTiffRows`, which finds the range, statistics and NoData count in one pass over its
+/// rows).
 pub struct GridSummary<'a> {
     pub georef: GridGeoref,
     pub attributes: &'a [(String, String)],
     pub nodata_value: Option<f64>,
     pub notes: &'a [String],
-    /// (min, max) elevation in metres over valid samples.
-    pub range: Option<(f32, f32)>,
-    pub nodata_count: usize,
+    /// One pass over the valid samples: range, mean and standard deviation, NoData count.
+    pub summary: RowsSummary,
 }
 
 impl<'a> GridSummary<'a> {
     pub fn of_heightfield(h: &'a Heightfield) -> GridSummary<'a> {
-        GridSummary {
-            georef: h.georef(),
-            attributes: &h.attributes,
-            nodata_value: h.nodata_value,
-            notes: &h.notes,
-            range: h.range(),
-            nodata_count: h.nodata_count(),
-        }
+        GridSummary { georef: h.georef(), attributes: &h.attributes, nodata_value: h.nodata_value, notes: &h.notes, summary: summarise(h) }
     }
     /// Reads every row of the raster the first time (see `GeoTiffRows::summary`).
     pub fn of_rows(r: &'a GeoTiffRows) -> GridSummary<'a> {
-        let RowsSummary { range, nodata } = r.summary();
         GridSummary {
             georef: r.georef().clone(),
             attributes: &r.attributes,
             nodata_value: r.nodata_value,
             notes: &r.notes,
-            range,
-            nodata_count: nodata,
+            summary: r.summary(),
         }
     }
+}
+
+/// A map coordinate as gdalinfo prints it: to the millimetre in projected (and local)
+/// units, to 1e-7 in degrees.
+pub fn coordinate(v: f64, geographic: bool) -> String {
+    if geographic {
+        format!("{v:.7}")
+    } else {
+        format!("{v:.3}")
+    }
+}
+
+/// GDAL's geotransform of the grid: the north-west sample's outer corner and the steps of a
+/// column and a row (north-up: [x0, sx, 0, y0, 0, −sy]).
+pub fn geotransform(g: &GridGeoref) -> [f64; 6] {
+    let [sx, sy] = g.cell_size_native;
+    [g.origin[0] - 0.5 * sx, sx, 0.0, g.origin[1] + 0.5 * sy, 0.0, -sy]
 }
 
 fn attributes_json(a: &[(String, String)]) -> Value {
@@ -127,12 +135,20 @@ pub fn heightfield_json(h: &Heightfield) -> Value {
 
 pub fn grid_json(s: &GridSummary) -> Value {
     let g = &s.georef;
-    let (min, max) = s.range.map(|(a, b)| (a as f64, b as f64)).unwrap_or((f64::NAN, f64::NAN));
+    let (min, max) = s.summary.range.map_or((Value::Null, Value::Null), |(a, b)| (json!(a as f64), json!(b as f64)));
     let corner_map: serde_json::Map<String, Value> = corners(g).iter().map(|(n, c)| (n.replace(' ', "_"), json!(c))).collect();
-    json!({
+    // The corners in longitude and latitude, where the CRS is one converted here.
+    let lonlat: Option<serde_json::Map<String, Value>> = corners(g)
+        .iter()
+        .map(|(n, [x, y])| volterra_formats::projection::lonlat(&g.crs, *x, *y).map(|ll| (n.replace(' ', "_"), json!(ll))))
+        .collect();
+    let w = g.width as u64 * g.height as u64;
+    let mut v = json!({
         "kind": "heightfield",
         "attributes": attributes_json(s.attributes),
         "corners": corner_map,
+        "corners_lonlat": lonlat,
+        "geotransform": geotransform(g),
         "dims": [g.width, g.height],
         "cell_size": g.cell_size,
         "cell_size_native": g.cell_size_native,
@@ -141,11 +157,17 @@ pub fn grid_json(s: &GridSummary) -> Value {
         "epsg": g.crs.epsg,
         "geographic": g.crs.geographic,
         "nodata_value": s.nodata_value,
-        "nodata_count": s.nodata_count,
+        "nodata_count": s.summary.nodata,
+        "valid_count": w - s.summary.nodata as u64,
         "min": min,
         "max": max,
         "notes": s.notes,
-    })
+    });
+    if let Some((mean, std)) = s.summary.mean_std {
+        v["mean"] = json!(mean);
+        v["std_dev"] = json!(std);
+    }
+    v
 }
 
 pub fn particles_json(p: &ParticleSet, names: &ParticleArrayNames) -> Value {
@@ -176,33 +198,62 @@ fn fmt3(v: [f64; 3]) -> String {
     format!("{} × {} × {}", num(v[0]), num(v[1]), num(v[2]))
 }
 
-pub fn grid_text(sm: &GridSummary) -> String {
+/// What `info` prints of a raster, in gdalinfo's terms: coordinates to the millimetre (or
+/// 1e-7°), the geotransform, corners in longitude and latitude too where the CRS is one
+/// converted here, and with `stats` the mean and standard deviation as `gdalinfo -stats`.
+pub fn grid_text(sm: &GridSummary, stats: bool) -> String {
     let g = &sm.georef;
+    let geo = g.crs.geographic;
+    let c = |v: f64| coordinate(v, geo);
     let mut s = String::new();
-    let (min, max) = sm.range.unwrap_or((f32::NAN, f32::NAN));
     s += &format!("heightfield {} × {} samples\n", g.width, g.height);
     s += &format!("cell size   {} m × {} m", num(g.cell_size[0]), num(g.cell_size[1]));
-    if g.crs.geographic {
-        s += &format!(" (from {}° × {}°)", num(g.cell_size_native[0]), num(g.cell_size_native[1]));
+    if geo {
+        s += &format!(" (from {}° × {}°)", g.cell_size_native[0], g.cell_size_native[1]);
     }
     s += "\n";
-    s += &format!("origin      {}, {} (centre of the north-west sample, CRS units)\n", num(g.origin[0]), num(g.origin[1]));
+    s += &format!("origin      {}, {} (centre of the north-west sample, CRS units)\n", c(g.origin[0]), c(g.origin[1]));
+    let t = geotransform(g);
+    s += &format!(
+        "transform   {}, {}, 0, {}, 0, {} (GDAL's geotransform: the north-west corner, a column's and a row's step)\n",
+        c(t[0]),
+        t[1],
+        c(t[3]),
+        t[5]
+    );
     s += &format!("crs         {}\n", g.crs.description);
     attributes_text(&mut s, sm.attributes);
-    let c = corners(g);
+    let corners = corners(g);
     s += &format!(
         "bounds      west {}, south {}, east {}, north {} (CRS units)\n",
-        num(c[0].1[0]),
-        num(c[3].1[1]),
-        num(c[3].1[0]),
-        num(c[0].1[1])
+        c(corners[0].1[0]),
+        c(corners[3].1[1]),
+        c(corners[3].1[0]),
+        c(corners[0].1[1])
     );
-    for (name, [x, y]) in c {
-        s += &format!("{:<11} {}, {}\n", name, num(x), num(y));
+    for (name, [x, y]) in corners {
+        // gdalinfo's "(%12.3f,%12.3f)" (degrees "%12.7f").
+        s += &format!("{:<11} ({:>12},{:>12})", name, c(x), c(y));
+        // Longitude and latitude of the corners (a geographic raster's are its
+        // coordinates), in degrees, minutes and seconds as gdalinfo prints them.
+        if let Some([lon, lat]) = volterra_formats::projection::lonlat(&g.crs, x, y) {
+            s += &format!(" ({}, {})", volterra_formats::projection::dms(lon, "WE"), volterra_formats::projection::dms(lat, "SN"));
+        }
+        s += "\n";
     }
-    s += &format!("elevation   {} .. {} m\n", num(min as f64), num(max as f64));
+    if !geo && g.crs.epsg.is_some() && !volterra_formats::projection::knows(&g.crs) {
+        s += "            (longitude and latitude: volterra converts UTM and Web Mercator only; gdalinfo gives them for any CRS)\n";
+    }
+    match sm.summary.range {
+        Some((min, max)) => s += &format!("elevation   {} .. {} m\n", num(min as f64), num(max as f64)),
+        None => s += "elevation   no valid samples (every sample is NoData)\n",
+    }
+    if let (true, Some((mean, std))) = (stats, sm.summary.mean_std) {
+        let valid = g.width * g.height - sm.summary.nodata;
+        s += &format!("statistics  mean {mean:.3} m, standard deviation {std:.3} m over {valid} valid samples (as gdalinfo -stats)\n");
+    }
     let value = sm.nodata_value.map(num).unwrap_or_else(|| "none declared".into());
-    s += &format!("nodata      {} samples (value {value})\n", sm.nodata_count);
+    s += &format!("nodata      {} samples (value {value})\n", sm.summary.nodata);
     for n in sm.notes {
         s += &format!("note        {n}\n");
     }
@@ -216,7 +267,7 @@ fn attributes_text(s: &mut String, a: &[(String, String)]) {
 }
 
 /// A human-readable summary.
-pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
+pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames, stats: bool) -> String {
     let mut s = String::new();
     match d {
         Dataset::Volume(v) => {
@@ -239,7 +290,7 @@ pub fn dataset_text(d: &Dataset, names: &ParticleArrayNames) -> String {
                 s += &format!("note        {n}\n");
             }
         }
-        Dataset::Heightfield(h) => s += &grid_text(&GridSummary::of_heightfield(h)),
+        Dataset::Heightfield(h) => s += &grid_text(&GridSummary::of_heightfield(h), stats),
         Dataset::Particles(p) => {
             let (non_finite, _) = p.non_finite_positions();
             s += &format!("particles   {}", p.len());

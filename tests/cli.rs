@@ -231,7 +231,7 @@ fn info_of_a_geotiff_read_by_rows_equals_the_raster_read_whole() {
         let held: serde_json::Value = serde_json::from_str(&volterra::info::heightfield_json(&whole).to_string()).unwrap();
         assert_eq!(by_rows, held, "{name}: JSON");
         let text = volterra(&["info", &name]);
-        let held_text = volterra::info::dataset_text(&volterra_formats::Dataset::Heightfield(whole.clone()), &Default::default());
+        let held_text = volterra::info::dataset_text(&volterra_formats::Dataset::Heightfield(whole.clone()), &Default::default(), false);
         assert_eq!(String::from_utf8_lossy(&text.stdout), held_text, "{name}: text");
         compared += 1;
         with_nodata += usize::from(whole.nodata_count() > 0);

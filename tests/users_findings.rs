@@ -141,3 +141,91 @@ fn a_folder_of_several_series_says_how_to_choose_one_wherever_it_is_opened() {
     let listing = err.split("UID: ").nth(1).unwrap_or(&err);
     assert!(listing.starts_with("1: '") && listing.contains(" files of ") && listing.contains("(UID "), "{err}");
 }
+
+/// `volterra info` in gdalinfo's terms (a geoscientist's checks): the geotransform, the
+/// corners to the millimetre (1e-7° in degrees; 6 significant digits were 25 m off in
+/// degrees) followed by their longitude and latitude in gdalinfo's own words, the mean and
+/// standard deviation of `gdalinfo -stats`, and "no valid samples" for a raster that has
+/// none — on the real geographic DEM and on copies of it in UTM north and south and Web
+/// Mercator made by gdal_translate.
+#[test]
+fn info_reports_a_raster_as_gdalinfo_does() {
+    let Some(shared) = common::shared_data() else { return };
+    if common::gdal_tool("gdal_translate").is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let dem = shared.join("terrain/pysheds_dem.tif");
+    let mut files = vec![dir.path().join("geographic.tif")];
+    std::fs::copy(&dem, &files[0]).unwrap();
+    for (name, srs, ullr) in [
+        ("utm10n.tif", "EPSG:32610", ["500000", "4200030", "501800", "4198830"]),
+        ("utm33s.tif", "EPSG:32733", ["612345.5", "7350000.25", "622345.5", "7340000.25"]),
+        ("web_mercator.tif", "EPSG:3857", ["-10852000", "3870000", "-10818000", "3836000"]),
+    ] {
+        let out = dir.path().join(name);
+        common::run_ok(Command::new("gdal_translate").args(["-q", "-a_srs", srs, "-a_ullr"]).args(ullr).arg(&dem).arg(&out));
+        files.push(out);
+    }
+    for f in &files {
+        let gdal_text = common::run_ok(Command::new("gdalinfo").arg(f));
+        // gdalinfo -stats (it keeps them in a .aux.xml, which volterra reads as GDAL does).
+        let gdal: serde_json::Value =
+            serde_json::from_str(&common::run_ok(Command::new("gdalinfo").args(["-json", "-stats"]).arg(f))).unwrap();
+        let o = volterra(&["info", "--json", f.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let ours: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let name = f.file_name().unwrap().to_string_lossy();
+        for (k, (a, b)) in ours["geotransform"].as_array().unwrap().iter().zip(gdal["geoTransform"].as_array().unwrap()).enumerate() {
+            let (a, b) = (a.as_f64().unwrap(), b.as_f64().unwrap());
+            assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0), "{name}: geotransform[{k}] {a} vs {b}");
+        }
+        // wgs84Extent: upper left, lower left, lower right, upper right (7 decimals).
+        let extent = &gdal["wgs84Extent"]["coordinates"][0];
+        for (k, corner) in ["upper_left", "lower_left", "lower_right", "upper_right"].iter().enumerate() {
+            for axis in 0..2 {
+                let (a, b) = (ours["corners_lonlat"][corner][axis].as_f64().unwrap(), extent[k][axis].as_f64().unwrap());
+                assert!((a - b).abs() <= 6e-8, "{name}: {corner} {a} vs gdalinfo's {b}");
+            }
+        }
+        let md = &gdal["bands"][0]["metadata"][""];
+        for (key, gkey) in [("mean", "STATISTICS_MEAN"), ("std_dev", "STATISTICS_STDDEV")] {
+            let want: f64 = md[gkey].as_str().unwrap().parse().unwrap();
+            let got = ours[key].as_f64().unwrap();
+            assert!((got - want).abs() <= 1e-9 * want.abs(), "{name}: {key} {got} vs gdalinfo's {want}");
+        }
+        // The corner lines as gdalinfo prints them, word for word after the label.
+        let text = String::from_utf8_lossy(&volterra(&["info", "--stats", f.to_str().unwrap()]).stdout).into_owned();
+        for (gdal_label, our_label) in [("Upper Left", "upper left"), ("Lower Right", "lower right"), ("Center", "centre")] {
+            let g = gdal_text.lines().find(|l| l.starts_with(gdal_label)).unwrap()[gdal_label.len()..].trim().to_string();
+            let ours = text.lines().find(|l| l.starts_with(our_label)).unwrap()[our_label.len()..].trim().to_string();
+            assert_eq!(ours, g, "{name}: {gdal_label}");
+        }
+        assert!(text.contains("statistics  mean 206.919 m, standard deviation 27.799 m over 131753 valid samples"), "{text}");
+    }
+    // A raster with no valid sample says so.
+    let void = dir.path().join("void.tif");
+    volterra_formats::geotiff::write_geotiff(&void, &common::utm_heightfield(8, 6, |_, _| None)).unwrap();
+    let text = String::from_utf8_lossy(&volterra(&["info", void.to_str().unwrap()]).stdout).into_owned();
+    assert!(text.contains("elevation   no valid samples") && !text.contains("NaN"), "{text}");
+    let o = volterra(&["info", "--json", void.to_str().unwrap()]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!((v["valid_count"].as_u64(), v["min"].is_null()), (Some(0), true), "{v}");
+}
+
+/// A raster refused for the memory limit says how it would fit: the gdaladdo overviews to
+/// add, after which the largest that fits is read (with a note).
+#[test]
+fn a_raster_too_large_for_the_limit_suggests_the_overviews_that_would_fit() {
+    let Some(gdaladdo) = common::gdal_tool("gdaladdo") else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let dem = dir.path().join("dem.tif");
+    common::view_window_dem(&dem); // 1200 × 900 float32: 4.1 MiB
+    let limit = volterra_formats::Limits::max(400 << 10);
+    let e = volterra_formats::geotiff::read_geotiff(&dem, &limit).unwrap_err().to_string();
+    assert!(e.contains("or add overviews — gdaladdo -r average dem.tif 2 4 — and the largest that fits is read"), "{e}");
+    common::run_ok(Command::new(gdaladdo).args(["-q", "-r", "average"]).arg(&dem).args(["2", "4"]));
+    let hf = volterra_formats::geotiff::read_geotiff(&dem, &limit).unwrap();
+    assert_eq!((hf.width, hf.height), (300, 225), "{:?}", hf.notes);
+    assert!(hf.notes.iter().any(|n| n.contains("overview")), "{:?}", hf.notes);
+}

@@ -406,9 +406,10 @@ fn info_prints_what_gdalinfo_and_dcm2niix_users_look_for() {
     for want in [
         "data type   int32",
         "compression Deflate, predictor 2",
-        "upper left  500000, 5200000",
-        "lower right 501350, 5199260",
-        "bounds      west 500000, south 5199260, east 501350, north 5200000",
+        "upper left  (  500000.000, 5200000.000) (123d 0' 0.00\"W, 46d57'12.71\"N)",
+        "lower right (  501350.000, 5199260.000)",
+        "bounds      west 500000.000, south 5199260.000, east 501350.000, north 5200000.000",
+        "transform   500000.000, 30, 0, 5200000.000, 0, -20",
         "(value -9999)",
     ] {
         assert!(t.contains(want), "missing {want:?} in:\n{t}");

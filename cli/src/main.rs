@@ -117,6 +117,10 @@ enum Command {
         /// Print one JSON object instead of text.
         #[arg(long)]
         json: bool,
+        /// A raster's mean and standard deviation over its valid samples (gdalinfo -stats;
+        /// always in the JSON).
+        #[arg(long)]
+        stats: bool,
         #[command(flatten)]
         read: ReadArgs,
     },
@@ -611,7 +615,7 @@ impl Cli {
 fn run(cli: Cli, limits: Limits) -> Result<()> {
     let max_memory = cli.max_memory.clone();
     match cli.command {
-        Command::Info { path, json, read } => cmd_info(&path, json, read.volume.is_none(), &read.options(limits)?),
+        Command::Info { path, json, stats, read } => cmd_info(&path, json, stats, read.volume.is_none(), &read.options(limits)?),
         Command::Convert { input, output, read } => cmd_convert(&input, &output, &read, &read.options(limits)?),
         Command::Compare { a, b, json } => cmd_compare(&a, &b, json, &limits),
         Command::Dem {
@@ -787,7 +791,7 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
 }
 
 /// `whole_series`: list every step of a 4-D NIfTI (no --volume given).
-fn cmd_info(path: &Path, json: bool, whole_series: bool, opts: &LoadOptions) -> Result<()> {
+fn cmd_info(path: &Path, json: bool, stats: bool, whole_series: bool, opts: &LoadOptions) -> Result<()> {
     let series = formats::series::discover(path)?.filter(|s| whole_series || s.steps[0].volume_index.is_none());
     if let Some(series) = series {
         // Every step read in turn (one in memory at a time) for its size and ranges.
@@ -846,7 +850,7 @@ fn cmd_info(path: &Path, json: bool, whole_series: bool, opts: &LoadOptions) -> 
         }
         match json {
             true => println!("{}", serde_json::to_string_pretty(&info::grid_json(&summary))?),
-            false => print!("{}", info::grid_text(&summary)),
+            false => print!("{}", info::grid_text(&summary, stats)),
         }
         return Ok(());
     }
@@ -856,7 +860,7 @@ fn cmd_info(path: &Path, json: bool, whole_series: bool, opts: &LoadOptions) -> 
     if json {
         println!("{}", serde_json::to_string_pretty(&info::dataset_json(&data, &opts.particles))?);
     } else {
-        print!("{}", info::dataset_text(&data, &opts.particles));
+        print!("{}", info::dataset_text(&data, &opts.particles, stats));
     }
     Ok(())
 }

@@ -410,6 +410,20 @@ fn finest_fitting(
             return Ok((*o, bytes, Some(note)));
         }
     }
+    // None fits. Without overviews, say which would (GDAL's way to read a raster coarser).
+    if images.len() == 1 && too_large.kind == crate::ErrorKind::TooLarge {
+        let need = full_need.iter().product::<u64>() as f64;
+        let factor = (need / limits.bytes().max(1) as f64).sqrt().ceil().max(2.0) as u64;
+        let levels: Vec<String> =
+            std::iter::successors(Some(2u64), |l| Some(l * 2)).take_while(|&l| l / 2 < factor).map(|l| l.to_string()).collect();
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let message = format!(
+            "{}; or add overviews — gdaladdo -r average {name} {} — and the largest that fits is read",
+            too_large.message,
+            levels.join(" ")
+        );
+        return Err(FormatError::new(path, too_large.kind, message));
+    }
     Err(too_large)
 }
 

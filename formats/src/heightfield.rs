@@ -178,37 +178,58 @@ pub trait HeightRows: Send + Sync {
     }
 }
 
-/// What one pass over a raster's rows finds: its elevation range and its NoData samples.
+/// What one pass over a raster's rows finds: its elevation range, mean and standard
+/// deviation, and its NoData samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RowsSummary {
     /// (min, max) elevation in metres over valid samples; None where every one is NoData.
     pub range: Option<(f32, f32)>,
     /// Samples that are NoData (the file's NoData value, or not a finite number).
     pub nodata: usize,
+    /// Mean and population standard deviation (gdalinfo -stats') of the valid samples, in
+    /// metres; None where there is none.
+    pub mean_std: Option<(f64, f64)>,
 }
 
-/// One pass over every row of `rows`, in order: the elevation range and the NoData count.
-/// Stops at the first row that could not be read (`failure`): what it returns then covers
-/// the rows before, and the caller reports the failure.
+/// One pass over every row of `rows`, in order: the elevation range, mean, standard
+/// deviation and the NoData count. Stops at the first row that could not be read
+/// (`failure`): what it returns then covers the rows before, and the caller reports the
+/// failure.
 pub fn summarise<R: HeightRows + ?Sized>(rows: &R) -> RowsSummary {
     let [w, h] = rows.size();
     let mut row = vec![0f32; w];
     let (mut lo, mut hi, mut nodata) = (f32::INFINITY, f32::NEG_INFINITY, 0);
+    // Count, mean and sum of squared deviations, each row's merged in (Chan et al.): no
+    // cancellation where the spread is small against the mean.
+    let (mut n, mut mean, mut m2) = (0f64, 0f64, 0f64);
     for r in 0..h {
         rows.read_row(r, 0, &mut row);
         if rows.failure().is_some() {
             break;
         }
+        let (mut rn, mut rsum) = (0f64, 0f64);
         for &z in &row {
             if z.is_finite() {
                 lo = lo.min(z);
                 hi = hi.max(z);
+                rn += 1.0;
+                rsum += z as f64;
             } else {
                 nodata += 1;
             }
         }
+        if rn > 0.0 {
+            let rmean = rsum / rn;
+            let rm2: f64 = row.iter().filter(|z| z.is_finite()).map(|&z| (z as f64 - rmean).powi(2)).sum();
+            let d = rmean - mean;
+            let total = n + rn;
+            mean += d * rn / total;
+            m2 += rm2 + d * d * n * rn / total;
+            n = total;
+        }
     }
-    RowsSummary { range: (lo <= hi).then_some((lo, hi)), nodata }
+    let mean_std = (n > 0.0).then(|| (mean, (m2 / n).sqrt()));
+    RowsSummary { range: (lo <= hi).then_some((lo, hi)), nodata, mean_std }
 }
 
 /// A heightfield held: its rows copied out (NoData samples hold NaN already).

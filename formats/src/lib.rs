@@ -27,6 +27,7 @@ pub mod nifti;
 pub mod nrrd;
 pub mod particles;
 pub mod png_height;
+pub mod projection;
 pub mod raw;
 pub mod rng;
 pub mod series;

@@ -2018,14 +2018,14 @@ fn metadata_grid(ui: &mut egui::Ui, json: serde_json::Value) {
     // under a header that starts closed so the panel keeps its layout.
     let details: Vec<(String, serde_json::Value)> = match &json {
         serde_json::Value::Object(map) => {
-            ["attributes", "corners"].iter().filter_map(|k| map.get(*k).map(|v| (k.to_string(), v.clone()))).collect()
+            ["attributes", "corners", "corners_lonlat"].iter().filter_map(|k| map.get(*k).map(|v| (k.to_string(), v.clone()))).collect()
         }
         _ => Vec::new(),
     };
     egui::Grid::new("metadata").num_columns(2).striped(true).show(ui, |ui| {
         if let serde_json::Value::Object(map) = json {
             for (k, v) in map {
-                if k == "notes" || k == "affine" || k == "attributes" || k == "corners" || k == "orientation" {
+                if ["notes", "affine", "attributes", "corners", "corners_lonlat", "orientation", "geotransform"].contains(&k.as_str()) {
                     continue;
                 }
                 ui.label(k);
