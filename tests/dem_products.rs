@@ -1,4 +1,5 @@
-//! `volterra dem hillshade|slope|aspect|color-relief` against GDAL's `gdaldem`, and `volterra dem
+//! `volterra dem hillshade|slope|aspect|TRI|TPI|roughness|color-relief` (with -alg,
+//! -multidirectional, -combined) against GDAL's `gdaldem`, and `volterra dem
 //! contours` against `gdal_contour` (Debian's gdal-bin, which
 //! tests/setup-system.sh installs): on the real geographic DEM in `../shared/data`
 //! (pysheds_dem.tif, with -s 111120) and on a projected DEM with NoData holes written
@@ -216,18 +217,40 @@ fn compare_contour_polygons(dem: &Path, dir: &Path, tag: &str, gdal_levels: &[&s
     polygons
 }
 
-/// Runs every product on `dem` both ways and compares; returns the cells compared.
+/// Runs every product on `dem` both ways and compares; returns the cells compared: the
+/// rest of gdaldem too — TRI (Riley's and Wilson's), TPI, roughness, slope, aspect and
+/// hillshade by Zevenbergen–Thorne, multidirectional and combined hillshade.
 fn compare_products(dem: &Path, dir: &Path, gdal_args: &[&str], our_args: &[&str]) -> usize {
+    compare_products_of(dem, dir, gdal_args, our_args, true)
+}
+
+/// As `compare_products`; without `all`, only hillshade, slope and aspect (with and without
+/// -zero_for_flat) and color-relief.
+fn compare_products_of(dem: &Path, dir: &Path, gdal_args: &[&str], our_args: &[&str], all: bool) -> usize {
     let gdaldem = gdaldem().unwrap();
     compare_color_relief(dem, dir);
     let mut compared = 0;
     // aspect -zero_for_flat too: 0 for flat, edge and void cells, and no NoData value.
-    let variants: [(&str, &[&str], &[&str]); 4] =
-        [("hillshade", &[], &[]), ("slope", &[], &[]), ("aspect", &[], &[]), ("aspect", &["-zero_for_flat"], &["--zero-for-flat"])];
+    type Variant<'a> = (&'a str, &'a [&'a str], &'a [&'a str]);
+    let mut variants: Vec<Variant> =
+        vec![("hillshade", &[], &[]), ("slope", &[], &[]), ("aspect", &[], &[]), ("aspect", &["-zero_for_flat"], &["--zero-for-flat"])];
+    if all {
+        let zt: (&[&str], &[&str]) = (&["-alg", "ZevenbergenThorne"], &["--alg", "ZevenbergenThorne"]);
+        variants.extend([
+            ("TRI", &[][..], &[][..]),
+            ("TRI", &["-alg", "Wilson"][..], &["--alg", "Wilson"][..]),
+            ("TPI", &[], &[]),
+            ("roughness", &[], &[]),
+            ("slope", zt.0, zt.1),
+            ("aspect", zt.0, zt.1),
+            ("hillshade", zt.0, zt.1),
+            ("hillshade", &["-multidirectional"], &["--multidirectional"]),
+            ("hillshade", &["-combined"], &["--combined"]),
+        ]);
+    }
     for (product, gdal_extra, our_extra) in variants {
         for edges in [false, true] {
-            let tag =
-                format!("{product}{}{}", if gdal_extra.is_empty() { "" } else { "_zero_for_flat" }, if edges { "_edges" } else { "" });
+            let tag = format!("{product}{}{}", gdal_extra.join("").replace('-', "_"), if edges { "_edges" } else { "" });
             let (reference, ours) = (dir.join(format!("gdal_{tag}.tif")), dir.join(format!("ours_{tag}.tif")));
             let mut g = Command::new(&gdaldem);
             g.arg(product).arg(dem).arg(&reference).arg("-q").args(gdal_args).args(gdal_extra);
@@ -353,7 +376,7 @@ fn dem_products_of_a_tiled_dem_larger_than_the_memory_limit_equal_gdaldem_at_ful
     // Read whole within the limit, the raster would be an overview.
     let whole = volterra_formats::geotiff::read_geotiff(&dem, &volterra_formats::Limits::max(8 << 20)).unwrap();
     assert_eq!(whole.width, 1024, "{:?}", whole.notes);
-    let n = compare_products(&dem, dir.path(), &[], &limit);
+    let n = compare_products_of(&dem, dir.path(), &[], &limit, false);
     assert!(n > 18_000_000, "{n} cells compared");
     // Contours too: read by rows, lines and band polygons as gdal_contour draws them.
     let v = compare_contours(&dem, dir.path(), "tiled_i20", &["-i", "20"], &["--interval", "20", limit[0], limit[1]]);
@@ -411,4 +434,76 @@ fn products_of_an_all_nodata_dem_equal_gdaldem_and_say_so() {
         assert!(out.status.success(), "{stderr}");
         assert!(stderr.contains("no valid samples"), "{product}: {stderr}");
     }
+}
+
+/// `volterra dem` takes gdaldem's output options, spelled as gdaldem spells them (`-co`,
+/// `-of`): uncompressed strips by default, as gdaldem writes (it always wrote Deflate
+/// strips); COMPRESS=DEFLATE/LZW/ZSTD, PREDICTOR=2/3, TILED=YES with block sizes — each
+/// read by GDAL as written (gdalinfo's image structure and block size) and holding
+/// gdaldem's cells. What it does not write is refused with a line that says so.
+#[test]
+fn dem_products_take_gdaldems_creation_options() {
+    let Some(gdaldem) = gdaldem() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let hf = common::utm_heightfield(300, 200, |c, r| {
+        (c + r != 100).then_some((300.0 + 20.0 * (c as f64 / 17.0).sin() + 0.3 * r as f64) as f32)
+    });
+    let dem = dir.path().join("dem.tif");
+    volterra_formats::geotiff::write_geotiff(&dem, &hf).unwrap();
+    let reference = dir.path().join("gdal_slope.tif");
+    run(Command::new(&gdaldem).args(["slope", "-q"]).arg(&dem).arg(&reference));
+    let (want, want_nodata) = cells(&reference, dir.path());
+    let structure = |p: &Path| -> (Option<String>, Option<String>, Vec<u64>) {
+        let info: serde_json::Value = serde_json::from_str(&run(Command::new("gdalinfo").arg("-json").arg(p))).unwrap();
+        let md = &info["metadata"]["IMAGE_STRUCTURE"];
+        let block = info["bands"][0]["block"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+        (md["COMPRESSION"].as_str().map(String::from), md["PREDICTOR"].as_str().map(String::from), block)
+    };
+    // (the options, and what gdalinfo then says: compression, predictor, tile size).
+    type Case<'a> = (&'a [&'a str], Option<&'a str>, Option<&'a str>, Option<[u64; 2]>);
+    let cases: [Case; 5] = [
+        (&[], None, None, None),
+        (&["-co", "COMPRESS=DEFLATE"], Some("DEFLATE"), None, None),
+        (&["-co", "COMPRESS=LZW", "-co", "PREDICTOR=2"], Some("LZW"), Some("2"), None),
+        (&["-co", "COMPRESS=ZSTD", "-co", "PREDICTOR=3", "-co", "TILED=YES"], Some("ZSTD"), Some("3"), Some([256, 256])),
+        (&["--co", "TILED=YES", "--co", "BLOCKXSIZE=64", "--co", "BLOCKYSIZE=32", "-of", "GTiff"], None, None, Some([64, 32])),
+    ];
+    for (k, (args, compression, predictor, block)) in cases.into_iter().enumerate() {
+        let out = dir.path().join(format!("ours_{k}.tif"));
+        run(Command::new(common::volterra_bin()).args(["dem", "slope"]).arg(&dem).arg(&out).args(args));
+        let (c, p, b) = structure(&out);
+        assert_eq!((c.as_deref(), p.as_deref()), (compression, predictor), "{args:?}");
+        if let Some(block) = block {
+            assert_eq!(b, block, "{args:?}: tiles");
+        } else {
+            assert_eq!(b[0], 300, "{args:?}: strips");
+        }
+        assert_eq!(grid_of(&out), grid_of(&reference), "{args:?}");
+        let (got, got_nodata) = cells(&out, dir.path());
+        let same = got.iter().zip(&want).all(|(a, b)| a == b || (a.is_nan() && b.is_nan()));
+        assert!(same && got_nodata == want_nodata, "{args:?}: cells differ from gdaldem's");
+    }
+    for (args, says) in [
+        (&["-of", "COG"][..], "-of COG is not written here"),
+        (&["-co", "PHOTOMETRIC=RGB"][..], "creation option PHOTOMETRIC is not one this writer takes"),
+        (&["-co", "COMPRESS=JPEG"][..], "COMPRESS=JPEG"),
+    ] {
+        let o = Command::new(common::volterra_bin())
+            .args(["dem", "slope"])
+            .arg(&dem)
+            .arg(dir.path().join("x.tif"))
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(says), "{args:?}: {err}");
+    }
+    let o = Command::new(common::volterra_bin())
+        .args(["dem", "hillshade"])
+        .arg(&dem)
+        .arg(dir.path().join("h.tif"))
+        .args(["-co", "COMPRESS=LZW", "-co", "PREDICTOR=3"])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("PREDICTOR=3 is for floating-point samples"));
 }

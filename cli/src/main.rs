@@ -247,6 +247,14 @@ enum Command {
         input: PathBuf,
         /// The GeoTIFF written.
         output: PathBuf,
+        /// Output format (gdaldem -of, also written -of): GTiff.
+        #[arg(long = "of", value_name = "FORMAT", default_value = "GTiff")]
+        output_format: String,
+        /// A GTiff creation option (gdaldem -co, also written -co; repeatable):
+        /// COMPRESS=NONE|DEFLATE|LZW|ZSTD, PREDICTOR=1|2|3, TILED=YES, BLOCKXSIZE=N,
+        /// BLOCKYSIZE=N, ZLEVEL=1..9, ZSTD_LEVEL=1..22. Default: uncompressed strips, as gdaldem.
+        #[arg(long = "co", value_name = "KEY=VALUE")]
+        creation_options: Vec<String>,
         /// Vertical exaggeration (gdaldem -z).
         #[arg(long, default_value_t = 1.0)]
         z: f64,
@@ -271,6 +279,16 @@ enum Command {
         /// leaving those cells NoData.
         #[arg(long)]
         compute_edges: bool,
+        /// gdaldem -alg: Horn (default) or ZevenbergenThorne for slope, aspect and hillshade;
+        /// Riley (default) or Wilson for TRI.
+        #[arg(long, value_enum)]
+        alg: Option<DemAlg>,
+        /// hillshade: four lights weighted by the aspect (gdaldem -multidirectional).
+        #[arg(long, conflicts_with = "combined")]
+        multidirectional: bool,
+        /// hillshade: shading and slope combined (gdaldem -combined).
+        #[arg(long)]
+        combined: bool,
         /// color-relief: the gdaldem colour file ("value R G B [A]" or "value name" lines;
         /// "nv" for NoData, "x%" of the elevation range).
         #[arg(long)]
@@ -316,13 +334,33 @@ enum Command {
     },
 }
 
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum DemProduct {
     Hillshade,
     Slope,
     Aspect,
     ColorRelief,
+    /// Terrain Ruggedness Index (gdaldem TRI).
+    #[value(name = "TRI", alias = "tri")]
+    Tri,
+    /// Topographic Position Index (gdaldem TPI).
+    #[value(name = "TPI", alias = "tpi")]
+    Tpi,
+    Roughness,
     Contours,
+}
+
+/// gdaldem's -alg: the gradient (slope, aspect, hillshade) or TRI's formula.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum DemAlg {
+    #[value(name = "Horn", alias = "horn")]
+    Horn,
+    #[value(name = "ZevenbergenThorne", alias = "zevenbergen-thorne")]
+    ZevenbergenThorne,
+    #[value(name = "Riley", alias = "riley")]
+    Riley,
+    #[value(name = "Wilson", alias = "wilson")]
+    Wilson,
 }
 
 /// color-relief's palette and how it is looked up.
@@ -573,11 +611,25 @@ fn parse_image_size(s: &str) -> Result<(usize, usize), String> {
         .ok_or_else(|| format!("expected WIDTHxHEIGHT, e.g. 1920x1080, not {s}"))
 }
 
+/// `volterra dem` takes gdaldem's own spellings of its output options, `-of` and `-co`, as
+/// well as `--of` and `--co`.
+fn gdal_style_args(args: impl Iterator<Item = std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    let args: Vec<std::ffi::OsString> = args.collect();
+    let dem = args.iter().skip(1).find(|a| !a.to_string_lossy().starts_with('-')).is_some_and(|a| a == "dem");
+    args.into_iter()
+        .map(|a| match (dem, a.to_str()) {
+            (true, Some("-co")) => "--co".into(),
+            (true, Some("-of")) => "--of".into(),
+            _ => a,
+        })
+        .collect()
+}
+
 fn main() -> ExitCode {
     quiet_vulkan_device_select();
     default_sigpipe();
     exit_cleanly_on_signals();
-    let cli = Cli::parse();
+    let cli = Cli::parse_from(gdal_style_args(std::env::args_os()));
     // The renderers' progress, as bars on the terminal.
     let outcome = volterra::render::driver::observed(std::sync::Arc::new(crate::progress::TerminalProgress::default()), || {
         let limits = cli.limits()?;
@@ -622,6 +674,8 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             product,
             input,
             output,
+            output_format,
+            creation_options,
             z,
             scale,
             azimuth,
@@ -629,6 +683,9 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             percent,
             zero_for_flat,
             compute_edges,
+            alg,
+            multidirectional,
+            combined,
             palette,
             alpha,
             exact_color_entry,
@@ -651,6 +708,9 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
                 _ if contour_args => anyhow::bail!("--interval, --levels, --attribute, --3d and --polygons are for contours only"),
                 _ => None,
             };
+            if contours.is_some() && (output_format != "GTiff" || !creation_options.is_empty()) {
+                anyhow::bail!("-of and -co are for the raster products; contours are written as GeoJSON");
+            }
             if let Some(levels) = contours {
                 let output_kind = if polygons {
                     ContourOutput::Polygons { min: &attribute_min, max: &attribute_max }
@@ -659,13 +719,41 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
                 };
                 return cmd_contours(&input, &output, &levels, output_kind, &read.options(limits)?);
             }
-            let options = volterra::dem::Options { z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges };
+            use volterra::dem::{GradientAlg, Shading, TriAlg};
+            let gradient_product = matches!(product, DemProduct::Slope | DemProduct::Aspect | DemProduct::Hillshade);
+            let (gradient, tri) = match (alg, product) {
+                (None, _) => (GradientAlg::Horn, TriAlg::Riley),
+                (Some(DemAlg::Horn), _) if gradient_product => (GradientAlg::Horn, TriAlg::Riley),
+                (Some(DemAlg::ZevenbergenThorne), _) if gradient_product => (GradientAlg::ZevenbergenThorne, TriAlg::Riley),
+                (Some(DemAlg::Riley), DemProduct::Tri) => (GradientAlg::Horn, TriAlg::Riley),
+                (Some(DemAlg::Wilson), DemProduct::Tri) => (GradientAlg::Horn, TriAlg::Wilson),
+                _ => anyhow::bail!("--alg: Horn or ZevenbergenThorne for slope, aspect and hillshade; Riley or Wilson for TRI"),
+            };
+            if (multidirectional || combined) && product != DemProduct::Hillshade {
+                anyhow::bail!("--multidirectional and --combined are for hillshade");
+            }
+            let shading = match (multidirectional, combined) {
+                (true, _) => Shading::MultiDirectional,
+                (_, true) => Shading::Combined,
+                _ => Shading::Single,
+            };
+            let options =
+                volterra::dem::Options { z, scale, azimuth, altitude, percent, zero_for_flat, compute_edges, gradient, tri, shading };
             let mode = match (exact_color_entry, nearest_color_entry) {
                 (true, _) => volterra::dem::ColorMode::Exact,
                 (_, true) => volterra::dem::ColorMode::Nearest,
                 _ => volterra::dem::ColorMode::Interpolate,
             };
-            cmd_dem(product, &input, &output, &options, &ReliefArgs { palette, alpha, mode }, &read.options(limits)?)
+            let write = match output_format.to_ascii_uppercase().as_str() {
+                "GTIFF" => formats::geotiff_write::WriteOptions::from_creation_options(&creation_options).map_err(|e| anyhow!("-co: {e}"))?,
+                // A COG's directories and overviews come before its tiles: not this writer's
+                // strip-by-strip layout. Said rather than written as a plain GeoTIFF.
+                "COG" => anyhow::bail!(
+                    "-of COG is not written here; write a tiled GeoTIFF (-co TILED=YES -co BLOCKXSIZE=512 -co BLOCKYSIZE=512) and make it a COG with gdal_translate -of COG"
+                ),
+                other => anyhow::bail!("-of {other}: volterra dem writes GTiff"),
+            };
+            cmd_dem(product, &input, &output, &options, &ReliefArgs { palette, alpha, mode }, &write, &read.options(limits)?)
         }
         Command::Renderers => {
             print!("{}", volterra::render::registry::markdown());
@@ -960,6 +1048,7 @@ fn cmd_dem(
     output: &Path,
     options: &volterra::dem::Options,
     relief: &ReliefArgs,
+    write: &formats::geotiff_write::WriteOptions,
     load: &LoadOptions,
 ) -> Result<()> {
     use volterra::dem::{self, Op, Product};
@@ -999,6 +1088,9 @@ fn cmd_dem(
         DemProduct::Hillshade => (Op::Product(Product::Hillshade, *options), "hillshade"),
         DemProduct::Slope => (Op::Product(Product::Slope, *options), "slope"),
         DemProduct::Aspect => (Op::Product(Product::Aspect, *options), "aspect"),
+        DemProduct::Tri => (Op::Product(Product::Tri, *options), "TRI"),
+        DemProduct::Tpi => (Op::Product(Product::Tpi, *options), "TPI"),
+        DemProduct::Roughness => (Op::Product(Product::Roughness, *options), "roughness"),
         DemProduct::ColorRelief => {
             let palette = palette.as_deref().expect("read above");
             (Op::Relief { palette, mode: relief.mode, alpha: relief.alpha, nodata_value }, "color-relief")
@@ -1009,7 +1101,7 @@ fn cmd_dem(
     let progress = progress::TerminalProgress::default();
     use volterra::render::driver::Progress as _;
     progress.begin(what, grid.height as u64);
-    let written = dem::write_product(&*src, &grid, &op, output, &load.limits, &|rows| progress.update(rows as u64));
+    let written = dem::write_product(&*src, &grid, &op, output, write, &load.limits, &|rows| progress.update(rows as u64));
     progress.end();
     let valid = written?;
     if valid == 0 {

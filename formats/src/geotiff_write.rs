@@ -63,6 +63,114 @@ pub enum StripMut<'a> {
     U8(&'a mut [u8]),
 }
 
+/// How a GeoTIFF's cells are compressed (GDAL's `COMPRESS`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Compression {
+    None,
+    Deflate,
+    Lzw,
+    Zstd,
+}
+
+/// How a GeoTIFF is laid out and compressed: GDAL's GTiff creation options `COMPRESS`,
+/// `PREDICTOR`, `TILED` with `BLOCKXSIZE`/`BLOCKYSIZE`, `ZLEVEL` and `ZSTD_LEVEL`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WriteOptions {
+    pub compression: Compression,
+    /// 1 none, 2 horizontal differencing, 3 floating point; None: the writer's choice
+    /// (2 for bytes, 3 for elevations, none for other floats). Ignored uncompressed.
+    pub predictor: Option<u16>,
+    /// Tiles of [width, height] cells (multiples of 16, as TIFF asks), else strips.
+    pub tiles: Option<[usize; 2]>,
+    /// Deflate's level (1–9; default 3, see `compress`) or ZSTD's (1–22; default 9).
+    pub level: Option<i32>,
+}
+
+impl Default for WriteOptions {
+    /// What `write_band` and `write_geotiff` write: Deflate strips.
+    fn default() -> Self {
+        WriteOptions { compression: Compression::Deflate, predictor: None, tiles: None, level: None }
+    }
+}
+
+impl WriteOptions {
+    /// Refuses a predictor the band's samples cannot take (3 is for floating point).
+    pub fn check(&self, kind: BandKind) -> std::result::Result<(), String> {
+        if self.predictor == Some(3) && kind != BandKind::F32 && self.compression != Compression::None {
+            return Err("PREDICTOR=3 is for floating-point samples; this product is bytes (PREDICTOR=2)".into());
+        }
+        Ok(())
+    }
+
+    /// gdaldem's default GTiff output: uncompressed strips.
+    pub fn gdal_default() -> Self {
+        WriteOptions { compression: Compression::None, ..Default::default() }
+    }
+
+    /// GDAL's creation options (`KEY=VALUE`, keys in any case) over gdaldem's default. An
+    /// option GDAL's GTiff driver has but this writer does not, or a value it refuses, is an
+    /// error naming it.
+    pub fn from_creation_options(options: &[String]) -> std::result::Result<WriteOptions, String> {
+        let mut o = WriteOptions::gdal_default();
+        let (mut tiled, mut block) = (false, [256usize, 256]);
+        for opt in options {
+            let (k, v) = opt.split_once('=').ok_or_else(|| format!("creation option '{opt}' is not KEY=VALUE"))?;
+            let (k, v) = (k.trim().to_ascii_uppercase(), v.trim());
+            let number = |what: &str| v.parse::<i64>().map_err(|_| format!("{what}={v} is not a whole number"));
+            match k.as_str() {
+                "COMPRESS" => {
+                    o.compression = match v.to_ascii_uppercase().as_str() {
+                        "NONE" => Compression::None,
+                        "DEFLATE" | "ADOBE_DEFLATE" => Compression::Deflate,
+                        "LZW" => Compression::Lzw,
+                        "ZSTD" => Compression::Zstd,
+                        other => return Err(format!("COMPRESS={other}: this writer has NONE, DEFLATE, LZW and ZSTD")),
+                    }
+                }
+                "PREDICTOR" => {
+                    let p = number("PREDICTOR")?;
+                    if !(1..=3).contains(&p) {
+                        return Err(format!("PREDICTOR={p}: 1 (none), 2 (horizontal) or 3 (floating point)"));
+                    }
+                    o.predictor = Some(p as u16);
+                }
+                "TILED" => tiled = matches!(v.to_ascii_uppercase().as_str(), "YES" | "TRUE" | "ON" | "1"),
+                "BLOCKXSIZE" | "BLOCKYSIZE" => {
+                    let b = number(&k)?;
+                    if b < 16 || b % 16 != 0 || b > 1 << 16 {
+                        return Err(format!("{k}={b}: a tile side is a multiple of 16, at most 65536"));
+                    }
+                    block[usize::from(k == "BLOCKYSIZE")] = b as usize;
+                }
+                "ZLEVEL" => {
+                    let l = number("ZLEVEL")?;
+                    if !(1..=9).contains(&l) {
+                        return Err(format!("ZLEVEL={l}: 1 to 9"));
+                    }
+                    o.level = Some(l as i32);
+                }
+                "ZSTD_LEVEL" => {
+                    let l = number("ZSTD_LEVEL")?;
+                    if !(1..=22).contains(&l) {
+                        return Err(format!("ZSTD_LEVEL={l}: 1 to 22"));
+                    }
+                    o.level = Some(l as i32);
+                }
+                "BIGTIFF" => {} // IF_NEEDED is what this writer does; others are GDAL's choice too
+                other => {
+                    return Err(format!(
+                        "creation option {other} is not one this writer takes (COMPRESS, PREDICTOR, TILED, BLOCKXSIZE, BLOCKYSIZE, ZLEVEL, ZSTD_LEVEL, BIGTIFF)"
+                    ))
+                }
+            }
+        }
+        if tiled {
+            o.tiles = Some(block);
+        }
+        Ok(o)
+    }
+}
+
 /// The NoData value written for elevations whose source declares none but has NoData
 /// samples (the int16 value SRTM uses).
 pub const NODATA_WHERE_NONE_DECLARED: f64 = -32768.0;
@@ -149,14 +257,35 @@ pub fn write_band_strips<E: From<FormatError>>(
     nodata: Option<f64>,
     elevation: bool,
     rows_per_strip: usize,
+    fill: impl FnMut(usize, StripMut) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    write_band_strips_with(path, grid, kind, nodata, elevation, rows_per_strip, &WriteOptions::default(), fill)
+}
+
+/// As `write_band_strips`, laid out and compressed as `opts` says; tiled, the cells are
+/// handed over a row of tiles at a time (`rows_per_strip` is then the tiles' height).
+#[allow(clippy::too_many_arguments)]
+pub fn write_band_strips_with<E: From<FormatError>>(
+    path: &Path,
+    grid: &GridGeoref,
+    kind: BandKind,
+    nodata: Option<f64>,
+    elevation: bool,
+    rows_per_strip: usize,
+    opts: &WriteOptions,
     mut fill: impl FnMut(usize, StripMut) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
     if grid.width == 0 || grid.height == 0 || grid.width > u32::MAX as usize || grid.height > u32::MAX as usize {
         return Err(FormatError::invalid(path, format!("cannot write a {}×{} raster", grid.width, grid.height)).into());
     }
-    let rows_per_strip = rows_per_strip.clamp(1, grid.height);
-    let raw = (grid.width * grid.height * kind.samples() * kind.sample_bytes()) as u64;
-    let layout = Layout { grid, kind, nodata, elevation, rows_per_strip };
+    let rows_per_strip = match opts.tiles {
+        Some([_, th]) => th,
+        None => rows_per_strip.clamp(1, grid.height),
+    };
+    // Tiles pad the raster to whole tiles.
+    let padded = opts.tiles.map_or([grid.width, grid.height], |[tw, th]| [grid.width.div_ceil(tw) * tw, grid.height.div_ceil(th) * th]);
+    let raw = (padded[0] * padded[1] * kind.samples() * kind.sample_bytes()) as u64;
+    let layout = Layout { grid, kind, nodata, elevation, rows_per_strip, opts: *opts };
     // The error `fill` returned, kept while the writer's own error unwinds the write.
     let mut failed: Option<E> = None;
     let written = write_atomically(path, |w| {
@@ -186,20 +315,26 @@ struct Layout<'a> {
     nodata: Option<f64>,
     elevation: bool,
     rows_per_strip: usize,
+    opts: WriteOptions,
 }
 
 impl Layout<'_> {
-    /// The TIFF predictor: 2 for bytes, 3 for elevations, none for other floats.
+    /// The TIFF predictor: the options', else 2 for bytes, 3 for elevations, none for other
+    /// floats; none uncompressed.
     fn predictor(&self) -> u16 {
-        match (self.kind, self.elevation) {
+        if self.opts.compression == Compression::None {
+            return 1;
+        }
+        self.opts.predictor.unwrap_or(match (self.kind, self.elevation) {
             (BandKind::F32, true) => 3,
             (BandKind::F32, false) => 1,
             _ => 2,
-        }
+        })
     }
 }
 
-/// One strip filled and compressed: its samples are kept to be refilled.
+/// One strip (or tile) filled and compressed: its samples are kept to be refilled.
+#[derive(Default)]
 struct Strip {
     f32s: Vec<f32>,
     bytes: Vec<u8>,
@@ -214,14 +349,18 @@ fn write_strips<W: Write + Seek, K: TiffKind>(
 ) -> Result<()> {
     let err = |e: tiff::TiffError| FormatError::invalid(path, format!("cannot write TIFF: {e}"));
     let (w, h) = (l.grid.width, l.grid.height);
-    let row_samples = w * l.kind.samples();
+    let spp = l.kind.samples();
+    let row_samples = w * spp;
     let strips = h.div_ceil(l.rows_per_strip);
     let batch = strips_in_flight();
+    // Tiled: each strip of rows is cut into its row of tiles, padded to whole tiles.
+    let [tw, th] = l.opts.tiles.unwrap_or([w, l.rows_per_strip]);
+    let across = if l.opts.tiles.is_some() { w.div_ceil(tw) } else { 1 };
     let mut dir = enc.image_directory().map_err(err)?;
-    let mut offsets: Vec<u64> = Vec::with_capacity(strips);
-    let mut counts: Vec<u64> = Vec::with_capacity(strips);
-    let mut pool: Vec<Strip> =
-        (0..batch.min(strips)).map(|_| Strip { f32s: Vec::new(), bytes: Vec::new(), compressed: Vec::new() }).collect();
+    let mut offsets: Vec<u64> = Vec::with_capacity(strips * across);
+    let mut counts: Vec<u64> = Vec::with_capacity(strips * across);
+    let mut pool: Vec<Strip> = (0..batch.min(strips)).map(|_| Strip::default()).collect();
+    let mut tiles: Vec<Strip> = Vec::new();
     for first_strip in (0..strips).step_by(batch) {
         let in_batch = batch.min(strips - first_strip);
         // Filled in order (a reader of rows reads them in order), compressed in parallel.
@@ -240,8 +379,20 @@ fn write_strips<W: Write + Seek, K: TiffKind>(
             }
         }
         let predictor = l.predictor();
-        pool[..in_batch].par_iter_mut().for_each(|s| compress(s, l.kind, predictor, row_samples));
-        for s in &pool[..in_batch] {
+        let chunks: &mut [Strip] = if l.opts.tiles.is_some() {
+            tiles.resize_with(in_batch * across, Strip::default);
+            for (k, s) in pool[..in_batch].iter().enumerate() {
+                for t in 0..across {
+                    cut_tile(s, &mut tiles[k * across + t], l.kind, [w, t * tw], [tw, th]);
+                }
+            }
+            &mut tiles[..in_batch * across]
+        } else {
+            &mut pool[..in_batch]
+        };
+        let chunk_row = if l.opts.tiles.is_some() { tw * spp } else { row_samples };
+        chunks.par_iter_mut().for_each(|s| compress(s, l.kind, predictor, chunk_row, &l.opts));
+        for s in chunks.iter() {
             offsets.push(dir.write_data(&s.compressed[..]).map_err(err)?);
             counts.push(s.compressed.len() as u64);
         }
@@ -250,16 +401,58 @@ fn write_strips<W: Write + Seek, K: TiffKind>(
     dir.finish().map_err(err)
 }
 
-/// Predicts and compresses a strip's samples into `s.compressed`: bytes by differences
-/// along the row between a cell's sample and the previous cell's (TIFF predictor 2);
-/// floats by their bytes split into planes, most significant first, then differenced along
-/// the row (predictor 3, as GDAL and libtiff write it), or as they are (predictor 1).
-fn compress(s: &mut Strip, kind: BandKind, predictor: u16, row_samples: usize) {
+/// The tile of `strip` (rows of `width` cells) whose first column is `col`, `size` cells,
+/// into `tile`: cells beyond the raster's right and bottom edges are 0.
+fn cut_tile(strip: &Strip, tile: &mut Strip, kind: BandKind, [width, col]: [usize; 2], [tw, th]: [usize; 2]) {
+    let spp = kind.samples();
+    let (row, trow) = (width * spp, tw * spp);
+    let n = (col + tw).min(width) - col;
+    match kind {
+        BandKind::F32 => {
+            let rows = strip.f32s.len() / row;
+            tile.f32s.clear();
+            tile.f32s.resize(th * trow, 0.0);
+            for r in 0..rows {
+                tile.f32s[r * trow..r * trow + n * spp].copy_from_slice(&strip.f32s[r * row + col * spp..r * row + (col + n) * spp]);
+            }
+        }
+        _ => {
+            let rows = strip.bytes.len() / row;
+            tile.bytes.clear();
+            tile.bytes.resize(th * trow, 0);
+            for r in 0..rows {
+                tile.bytes[r * trow..r * trow + n * spp].copy_from_slice(&strip.bytes[r * row + col * spp..r * row + (col + n) * spp]);
+            }
+        }
+    }
+}
+
+/// Predicts and compresses a strip's (or tile's) samples into `s.compressed`: bytes by
+/// differences along the row between a cell's sample and the previous cell's (TIFF
+/// predictor 2); floats by their bytes split into planes, most significant first, then
+/// differenced along the row (predictor 3, as GDAL and libtiff write it), by differences
+/// of their 32-bit patterns (predictor 2, libtiff's), or as they are (predictor 1). Then
+/// zlib (Deflate), LZW (TIFF's, as libtiff codes it), ZSTD, or none.
+fn compress(s: &mut Strip, kind: BandKind, predictor: u16, row_samples: usize, opts: &WriteOptions) {
     use std::io::Write as _;
     let spp = kind.samples();
     let mut predicted: Vec<u8> = Vec::new();
     let data: &[u8] = match kind {
         BandKind::F32 if predictor == 1 => bytemuck::cast_slice(&s.f32s),
+        BandKind::F32 if predictor == 2 => {
+            // The samples as little-endian u32s, each minus the one before it in the row.
+            predicted.reserve(s.f32s.len() * 4);
+            for row in s.f32s.chunks_exact(row_samples) {
+                let mut prev = 0u32;
+                for (i, v) in row.iter().enumerate() {
+                    let bits = v.to_bits();
+                    let d = if i == 0 { bits } else { bits.wrapping_sub(prev) };
+                    prev = bits;
+                    predicted.extend_from_slice(&d.to_le_bytes());
+                }
+            }
+            &predicted
+        }
         BandKind::F32 => {
             let row_bytes = row_samples * 4;
             predicted.resize(s.f32s.len() * 4, 0);
@@ -276,6 +469,7 @@ fn compress(s: &mut Strip, kind: BandKind, predictor: u16, row_samples: usize) {
             }
             &predicted
         }
+        _ if predictor == 1 => &s.bytes,
         _ => {
             predicted.extend_from_slice(&s.bytes);
             for out in predicted.chunks_exact_mut(row_samples) {
@@ -287,12 +481,26 @@ fn compress(s: &mut Strip, kind: BandKind, predictor: u16, row_samples: usize) {
         }
     };
     s.compressed.clear();
-    // Level 3, not GDAL's default 6: the products of a 16384 × 8800 DEM were written 1.6×
-    // as fast (slope 4.5 s against 7.3 s on 2 cores) for 3–11 % more bytes (level 1 gave
-    // 1.8× the bytes).
-    let mut z = flate2::write::ZlibEncoder::new(std::mem::take(&mut s.compressed), flate2::Compression::new(3));
-    z.write_all(data).expect("writing to memory");
-    s.compressed = z.finish().expect("writing to memory");
+    match opts.compression {
+        Compression::None => s.compressed.extend_from_slice(data),
+        Compression::Deflate => {
+            // Level 3, not GDAL's default 6: the products of a 16384 × 8800 DEM were written
+            // 1.6× as fast (slope 4.5 s against 7.3 s on 2 cores) for 3–11 % more bytes
+            // (level 1 gave 1.8× the bytes).
+            let level = opts.level.unwrap_or(3).clamp(1, 9) as u32;
+            let mut z = flate2::write::ZlibEncoder::new(std::mem::take(&mut s.compressed), flate2::Compression::new(level));
+            z.write_all(data).expect("writing to memory");
+            s.compressed = z.finish().expect("writing to memory");
+        }
+        Compression::Lzw => {
+            // TIFF's LZW: most significant bit first, the code size growing one code early.
+            let mut e = weezl::encode::Encoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8);
+            s.compressed = e.encode(data).expect("LZW of bytes in memory");
+        }
+        Compression::Zstd => {
+            s.compressed = zstd::bulk::compress(data, opts.level.unwrap_or(9)).expect("ZSTD of bytes in memory");
+        }
+    }
 }
 
 /// The image's tags: layout, compression, predictor, strips, and the georeferencing.
@@ -308,10 +516,21 @@ fn write_tags<W: Write + Seek, K: TiffKind>(
     dir.write_tag(Tag::ImageWidth, grid.width as u32)?;
     dir.write_tag(Tag::ImageLength, grid.height as u32)?;
     dir.write_tag(Tag::BitsPerSample, &vec![bits; spp as usize][..])?;
-    dir.write_tag(Tag::Compression, 8u16)?;
+    let compression: u16 = match l.opts.compression {
+        Compression::None => 1,
+        Compression::Deflate => 8,
+        Compression::Lzw => 5,
+        Compression::Zstd => 50000,
+    };
+    dir.write_tag(Tag::Compression, compression)?;
     dir.write_tag(Tag::PhotometricInterpretation, if spp >= 3 { 2u16 } else { 1u16 })?;
     dir.write_tag(Tag::SamplesPerPixel, spp)?;
-    dir.write_tag(Tag::RowsPerStrip, l.rows_per_strip as u32)?;
+    if let Some([tw, th]) = l.opts.tiles {
+        dir.write_tag(Tag::TileWidth, tw as u32)?;
+        dir.write_tag(Tag::TileLength, th as u32)?;
+    } else {
+        dir.write_tag(Tag::RowsPerStrip, l.rows_per_strip as u32)?;
+    }
     dir.write_tag(Tag::PlanarConfiguration, 1u16)?;
     dir.write_tag(Tag::Predictor, l.predictor())?;
     dir.write_tag(Tag::SampleFormat, &vec![if l.kind == BandKind::F32 { 3u16 } else { 1u16 }; spp as usize][..])?;
@@ -321,8 +540,13 @@ fn write_tags<W: Write + Seek, K: TiffKind>(
     }
     let offsets: Vec<K::OffsetType> = offsets.iter().map(|&o| K::convert_offset(o)).collect::<tiff::TiffResult<_>>()?;
     let counts: Vec<K::OffsetType> = counts.iter().map(|&c| K::convert_offset(c)).collect::<tiff::TiffResult<_>>()?;
-    dir.write_tag(Tag::StripOffsets, K::convert_slice(&offsets))?;
-    dir.write_tag(Tag::StripByteCounts, K::convert_slice(&counts))?;
+    if l.opts.tiles.is_some() {
+        dir.write_tag(Tag::TileOffsets, K::convert_slice(&offsets))?;
+        dir.write_tag(Tag::TileByteCounts, K::convert_slice(&counts))?;
+    } else {
+        dir.write_tag(Tag::StripOffsets, K::convert_slice(&offsets))?;
+        dir.write_tag(Tag::StripByteCounts, K::convert_slice(&counts))?;
+    }
     let [sx, sy] = grid.cell_size_native;
     let corner = [grid.origin[0] - 0.5 * sx, grid.origin[1] + 0.5 * sy];
     dir.write_tag(Tag::ModelPixelScaleTag, &[sx, sy, 0.0][..])?;

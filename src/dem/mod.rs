@@ -20,12 +20,19 @@
 //! or the nearest entry, or exact entries only (as GDAL's current source: GDAL 3.6 gives
 //! the palette's own values transparent black in that mode, a bug fixed since). Contour
 //! lines as `gdal_contour` draws them: `contours`.
+//!
+//! The rest of gdaldem: Zevenbergen–Thorne's gradient (x = (w3 − w5), y = (w7 − w1), over
+//! 2 instead of 8) for slope, aspect and hillshade; multidirectional hillshade (lights from
+//! 225°, 270°, 315° and 360° weighted by sin² of the aspect's difference from each) and
+//! combined (1 − acos(cos i) · atan(slope) / (π/2)²); TRI (Riley: √Σ(wᵢ − w₄)²; Wilson:
+//! the mean |wᵢ − w₄|), TPI (w₄ less its neighbours' mean) and roughness (the window's
+//! range), each in GDAL's float order, NoData −9999.
 
 pub mod contours;
 
 use anyhow::{bail, Result};
 use std::path::Path;
-use volterra_formats::geotiff_write::{default_rows_per_strip, write_band_strips, writer_bytes, BandKind, StripMut};
+use volterra_formats::geotiff_write::{default_rows_per_strip, write_band_strips_with, writer_bytes, BandKind, StripMut, WriteOptions};
 use volterra_formats::heightfield::{GridGeoref, HeightRows, Heightfield};
 use volterra_formats::memory::Limits;
 
@@ -35,6 +42,45 @@ pub enum Product {
     Hillshade,
     Slope,
     Aspect,
+    /// Terrain Ruggedness Index (gdaldem TRI; `Options::tri` picks Riley's or Wilson's).
+    Tri,
+    /// Topographic Position Index: the centre less the mean of its 8 neighbours.
+    Tpi,
+    /// The largest difference between two cells of the window.
+    Roughness,
+}
+
+/// The gradient slope, aspect and hillshade use (gdaldem -alg).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GradientAlg {
+    /// Horn (1981): the 3 × 3 weighted differences (gdaldem's default).
+    #[default]
+    Horn,
+    /// Zevenbergen & Thorne (1987): the 4 neighbours' central differences (smoother terrain).
+    ZevenbergenThorne,
+}
+
+/// TRI's formula (gdaldem TRI -alg).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TriAlg {
+    /// Riley et al. (1999), for terrestrial use: √(Σ (wᵢ − w₄)²) (gdaldem's default).
+    #[default]
+    Riley,
+    /// Wilson et al. (2007), for bathymetry: the mean of |wᵢ − w₄|.
+    Wilson,
+}
+
+/// How hillshade lights the terrain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Shading {
+    /// One light from `azimuth` (gdaldem's default).
+    #[default]
+    Single,
+    /// Four lights (225°, 270°, 315°, 360°) weighted by the aspect (gdaldem
+    /// -multidirectional, after USGS OF 92-422).
+    MultiDirectional,
+    /// Shading and slope combined (gdaldem -combined).
+    Combined,
 }
 
 /// gdaldem's options for these products, with its defaults.
@@ -54,11 +100,28 @@ pub struct Options {
     pub zero_for_flat: bool,
     /// Complete windows at the edges and around NoData (gdaldem -compute_edges).
     pub compute_edges: bool,
+    /// Slope, aspect and hillshade's gradient (gdaldem -alg).
+    pub gradient: GradientAlg,
+    /// TRI's formula (gdaldem TRI -alg).
+    pub tri: TriAlg,
+    /// Hillshade's lighting (gdaldem -multidirectional, -combined).
+    pub shading: Shading,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { z: 1.0, scale: 1.0, azimuth: 315.0, altitude: 45.0, percent: false, zero_for_flat: false, compute_edges: false }
+        Options {
+            z: 1.0,
+            scale: 1.0,
+            azimuth: 315.0,
+            altitude: 45.0,
+            percent: false,
+            zero_for_flat: false,
+            compute_edges: false,
+            gradient: GradientAlg::Horn,
+            tri: TriAlg::Riley,
+            shading: Shading::Single,
+        }
     }
 }
 
@@ -77,7 +140,7 @@ pub fn nodata_value(p: Product, o: &Options) -> Option<f64> {
     match p {
         Product::Hillshade => Some(0.0),
         Product::Aspect if o.zero_for_flat => None,
-        Product::Slope | Product::Aspect => Some(-9999.0),
+        Product::Slope | Product::Aspect | Product::Tri | Product::Tpi | Product::Roughness => Some(-9999.0),
     }
 }
 
@@ -167,16 +230,22 @@ pub fn write_product(
     grid: &GridGeoref,
     op: &Op,
     output: &Path,
+    opts: &WriteOptions,
     limits: &Limits,
     rows_done: &dyn Fn(usize),
 ) -> Result<usize> {
     let [w, _] = src.size();
     let kind = op.band();
-    let rows_per_strip = default_rows_per_strip(w, kind);
+    opts.check(kind).map_err(|e| anyhow::anyhow!("{}: {e}", output.display()))?;
+    // Tiled, a band is a row of tiles (padded to whole tiles).
+    let (rows_per_strip, width) = match opts.tiles {
+        Some([tw, th]) => (th, w.div_ceil(tw) * tw),
+        None => (default_rows_per_strip(w, kind), w),
+    };
     // The input rows of a strip and its neighbours', and the writer's strips.
-    let held = (rows_per_strip as u64 + 2) * w as u64 * 4 + writer_bytes(w, kind, rows_per_strip);
+    let held = (rows_per_strip as u64 + 2) * w as u64 * 4 + 2 * writer_bytes(width, kind, rows_per_strip);
     limits.check(output, "the rows and strips of a band of the product", &[held])?;
-    write_product_strips(src, grid, op, output, rows_per_strip, rows_done)
+    write_product_strips(src, grid, op, output, rows_per_strip, opts, rows_done)
 }
 
 /// `write_product` in strips of `rows_per_strip` rows.
@@ -186,13 +255,14 @@ fn write_product_strips(
     op: &Op,
     output: &Path,
     rows_per_strip: usize,
+    opts: &WriteOptions,
     rows_done: &dyn Fn(usize),
 ) -> Result<usize> {
     let [w, h] = src.size();
     op.check([w, h])?;
     let kind = op.band();
     let mut input = InputRows { first: 0, n: 0, w, cells: std::borrow::Cow::Owned(Vec::new()), valid: 0 };
-    write_band_strips(output, grid, kind, op.nodata(), false, rows_per_strip, |first, strip| -> Result<()> {
+    write_band_strips_with(output, grid, kind, op.nodata(), false, rows_per_strip, opts, |first, strip| -> Result<()> {
         let n = match &strip {
             StripMut::F32(s) => s.len(),
             StripMut::U8(s) => s.len(),
@@ -310,7 +380,8 @@ fn product_row(
     let at = |c: usize, r: usize| input.at(c, r);
     let (sin_alt, cos_alt) = o.altitude.to_radians().sin_cos();
     let (sin_az, cos_az) = o.azimuth.to_radians().sin_cos();
-    let zf = 1.0 / 8.0;
+    // The gradient's weights sum to 8 (Horn) or 2 (Zevenbergen–Thorne).
+    let zf = if o.gradient == GradientAlg::Horn { 1.0 / 8.0 } else { 1.0 / 2.0 };
     let out_nodata = nodata_value(product, o).unwrap_or(0.0);
     // Inside the raster the window is its three rows' cells, where all are valid; at the
     // edges and next to NoData, `window`'s rules.
@@ -328,34 +399,79 @@ fn product_row(
             out(c, out_nodata);
             continue;
         };
-        let west_minus_east = ((win[0] + win[3] + win[3] + win[6]) - (win[2] + win[5] + win[5] + win[8])) as f64;
-        let south_minus_north = ((win[6] + win[7] + win[7] + win[8]) - (win[0] + win[1] + win[1] + win[2])) as f64;
-        let (x, y) = (west_minus_east * o.z * inv_ew, south_minus_north * o.z * inv_ns);
         let v = match product {
-            Product::Slope => {
-                let g = (x * x + y * y).sqrt() * zf;
-                if o.percent {
-                    100.0 * g
+            Product::Tri | Product::Tpi | Product::Roughness => window_statistic(&win, product, o.tri),
+            _ => gradient_product(&win, product, o, [inv_ew, inv_ns], zf, [sin_alt, cos_alt, sin_az, cos_az], out_nodata),
+        };
+        out(c, v);
+    }
+}
+
+/// TRI, TPI or roughness of a window, as gdaldem computes them: sums of f32 differences
+/// (TRI Wilson, TPI) scaled by 0.125 in f32, Riley's squares summed in f64, the window's
+/// range.
+fn window_statistic(win: &[f32; 9], product: Product, tri: TriAlg) -> f64 {
+    let centre = win[4];
+    let around = [win[0], win[1], win[2], win[3], win[5], win[6], win[7], win[8]];
+    match (product, tri) {
+        (Product::Tri, TriAlg::Wilson) => (around.iter().map(|&v| (v - centre).abs()).fold(0f32, |a, d| a + d) * 0.125f32) as f64,
+        (Product::Tri, TriAlg::Riley) => (around.iter().map(|&v| ((v - centre) as f64).powi(2)).sum::<f64>().sqrt() as f32) as f64,
+        (Product::Tpi, _) => (centre - around.iter().fold(0f32, |a, &v| a + v) * 0.125f32) as f64,
+        _ => {
+            let (lo, hi) = win.iter().fold((win[0], win[0]), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+            (hi - lo) as f64
+        }
+    }
+}
+
+/// Slope, aspect or hillshade of a window by `o.gradient`: `inv` the inverse of the cell
+/// size times the scale (east, north: the latter negative), `zf` the gradient's 1/8 or
+/// 1/2, `light` = [sin alt, cos alt, sin az, cos az].
+fn gradient_product(
+    win: &[f32; 9],
+    product: Product,
+    o: &Options,
+    [inv_ew, inv_ns]: [f64; 2],
+    zf: f64,
+    light: [f64; 4],
+    out_nodata: f64,
+) -> f64 {
+    let [sin_alt, cos_alt, sin_az, cos_az] = light;
+    // West minus east and south minus north (window sums in f32, in GDAL's order).
+    let (west_minus_east, south_minus_north) = match o.gradient {
+        GradientAlg::Horn => (
+            ((win[0] + win[3] + win[3] + win[6]) - (win[2] + win[5] + win[5] + win[8])) as f64,
+            ((win[6] + win[7] + win[7] + win[8]) - (win[0] + win[1] + win[1] + win[2])) as f64,
+        ),
+        GradientAlg::ZevenbergenThorne => ((win[3] - win[5]) as f64, (win[7] - win[1]) as f64),
+    };
+    let (x, y) = (west_minus_east * o.z * inv_ew, south_minus_north * o.z * inv_ns);
+    match product {
+        Product::Slope => {
+            let g = (x * x + y * y).sqrt() * zf;
+            if o.percent {
+                100.0 * g
+            } else {
+                g.atan().to_degrees()
+            }
+        }
+        Product::Aspect => {
+            let (dx, dy) = (-west_minus_east, south_minus_north);
+            if dx == 0.0 && dy == 0.0 {
+                out_nodata
+            } else {
+                // As GDAL: in f32, the angle from east counter-clockwise made an azimuth.
+                let a = (dy.atan2(-dx).to_degrees()) as f32;
+                let a = if a > 90.0 { 450.0 - a } else { 90.0 - a };
+                if a == 360.0 {
+                    0.0
                 } else {
-                    g.atan().to_degrees()
+                    a as f64
                 }
             }
-            Product::Aspect => {
-                let (dx, dy) = (((win[2] + win[5] + win[5] + win[8]) - (win[0] + win[3] + win[3] + win[6])) as f64, south_minus_north);
-                if dx == 0.0 && dy == 0.0 {
-                    out_nodata
-                } else {
-                    // As GDAL: in f32, the angle from east counter-clockwise made an azimuth.
-                    let a = (dy.atan2(-dx).to_degrees()) as f32;
-                    let a = if a > 90.0 { 450.0 - a } else { 90.0 - a };
-                    if a == 360.0 {
-                        0.0
-                    } else {
-                        a as f64
-                    }
-                }
-            }
-            Product::Hillshade => {
+        }
+        _ => match o.shading {
+            Shading::Single => {
                 let cang = (sin_alt - (y * cos_az - x * sin_az) * cos_alt * zf) / (1.0 + zf * zf * (x * x + y * y)).sqrt();
                 if cang <= 0.0 {
                     1.0
@@ -363,8 +479,37 @@ fn product_row(
                     1.0 + 254.0 * cang
                 }
             }
-        };
-        out(c, v);
+            Shading::MultiDirectional => {
+                // Four lights at the altitude, from 225°, 270°, 315° and 360°, each
+                // weighted by sin²(aspect − its azimuth).
+                let (xx, yy) = (x * x, y * y);
+                let xx_plus_yy = xx + yy;
+                if xx_plus_yy == 0.0 {
+                    return 1.0 + 254.0 * sin_alt;
+                }
+                let (s127, c127) = (127.0 * sin_alt, 127.0 * cos_alt * zf);
+                let c225 = 127.0 * 225f64.to_radians().cos() * cos_alt * zf;
+                let v225 = (s127 + (x - y) * c225).max(0.0);
+                let v270 = (s127 - x * c127).max(0.0);
+                let v315 = (s127 + (x + y) * c225).max(0.0);
+                let v360 = (s127 - y * c127).max(0.0);
+                let w225 = 0.5 * xx_plus_yy - x * y;
+                let w315 = xx_plus_yy - w225;
+                let shade = (w225 * v225 + xx * v270 + w315 * v315 + yy * v360) / xx_plus_yy;
+                1.0 + shade / (1.0 + zf * zf * xx_plus_yy).sqrt()
+            }
+            Shading::Combined => {
+                let slope = (x * x + y * y) * zf * zf;
+                let cos_i = (sin_alt - (y * cos_az - x * sin_az) * cos_alt * zf) / (1.0 + slope).sqrt();
+                let cang =
+                    1.0 - cos_i.clamp(-1.0, 1.0).acos() * slope.sqrt().atan() / (std::f64::consts::FRAC_PI_2 * std::f64::consts::FRAC_PI_2);
+                if cang <= 0.0 {
+                    1.0
+                } else {
+                    1.0 + 254.0 * cang
+                }
+            }
+        },
     }
 }
 
@@ -680,7 +825,7 @@ mod tests {
             for rows_per_strip in [1, 2, 4] {
                 let src = Counted { hf: &hf, reads: (0..hf.height).map(|_| Default::default()).collect(), fail_at: None };
                 let out = dir.path().join(format!("{k}_{rows_per_strip}.tif"));
-                write_product_strips(&src, &hf.georef(), op, &out, rows_per_strip, &|_| ()).unwrap();
+                write_product_strips(&src, &hf.georef(), op, &out, rows_per_strip, &WriteOptions::default(), &|_| ()).unwrap();
                 assert!(src.reads.iter().all(|n| n.load(std::sync::atomic::Ordering::Relaxed) == 1), "each row read once");
                 let written = volterra_formats::geotiff::read_geotiff_image(&out, &Default::default()).unwrap();
                 let whole: Vec<f64> = match op {
@@ -711,7 +856,7 @@ mod tests {
         let src = Counted { hf: &hf, reads: (0..hf.height).map(|_| Default::default()).collect(), fail_at: Some(13) };
         let out = dir.path().join("hs.tif");
         let op = Op::Product(Product::Hillshade, Options::default());
-        let e = write_product_strips(&src, &hf.georef(), &op, &out, 4, &|_| ()).unwrap_err();
+        let e = write_product_strips(&src, &hf.georef(), &op, &out, 4, &WriteOptions::default(), &|_| ()).unwrap_err();
         assert_eq!(e.to_string(), "dem.tif: tile of row 13 is corrupt");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no output, no temporary file");
         let tiny = Heightfield { width: 2, elevations: vec![0.0; 2 * 23], ..bumpy() };
