@@ -434,6 +434,26 @@ fn products_of_an_all_nodata_dem_equal_gdaldem_and_say_so() {
         assert!(out.status.success(), "{stderr}");
         assert!(stderr.contains("no valid samples"), "{product}: {stderr}");
     }
+    // Contours and a render say it too, rather than writing an empty result silently.
+    let out = Command::new(common::volterra_bin())
+        .args(["dem", "contours"])
+        .arg(&dem)
+        .arg(dir.path().join("c.geojson"))
+        .args(["--levels", "100"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && stderr.contains("no valid samples (every one NoData): the output holds no contour"), "{stderr}");
+    let scene = dir.path().join("void.toml");
+    std::fs::write(
+        &scene,
+        "[image]\nwidth = 16\nheight = 16\n[camera]\nposition = [600.0, -900.0, 900.0]\nfocal_point = [600.0, 450.0, 0.0]\n\
+         [[node]]\nname = \"dem\"\nkind = \"heightfield\"\nfile = \"void.tif\"\nrenderer = \"terrain-reference\"\n",
+    )
+    .unwrap();
+    let out = Command::new(common::volterra_bin()).arg("render").arg(&scene).arg("-o").arg(dir.path().join("v.exr")).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && stderr.contains("node 'dem': the heightfield has no valid sample"), "{stderr}");
 }
 
 /// `volterra dem` takes gdaldem's output options, spelled as gdaldem spells them (`-co`,

@@ -481,7 +481,18 @@ fn scene_errors_name_the_key_line_and_the_path_tried() {
     };
     let head = "[image]\nwidth = 8\nheight = 8\n[camera]\nposition = [0.0, 100.0, 0.0]\nfocal_point = [0.0, 0.0, 0.0]\nview_up = [0.0, 0.0, 1.0]\n";
     let err = scene(&format!("{head}[[node]]\nname = \"v\"\nkind = \"volume\"\nfile = \"v.nii\"\nrendrer = \"reference\"\n"));
-    assert!(err.starts_with("error: SCENE: line 12: unknown field `rendrer`, expected one of"), "{err}");
+    assert!(
+        err.starts_with(
+            "error: SCENE: line 12: node 'v': unknown key `rendrer` (did you mean `renderer`?); a volume node takes: name, kind,"
+        ),
+        "{err}"
+    );
+    assert!(err.contains("opacity_scale") && !err.contains("texture"), "only a volume node's keys: {err}");
+    let err = scene(&format!("{head}[[node]]\nname = \"p\"\nkind = \"particles\"\nfile = \"p.vtp\"\npreset = \"CT-AAA\"\n"));
+    assert!(err.contains("line 12: node 'p': unknown key `preset`; a particles node takes: name,") && err.contains("color_by"), "{err}");
+    // Outside nodes: the nearest key of that table.
+    let err = scene(&head.replace("view_up", "veiw_up"));
+    assert!(err.contains("unknown key `veiw_up` (did you mean `view_up`?)"), "{err}");
     let err = scene(&format!("{head}[[node]]\nname = \"v\"\nkind = \"volume\"\nfile = \"absent.nii\"\nrenderer = \"reference\"\n"));
     assert_eq!(err, format!("error: SCENE: node 'v': data file {} not found", tmp.path().join("absent.nii").display()));
 }

@@ -107,9 +107,15 @@ fn presets_and_modalities_are_checked_at_load() {
     assert!(e.contains("unknown preset 'CT-AA'") && e.contains("CT-AAA, CT-Bone") && e.contains("PET-Hot"), "{e}");
     let e = load_error(dir.path(), "preset = \"CT-AAA\"\n[node.transfer_function]\nscalar_opacity = [[0.0, 0.2]]");
     assert!(e.contains("not both"), "{e}");
-    let e = load_error(dir.path(), "modality = \"PET\"");
-    assert!(e.contains("unknown modality 'PET'") && e.contains("CT, MR, PT, NM"), "{e}");
+    let e = load_error(dir.path(), "modality = \"XR\"");
+    assert!(e.contains("unknown modality 'XR'") && e.contains("CT, MR (MRI), PT (PET), NM (SPECT)"), "{e}");
     assert!(e.lines().count() == 1);
+    // The names people use beside DICOM's codes (issue 44): PET is PT, SPECT is NM.
+    for (name, code) in [("PET", "PT"), ("spect", "NM"), ("MRI", "MR")] {
+        let scene = load(dir.path(), &format!("modality = \"{name}\"")).unwrap();
+        let want = load(dir.path(), &format!("modality = \"{code}\"")).unwrap();
+        assert_eq!(scene.preset(0).unwrap(), want.preset(0).unwrap(), "{name}");
+    }
 }
 
 /// A NIfTI says no modality: a PET without a `modality` gets the MR preset (an opaque grey

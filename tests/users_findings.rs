@@ -229,3 +229,26 @@ fn a_raster_too_large_for_the_limit_suggests_the_overviews_that_would_fit() {
     assert_eq!((hf.width, hf.height), (300, 225), "{:?}", hf.notes);
     assert!(hf.notes.iter().any(|n| n.contains("overview")), "{:?}", hf.notes);
 }
+
+/// `info` on a DICOM data set that holds no image (an RT plan, a structure set) says so
+/// ("no data set at byte 0" and "missing or malformed Rows" before), naming its modality;
+/// `--resample` names every gap off the usual and the spacing chosen.
+#[test]
+fn dicom_without_an_image_and_resampled_gaps_are_said_plainly() {
+    let lib = common::repo_path("tests/reference/.venv/lib");
+    let plan = std::fs::read_dir(&lib)
+        .ok()
+        .and_then(|d| d.flatten().map(|e| e.path().join("site-packages/pydicom/data/test_files/rtplan.dcm")).find(|p| p.exists()));
+    match plan {
+        Some(plan) => {
+            let o = volterra(&["info", plan.to_str().unwrap()]);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(!o.status.success() && err.contains("the data set holds no image") && err.contains("(modality RTPLAN)"), "{err}");
+        }
+        None if common::under_ci() => panic!("pydicom's rtplan.dcm not found under {} (run tests/setup_venv.py)", lib.display()),
+        None => eprintln!("SKIPPED: no reference venv"),
+    }
+    let o = volterra(&["info", common::repo_path("tests/fixtures/dicom/missing_slice").to_str().unwrap(), "--resample"]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("1 gap off the usual (2.000 mm); resampled to uniform 1.0000 mm spacing (the median gap) over"), "{text}");
+}

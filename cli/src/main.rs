@@ -57,6 +57,13 @@ struct ReadArgs {
     /// them).
     #[arg(long)]
     volume: Option<usize>,
+    #[command(flatten)]
+    heightmap: HeightmapArgs,
+}
+
+/// How a PNG heightmap is read (it carries no units or georeferencing).
+#[derive(Args, Clone, Default)]
+struct HeightmapArgs {
     /// PNG heightmap: metres per grey level.
     #[arg(long)]
     vertical_scale: Option<f64>,
@@ -85,10 +92,17 @@ enum Encoding {
 
 impl ReadArgs {
     fn options(&self, limits: Limits) -> Result<LoadOptions> {
-        let mut o = LoadOptions { limits, ..LoadOptions::default() };
+        let mut o = self.heightmap.options(limits)?;
         o.dicom.series = self.series.clone();
         o.dicom.resample = self.resample;
         o.nifti.volume_index = self.volume.unwrap_or(0);
+        Ok(o)
+    }
+}
+
+impl HeightmapArgs {
+    fn options(&self, limits: Limits) -> Result<LoadOptions> {
+        let mut o = LoadOptions { limits, ..LoadOptions::default() };
         if let Some(v) = self.vertical_scale {
             o.png.vertical_scale = v;
         }
@@ -330,7 +344,7 @@ enum Command {
         #[arg(long, default_value = "ELEV_MAX", requires = "polygons")]
         attribute_max: String,
         #[command(flatten)]
-        read: ReadArgs,
+        read: HeightmapArgs,
     },
 }
 
@@ -1159,9 +1173,12 @@ fn cmd_contours(
     let progress = progress::TerminalProgress::default();
     use volterra::render::driver::Progress as _;
     progress.begin("contours", (passes * grid.height) as u64);
-    let src = RowsRead { rows: &*src, progress: &progress, read: Default::default() };
+    let src = RowsRead { rows: &*src, progress: &progress, read: Default::default(), any_valid: Default::default() };
     let drawn = contours_to(&src, &grid, input, output, levels, kind);
     progress.end();
+    if drawn.is_ok() && !src.any_valid.load(std::sync::atomic::Ordering::Relaxed) {
+        eprintln!("warning: {}: no valid samples (every one NoData): the output holds no contour", input.display());
+    }
     drawn
 }
 
@@ -1170,6 +1187,8 @@ struct RowsRead<'a> {
     rows: &'a dyn formats::heightfield::HeightRows,
     progress: &'a progress::TerminalProgress,
     read: std::sync::atomic::AtomicU64,
+    /// Whether any row read held a valid (finite) sample.
+    any_valid: std::sync::atomic::AtomicBool,
 }
 
 impl formats::heightfield::HeightRows for RowsRead<'_> {
@@ -1182,6 +1201,9 @@ impl formats::heightfield::HeightRows for RowsRead<'_> {
     fn read_row(&self, row: usize, col: usize, out: &mut [f32]) {
         use volterra::render::driver::Progress as _;
         self.rows.read_row(row, col, out);
+        if out.iter().any(|z| z.is_finite()) {
+            self.any_valid.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
         self.progress.update(self.read.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
     }
     fn failure(&self) -> Option<String> {
@@ -1391,8 +1413,9 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         let first_s = seconds[0];
         seconds.sort_by(f64::total_cmp);
         eprintln!(
-            "wrote {} frames: {} … {} (first {:.3} s, median {:.3} s per frame)",
+            "wrote {} frame{}: {} … {} (first {:.3} s, median {:.3} s per frame)",
             todo.len(),
+            if todo.len() == 1 { "" } else { "s" },
             outputs(first.index).0.display(),
             outputs(last.index).0.display(),
             first_s,
@@ -1421,11 +1444,15 @@ fn cmd_demo(out: &Path, limits: Limits) -> Result<()> {
     Ok(())
 }
 
-/// A statistic for a one-line summary: integers as such, others to 4 significant digits.
+/// A statistic for a one-line summary: integers as such, others to 4 significant digits
+/// (a c_ext of 3.2e-6 in code units printed "0.0000" with 4 decimals).
 fn short(v: f64) -> String {
-    if v.fract() == 0.0 && v.abs() < 1e15 {
-        format!("{v:.0}")
-    } else {
-        format!("{v:.4}")
+    if !v.is_finite() || (v.fract() == 0.0 && v.abs() < 1e15) {
+        return format!("{v:.0}");
     }
+    let magnitude = v.abs().log10().floor() as i32;
+    if !(-3..6).contains(&magnitude) {
+        return format!("{v:.3e}");
+    }
+    format!("{v:.*}", (3 - magnitude).max(0) as usize)
 }

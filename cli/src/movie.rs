@@ -64,6 +64,27 @@ pub fn frames(pattern: &Path) -> Result<Vec<PathBuf>> {
     Ok(found)
 }
 
+/// The frames missing from a numbered run (`f_0003.png` then `f_0007.png`), said in one
+/// line; None where the numbers follow each other (or the names carry none).
+pub fn numbering_gaps(frames: &[PathBuf]) -> Option<String> {
+    let number = |p: &PathBuf| -> Option<u64> {
+        let stem = p.file_stem()?.to_string_lossy().into_owned();
+        let digits: String = stem.chars().rev().skip_while(|c| !c.is_ascii_digit()).take_while(|c| c.is_ascii_digit()).collect();
+        digits.chars().rev().collect::<String>().parse().ok()
+    };
+    let numbers: Vec<u64> = frames.iter().map(number).collect::<Option<_>>()?;
+    let mut gaps = Vec::new();
+    let mut missing = 0;
+    for w in numbers.windows(2) {
+        if w[1] > w[0] + 1 {
+            missing += w[1] - w[0] - 1;
+            gaps.push(if w[1] == w[0] + 2 { format!("{}", w[0] + 1) } else { format!("{}–{}", w[0] + 1, w[1] - 1) });
+        }
+    }
+    (missing > 0)
+        .then(|| format!("{missing} frame{} missing from the numbering: {}", if missing == 1 { " is" } else { "s are" }, gaps.join(", ")))
+}
+
 /// Encodes the frames into `output` at `fps` frames per second.
 pub fn run(pattern: &Path, output: &Path, fps: f64) -> Result<()> {
     if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
@@ -84,6 +105,9 @@ pub fn run(pattern: &Path, output: &Path, fps: f64) -> Result<()> {
         bail!("{}: the output directory {} does not exist", output.display(), dir.display());
     }
     let frames = frames(pattern)?;
+    if let Some(gap) = numbering_gaps(&frames) {
+        eprintln!("warning: {gap}: the movie skips them (render them, with --frames and --resume, to fill the gap)");
+    }
     if let Some(p) = frames.iter().find(|p| !p.to_string_lossy().to_ascii_lowercase().ends_with(".png")) {
         bail!("{}: movie takes PNG frames (render them with --png or -o f.png)", p.display());
     }
@@ -138,6 +162,15 @@ pub fn run(pattern: &Path, output: &Path, fps: f64) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gaps_in_the_numbering_are_named() {
+        let names = |n: &[u32]| n.iter().map(|k| PathBuf::from(format!("out/f_{k:04}.png"))).collect::<Vec<_>>();
+        assert_eq!(numbering_gaps(&names(&[0, 1, 2, 3])), None);
+        assert_eq!(numbering_gaps(&names(&[0, 1, 3, 7, 8])).unwrap(), "4 frames are missing from the numbering: 2, 4–6");
+        assert_eq!(numbering_gaps(&names(&[5, 7])).unwrap(), "1 frame is missing from the numbering: 6");
+        assert_eq!(numbering_gaps(&[PathBuf::from("a.png"), PathBuf::from("b.png")]), None);
+    }
 
     #[test]
     fn globs_match_file_names_and_numbers_sort_as_numbers() {

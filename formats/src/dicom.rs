@@ -300,6 +300,13 @@ fn image_info(path: &Path, file: &dicom_object::DefaultDicomObject, read_note: O
     let obj: &Obj = file;
     BIG_ENDIAN_DATA_SET.with(|b| b.set(file.meta().transfer_syntax().trim_end_matches('\0') == crate::dicom_scan::EXPLICIT_VR_BIG_ENDIAN));
     let need = |tag, name: &str| int(obj, tag).ok_or_else(|| FormatError::invalid(path, format!("missing or malformed {name}")));
+    // A data set that carries no image (an RT plan or structure set, a report) has neither
+    // Rows nor Columns (the pixel data, read later, is not in `obj`): said so.
+    if obj.element(tags::ROWS).is_err() && obj.element(tags::COLUMNS).is_err() {
+        let modality = text(obj, tags::MODALITY).unwrap_or_default();
+        let what = if modality.is_empty() { String::new() } else { format!(" (modality {modality})") };
+        return Err(FormatError::unsupported(path, format!("the data set holds no image: it has no Rows, Columns or pixel data{what}")));
+    }
     let rows = need(tags::ROWS, "Rows")?;
     let columns = need(tags::COLUMNS, "Columns")?;
     if rows < 1 || columns < 1 || rows > 65535 || columns > 65535 {
@@ -949,7 +956,19 @@ fn assemble(src: &Path, infos: Vec<ImageInfo>, opts: &DicomOptions, limits: &Lim
             if !opts.resample {
                 return Err(FormatError::invalid(src, format!("{what}; pass --resample to resample to uniform spacing")));
             }
-            notes.push(format!("{what}; resampled to uniform {median:.4} mm spacing"));
+            // Every gap off the usual one, as a range, and the spacing chosen.
+            let off: Vec<f64> = gaps.iter().copied().filter(|g| (g - median).abs() > tol).collect();
+            let (lo, hi) = off.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &g| (lo.min(g), hi.max(g)));
+            let range = if off.len() == 1 {
+                format!("1 gap off the usual ({lo:.3} mm)")
+            } else {
+                format!("{} gaps off the usual, {lo:.3} to {hi:.3} mm", off.len())
+            };
+            notes.push(format!(
+                "{what}; {range}; resampled to uniform {median:.4} mm spacing (the median gap) over {:.3} to {:.3} mm",
+                d[0],
+                d[d.len() - 1]
+            ));
             resample_to = Some((median, d.clone()));
         }
         let last = frames[n - 1].position.unwrap();

@@ -294,6 +294,12 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 }
                 _ => unreachable!(),
             };
+            if !prepared.grid.any_valid {
+                frame
+                    .stats
+                    .notes
+                    .push(format!("node '{}': the heightfield has no valid sample (every one is NoData): nothing to draw", desc.name));
+            }
             // What the reader noted of the raster (an overview read for the memory limit,
             // degrees converted to metres) is said with the frame.
             frame.stats.notes.extend(scene.view_window_note(node).map(|n| format!("node '{}': {n}", desc.name)));

@@ -160,9 +160,9 @@ pub struct NodeDesc {
     pub settings: toml::Table,
     // --- volumes
     pub series: Option<String>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_zero_usize")]
     pub volume_index: usize,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_false")]
     pub resample: bool,
     pub transfer_function: Option<TransferFunction>,
     /// A transfer-function preset by name (`presets::Preset::name`: 3D Slicer's names),
@@ -172,7 +172,7 @@ pub struct NodeDesc {
     /// Moves the preset along the value axis (3D Slicer's "Shift"), in the data's units.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub preset_shift: f64,
-    /// The modality (CT, MR, PT, NM) of data whose file does not say it (NIfTI): it picks
+    /// The modality (CT, MR, PT, NM; or PET, SPECT, MRI) of data whose file does not say it (NIfTI): it picks
     /// the preset when none is named.
     pub modality: Option<String>,
     /// Gradient shading of a volume (vtkVolumeProperty's `shade`, `ambient`, …).
@@ -183,7 +183,7 @@ pub struct NodeDesc {
     /// Clipping planes (node coordinates), each keeping the side its normal points to.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub clip: Vec<ClipPlane>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "BlendMode::is_composite")]
     pub blend: BlendMode,
     /// Scales a volume's extinction: the transfer function's opacity a per unit distance
     /// becomes 1 − (1 − a)^s (its unit distance divided by s), so one volume of a fused
@@ -229,6 +229,20 @@ fn yes() -> bool {
 
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
+}
+
+fn is_zero_usize(v: &usize) -> bool {
+    *v == 0
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
+}
+
+impl BlendMode {
+    fn is_composite(&self) -> bool {
+        *self == BlendMode::Composite
+    }
 }
 
 fn one() -> f64 {
@@ -467,12 +481,122 @@ fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
-/// Parses TOML text into `T`, turning errors into one line that names the file and line.
+/// Parses TOML text into `T`, turning errors into one line that names the file and line;
+/// an unknown key gets the nearest known one suggested (and in a node, the keys its kind
+/// takes).
 fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T> {
     toml::from_str(text).map_err(|e| {
         let line = e.span().map(|s| format!(" line {}", line_of(text, s.start))).unwrap_or_default();
-        anyhow!("{}:{line}: {}", path.display(), one_line(e.message()))
+        let message = one_line(e.message());
+        let message = e.span().and_then(|s| unknown_key_message(text, s.start, &message)).unwrap_or(message);
+        anyhow!("{}:{line}: {message}", path.display())
     })
+}
+
+/// The keys a node of each kind takes (besides those every node takes).
+const NODE_KEYS: [&str; 8] = ["name", "kind", "file", "parent", "transform", "renderer", "visible", "settings"];
+fn node_kind_keys(kind: &str) -> &'static [&'static str] {
+    match kind {
+        "volume" => &[
+            "series",
+            "volume_index",
+            "resample",
+            "transfer_function",
+            "preset",
+            "preset_shift",
+            "modality",
+            "shading",
+            "crop",
+            "clip",
+            "blend",
+            "opacity_scale",
+        ],
+        "heightfield" => &["png", "extent", "texture", "texture_colormap", "texture_range", "elevation_range"],
+        "particles" => &["arrays", "medium", "color_by", "color_range", "scale_over"],
+        _ => &[],
+    }
+}
+
+/// Every `[[node]]`'s keys against the keys its kind takes: a key another kind takes, or
+/// none does, is refused with its line, the nearest key of the kind suggested, and the
+/// kind's keys listed (serde would list every key of every kind, or accept a volume's
+/// `preset` on a particle node to refuse it later without a line).
+fn check_node_keys(text: &str, path: &Path) -> Result<()> {
+    let Ok(doc) = toml::from_str::<toml::Table>(text) else { return Ok(()) };
+    let Some(nodes) = doc.get("node").and_then(|n| n.as_array()) else { return Ok(()) };
+    // Where each [[node]] block starts in the text.
+    let starts: Vec<usize> = text.match_indices("[[node]]").map(|(i, _)| i).collect();
+    for (k, node) in nodes.iter().enumerate() {
+        let Some(table) = node.as_table() else { continue };
+        let kind = table.get("kind").and_then(|v| v.as_str()).unwrap_or("");
+        let allowed: Vec<&str> = NODE_KEYS.iter().chain(node_kind_keys(kind)).copied().collect();
+        for (key, value) in table {
+            if allowed.contains(&key.as_str()) || (kind.is_empty() || !matches!(kind, "volume" | "heightfield" | "particles" | "group")) {
+                continue;
+            }
+            // Scenes saved before these were skipped at their defaults carry them on every
+            // node: harmless there.
+            let default = match key.as_str() {
+                "volume_index" => value.as_integer() == Some(0),
+                "resample" => value.as_bool() == Some(false),
+                "blend" => value.as_str() == Some("composite"),
+                _ => false,
+            };
+            if default {
+                continue;
+            }
+            let block = starts.get(k).map_or(0, |&s| s);
+            let line = text[block..].lines().position(|l| l.trim_start().starts_with(key.as_str())).map(|n| line_of(text, block) + n);
+            let at = line.map(|l| format!(" line {l}:")).unwrap_or_default();
+            let nearest = allowed.iter().map(|k| (edit_distance(key, k), *k)).min().filter(|(d, _)| *d <= 2.max(key.len() / 3));
+            let hint = nearest.map(|(_, k)| format!(" (did you mean `{k}`?)")).unwrap_or_default();
+            let name = table.get("name").and_then(|v| v.as_str()).unwrap_or("?");
+            bail!("{}:{at} node '{name}': unknown key `{key}`{hint}; a {kind} node takes: {}", path.display(), allowed.join(", "));
+        }
+    }
+    Ok(())
+}
+
+/// Edits (insertions, deletions, substitutions) between two words.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let here = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != *cb)).min(row[j] + 1).min(here + 1);
+            prev = here;
+        }
+    }
+    row[b.len()]
+}
+
+/// serde's "unknown field `x`, expected one of …" made useful: the nearest known key
+/// suggested, and inside a `[[node]]` only the keys that node's kind takes listed.
+fn unknown_key_message(text: &str, at: usize, message: &str) -> Option<String> {
+    let key = message.strip_prefix("unknown field `")?.split('`').next()?.to_string();
+    let expected: Vec<String> = message.split("expected one of ").nth(1)?.split(", ").map(|k| k.trim_matches('`').to_string()).collect();
+    // The [[node]] the key is in, if any: its kind, read from its lines.
+    let before = &text[..at.min(text.len())];
+    let header = before.rfind("\n[")?;
+    let in_node = before[header..].trim_start().starts_with("[[node]]");
+    let (listed, what): (Vec<String>, String) = if in_node {
+        let block_end = text[header + 1..].find("\n[").map_or(text.len(), |e| header + 1 + e);
+        let kind = text[header..block_end]
+            .lines()
+            .find_map(|l| l.trim().strip_prefix("kind").map(|r| r.trim_start_matches([' ', '=']).trim().trim_matches('"').to_string()))
+            .unwrap_or_default();
+        let keys: Vec<String> = NODE_KEYS.iter().chain(node_kind_keys(&kind)).map(|k| k.to_string()).collect();
+        let what = if kind.is_empty() { "a node takes".to_string() } else { format!("a {kind} node takes") };
+        (keys, what)
+    } else {
+        (expected, "known keys".to_string())
+    };
+    let nearest = listed.iter().map(|k| (edit_distance(&key, k), k)).min()?;
+    let hint = if nearest.0 <= 2.max(key.len() / 3) { format!(" (did you mean `{}`?)", nearest.1) } else { String::new() };
+    Some(format!("unknown key `{key}`{hint}; {what}: {}", listed.join(", ")))
 }
 
 /// Applies `key=value` overrides to a parsed TOML document. Keys are dotted paths;
@@ -561,6 +685,7 @@ impl Scene {
     pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
         let text = std::fs::read_to_string(path).map_err(|e| anyhow!("{}: cannot read scene file: {e}", path.display()))?;
         // Parse the text as written first, so errors point at its lines.
+        check_node_keys(&text, path)?;
         let _: SceneFile = parse_toml(&text, path)?;
         let lines = SettingLines::of(&text);
         let file: SceneFile = if overrides.is_empty() {
@@ -630,8 +755,12 @@ impl Scene {
                 bail!("{src}: node '{}': preset_shift must be finite", n.name);
             }
             if let Some(m) = &n.modality {
-                if !presets::MODALITIES.contains(&m.as_str()) {
-                    bail!("{src}: node '{}': unknown modality '{m}' (known: {})", n.name, presets::MODALITIES.join(", "));
+                if presets::modality_code(m).is_none() {
+                    let known: Vec<String> = presets::MODALITIES
+                        .iter()
+                        .map(|(code, names)| if names.is_empty() { code.to_string() } else { format!("{code} ({})", names.join(", ")) })
+                        .collect();
+                    bail!("{src}: node '{}': unknown modality '{m}' (known: {})", n.name, known.join(", "));
                 }
             }
             if let Some(s) = &n.shading {

@@ -82,8 +82,18 @@ const SLICER_CT_SHADING: VolumeShading = VolumeShading { shade: true, ambient: 0
 /// Slicer's shading of its MR presets: shade on, ambient 0.2, diffuse 1, no specular.
 const SLICER_MR_SHADING: VolumeShading = VolumeShading { shade: true, ambient: 0.2, diffuse: 1.0, specular: 0.0, specular_power: 1.0 };
 
-/// The modalities a scene's `modality` key takes (DICOM's codes).
-pub const MODALITIES: [&str; 4] = ["CT", "MR", "PT", "NM"];
+/// The modalities a scene's `modality` key takes: DICOM's codes, and the names people use
+/// for them (any case).
+pub const MODALITIES: [(&str, &[&str]); 4] = [("CT", &[]), ("MR", &["MRI"]), ("PT", &["PET"]), ("NM", &["SPECT"])];
+
+/// The DICOM code of a modality given by its code or its common name (`PET` → `PT`,
+/// `SPECT` → `NM`), any case; None where it is neither.
+pub fn modality_code(name: &str) -> Option<&'static str> {
+    MODALITIES
+        .iter()
+        .find(|(code, names)| code.eq_ignore_ascii_case(name) || names.iter().any(|n| n.eq_ignore_ascii_case(name)))
+        .map(|(code, _)| *code)
+}
 
 impl Preset {
     pub const ALL: [Preset; 7] = [
@@ -130,7 +140,7 @@ impl Preset {
     /// file's), else CT presets for data whose values reach below −500 (HU of air), else
     /// the percentile-based MR preset.
     pub fn for_modality(modality: Option<&str>, stats: &ValueStats) -> Preset {
-        match modality {
+        match modality.and_then(modality_code) {
             Some("CT") => Preset::CtAaa,
             Some("PT") | Some("NM") => Preset::PetHot,
             Some("MR") => Preset::MrDefault,

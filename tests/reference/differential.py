@@ -521,6 +521,7 @@ JUSTIFY = [
     ("is not a scalar layout", "a bit depth volterra does not store as a scalar volume"),
     ("truncated", "the file is truncated (pydicom reads what is there; volterra refuses partial data)"),
     ("missing or malformed", "a required image element is missing"),
+    ("holds no image", "not an image: the data set has no Rows, Columns or pixel data"),
     ("datatype", "a NIfTI data type volterra does not keep (complex, RGB, 128-bit)"),
     ("several multi-frame", "a series of multi-frame files"),
     ("does not parse", "the data set does not parse"),

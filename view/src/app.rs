@@ -1168,7 +1168,7 @@ impl Viewer {
         let mut chosen = modality.map(str::to_string);
         egui::ComboBox::from_label("Modality").selected_text(modality.unwrap_or("from the file")).show_ui(ui, |ui| {
             ui.selectable_value(&mut chosen, None, "from the file");
-            for m in volterra::scene::presets::MODALITIES {
+            for m in volterra::scene::presets::MODALITIES.iter().map(|(code, _)| *code) {
                 ui.selectable_value(&mut chosen, Some(m.to_string()), m);
             }
         });
@@ -2007,7 +2007,16 @@ fn node_json(scene: &Scene, i: usize) -> Result<serde_json::Value> {
         }
     }
     Ok(match scene.data(i)? {
-        NodeData::Volume(v) => volterra::info::volume_json(&v),
+        NodeData::Volume(v) => {
+            // The modality in effect: the node's where it sets one (a NIfTI says none).
+            let mut json = volterra::info::volume_json(&v);
+            if let Some(m) = scene.nodes()[i].modality.as_deref() {
+                let code = volterra::scene::presets::modality_code(m).unwrap_or(m);
+                let file = v.modality.as_deref().map(|f| format!("the file says {f}")).unwrap_or_else(|| "the file says none".into());
+                json["modality"] = serde_json::json!(format!("{code} (the node's; {file})"));
+            }
+            json
+        }
         NodeData::Heightfield(h) => volterra::info::heightfield_json(&h),
         NodeData::Particles(p) => volterra::info::particles_json(&p, &scene.nodes()[i].arrays.clone().unwrap_or_default()),
     })
