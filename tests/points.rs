@@ -48,7 +48,7 @@ fn spheres_on_the_gpu_match_the_f64_reference_in_colour_coverage_and_distance() 
         return;
     }
     let set = cloud(60);
-    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None };
+    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None, spacing: None };
     let s = Settings { colormap: Colormap::Magma, ..Default::default() };
     let (spheres, range) = points::spheres(&input, &s).unwrap();
     let (name, [lo, hi]) = range.unwrap();
@@ -115,7 +115,7 @@ fn the_nearer_sphere_wins_and_the_colour_map_spans_the_values() {
         parallel_scale: 1.0,
     };
     let rays = cam.rays(33, 33);
-    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("v"), range: None };
+    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("v"), range: None, spacing: None };
     let s = Settings::default();
     let f = points::render(&input, &rays, &s).unwrap();
     let centre = 16 * 33 + 16;
@@ -218,7 +218,8 @@ fn splats_on_the_gpu_match_the_f64_reference_in_any_order() {
     let mut set = cloud(80);
     let s = Settings { style: points::PointStyle::Splats, opacity: 0.4, colormap: Colormap::Viridis, ..Default::default() };
     for parallel in [false, true] {
-        let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None };
+        let input =
+            PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None, spacing: None };
         let (spheres, _) = points::spheres(&input, &s).unwrap();
         let rays = camera(parallel).rays(96, 72);
         let gpu = points::render(&input, &rays, &s).unwrap();
@@ -248,7 +249,8 @@ fn splats_on_the_gpu_match_the_f64_reference_in_any_order() {
         set.positions.reverse();
         set.smoothing_length.as_mut().unwrap().reverse();
         set.arrays[0].values.reverse();
-        let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None };
+        let input =
+            PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None, spacing: None };
         let reversed = points::render(&input, &rays, &s).unwrap();
         let order =
             (0..96 * 72).map(|i| (0..4).map(|k| (reversed.rgba[i][k] - gpu.rgba[i][k]).abs()).fold(0.0, f32::max)).fold(0.0, f32::max);
@@ -266,7 +268,8 @@ fn splats_drawn_after_other_frames_are_the_same() {
     }
     let s = Settings { style: points::PointStyle::Splats, opacity: 0.4, colormap: Colormap::Viridis, ..Default::default() };
     let (small, large) = (cloud(40), cloud(400));
-    let input = |set| PointsInput { particles: set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None };
+    let input =
+        |set| PointsInput { particles: set, node_to_world: DMat4::IDENTITY, color_by: Some("temperature"), range: None, spacing: None };
     let first = points::render(&input(&small), &camera(false).rays(96, 72), &s).unwrap();
     assert!(first.rgba.iter().any(|p| p[3] > 0.5));
     points::render(&input(&large), &camera(true).rays(120, 90), &s).unwrap();
@@ -325,7 +328,7 @@ fn wide_views_of_spheres_near_the_eye_cover_what_the_reference_covers() {
         parallel_scale: 1.0,
     };
     let rays = cam.rays(160, 120);
-    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("v"), range: None };
+    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: Some("v"), range: None, spacing: None };
     for style in [points::PointStyle::Spheres, points::PointStyle::Splats] {
         let s = Settings { style, ..Default::default() };
         let (spheres, _) = points::spheres(&input, &s).unwrap();
@@ -341,4 +344,38 @@ fn wide_views_of_spheres_near_the_eye_cover_what_the_reference_covers() {
         assert!(covered > 4000, "{style:?}: the spheres cover much of the view: {covered}");
         assert!(differ <= 3, "{style:?}: {differ} of {covered} pixels covered by one side only");
     }
+}
+
+/// The default radius of spheres is half the distance to each particle's nearest
+/// neighbour, at most its h (issue 44: spheres of h hid a halo's core behind overlapping
+/// balls): no two spheres overlap, where spheres of h (`radius_of = "h"`, VTK's) do; a set
+/// without h gets radii all the same.
+#[test]
+fn default_spheres_do_not_overlap() {
+    let set = volterra::samples::smoke_plume(600, 4);
+    let input = PointsInput { particles: &set, node_to_world: DMat4::IDENTITY, color_by: None, range: None, spacing: None };
+    let overlaps = |spheres: &[points::Sphere]| {
+        let mut n = 0;
+        for i in 0..spheres.len() {
+            for j in i + 1..spheres.len() {
+                let d = (spheres[i].centre - spheres[j].centre).length();
+                n += usize::from(d < spheres[i].radius + spheres[j].radius);
+            }
+        }
+        n
+    };
+    let (auto, _) = points::spheres(&input, &Settings::default()).unwrap();
+    assert_eq!(overlaps(&auto), 0, "default spheres overlap");
+    let (of_h, _) = points::spheres(&input, &Settings { radius_of: points::RadiusOf::H, ..Default::default() }).unwrap();
+    let n = overlaps(&of_h);
+    assert!(n > 1000, "spheres of h overlap ({n} pairs): the default is the test's point");
+    // Radii at most h, and set by the nearest neighbour where that is nearer.
+    let h = set.smoothing_length.as_ref().unwrap();
+    assert!(auto.iter().zip(h).all(|(s, &h)| s.radius <= h as f64 * (1.0 + 1e-6)));
+    assert!(auto.iter().zip(h).filter(|(s, &h)| s.radius < 0.99 * h as f64).count() > 300);
+    // Without h: the spacing alone.
+    let no_h = ParticleSet { smoothing_length: None, ..set.clone() };
+    let input = PointsInput { particles: &no_h, ..input };
+    let (spheres, _) = points::spheres(&input, &Settings::default()).unwrap();
+    assert_eq!(overlaps(&spheres), 0);
 }

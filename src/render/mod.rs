@@ -52,6 +52,9 @@ pub struct RenderCache {
     /// series' address, the node, what is coloured and the placement: found in one pass
     /// over its steps, kept for every frame.
     series: Mutex<HashMap<SeriesKey, Arc<series_scale::SeriesScale>>>,
+    /// Each particle set's nearest-neighbour radii (`points::spacing_radii`), keyed by the
+    /// particles' address (held, so it stays taken).
+    spacing: Mutex<HashMap<usize, (Arc<volterra_formats::ParticleSet>, Arc<Vec<f32>>)>>,
 }
 
 type SeriesKey = (usize, usize, Option<String>, [u64; 16], bool);
@@ -99,6 +102,18 @@ impl RenderCache {
         self.fused.lock().unwrap().retain(|k, _| held.contains(&k.0) && held.contains(&k.1));
         self.terrain.lock().unwrap().retain(|k, _| held.contains(&k.0));
         self.smoke.lock().unwrap().retain(|k, _| held.contains(k));
+        self.spacing.lock().unwrap().retain(|k, _| held.contains(k));
+    }
+
+    /// The particles' nearest-neighbour radii, found once per particle set.
+    fn spacing(&self, particles: &Arc<volterra_formats::ParticleSet>) -> Arc<Vec<f32>> {
+        let addr = Arc::as_ptr(particles) as usize;
+        if let Some((_, r)) = self.spacing.lock().unwrap().get(&addr) {
+            return r.clone();
+        }
+        let r = Arc::new(points::spacing_radii(particles));
+        self.spacing.lock().unwrap().insert(addr, (particles.clone(), r.clone()));
+        r
     }
 
     /// The smoke preparation of `particles` for `input` and `s`, kept while the
@@ -358,7 +373,14 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                     ));
                 }
             }
-            let input = points::PointsInput { particles: &particles, node_to_world, color_by: desc.color_by.as_deref(), range };
+            let spacing = s.radius_by_spacing().then(|| timed(&mut prepare, || Ok(cache.spacing(&particles)))).transpose()?;
+            let input = points::PointsInput {
+                particles: &particles,
+                node_to_world,
+                color_by: desc.color_by.as_deref(),
+                range,
+                spacing: spacing.as_deref().map(|v| &v[..]),
+            };
             let mut frame = points::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?;
             frame.stats.notes.extend(series_note);
             frame.stats.notes.extend(particle_notes(&particles, &desc.name));

@@ -51,8 +51,11 @@ pub fn run(b: &PointsBench) -> Result<()> {
     eprintln!("{} particles made and written in {:.1} s", b.count, t.elapsed().as_secs_f64());
 
     // Ours.
-    let input = PointsInput { particles: &set, node_to_world: glam::DMat4::IDENTITY, color_by: Some("temperature"), range: None };
-    let s = Settings { colormap: Colormap::Coolwarm, style: b.style, ..Default::default() };
+    let input =
+        PointsInput { particles: &set, node_to_world: glam::DMat4::IDENTITY, color_by: Some("temperature"), range: None, spacing: None };
+    // Spheres of h, as VTK's scale array h draws them (the default would be the spacing).
+    let s =
+        Settings { colormap: Colormap::Coolwarm, style: b.style, radius_of: volterra::render::points::RadiusOf::H, ..Default::default() };
     let t = Instant::now();
     let first = points::render(&input, &camera(0).rays(b.width, b.height), &s)?;
     let ours_first = 1000.0 * t.elapsed().as_secs_f64();

@@ -35,18 +35,47 @@ crate::setting_choice! {
     }
 }
 
+crate::setting_choice! {
+    /// Where a particle's radius comes from when `radius` is 0.
+    pub enum RadiusOf {
+        /// Spheres: half the distance to the particle's nearest neighbour, at most its h (no
+        /// two spheres overlap: a dense core shows the particles it holds, not a blob of
+        /// balls hiding it); splats, which are meant to blend: h.
+        Auto = "auto",
+        /// Half the distance to the nearest neighbour (at most h), for splats too.
+        Spacing = "spacing",
+        /// Each particle's smoothing length h (VTK's and pyvista's scale array h).
+        H = "h",
+    }
+}
+
 crate::declare_settings! {
     pub struct Settings {
         /// How each particle is drawn.
         pub style: PointStyle = PointStyle::Spheres, viewer = Control { label: "Style", widget: Widget::ByType };
-        /// Sphere radius in the particles' length unit; 0: each particle's smoothing length h.
-        pub radius: f64 = 0.0, range = Bounds::above(0.0), zero = "auto: each particle's h",
-            viewer = Control { label: "Radius (0: h)", widget: Widget::Drag { lo: 0.0, hi: 1e30, speed: 0.001 } };
+        /// Sphere radius in the particles' length unit; 0: each particle's own (`radius_of`).
+        pub radius: f64 = 0.0, range = Bounds::above(0.0), zero = "auto: each particle's own, by radius_of",
+            viewer = Control { label: "Radius (0: auto)", widget: Widget::Drag { lo: 0.0, hi: 1e30, speed: 0.001 } };
+        /// Where each particle's radius comes from when `radius` is 0.
+        pub radius_of: RadiusOf = RadiusOf::Auto, viewer = Control { label: "Radius from", widget: Widget::ByType };
         /// The colour map for the node's `color_by` array.
         pub colormap: Colormap = Colormap::Viridis, viewer = Control { label: "Colour map", widget: Widget::ByType };
         /// Splats only: each splat's opacity at its centre (falling off as its Gaussian).
         pub opacity: f64 = 0.3, range = Bounds::open_closed(0.0, 1.0),
             viewer = Control { label: "Opacity", widget: Widget::Slider { lo: 0.01, hi: 1.0, step: 0.01 } };
+    }
+}
+
+impl Settings {
+    /// Whether each particle's radius is half its nearest neighbour's distance
+    /// (`spacing_radii`): `radius` 0 and `radius_of` spacing, or auto for spheres.
+    pub fn radius_by_spacing(&self) -> bool {
+        self.radius == 0.0
+            && match self.radius_of {
+                RadiusOf::Auto => self.style == PointStyle::Spheres,
+                RadiusOf::Spacing => true,
+                RadiusOf::H => false,
+            }
     }
 }
 
@@ -82,6 +111,41 @@ pub struct PointsInput<'a> {
     pub color_by: Option<&'a str>,
     /// Values mapped to the colour map's ends (None: the data's range).
     pub range: Option<[f64; 2]>,
+    /// Half the distance from each particle to its nearest neighbour, at most its h
+    /// (`spacing_radii`), where a caller keeps it between frames; None: found when needed.
+    pub spacing: Option<&'a [f32]>,
+}
+
+/// Half the distance from each particle to its nearest other particle (node units), at
+/// most its smoothing length h where it has one: spheres of these radii never overlap.
+/// Particles sharing a position take the median of the others (duplicates draw as one);
+/// a lone particle its h.
+pub fn spacing_radii(p: &ParticleSet) -> Vec<f32> {
+    // A lone particle has no neighbour: its h (else 1).
+    if p.len() < 2 {
+        return p.smoothing_length.clone().unwrap_or_else(|| vec![1.0; p.len()]);
+    }
+    let mut r: Vec<f64> = volterra_formats::sph::kth_neighbour_distance(&p.positions, 1).into_iter().map(|d| 0.5 * d).collect();
+    if let Some(h) = &p.smoothing_length {
+        for (r, &h) in r.iter_mut().zip(h) {
+            if h > 0.0 && (h as f64) < *r {
+                *r = h as f64;
+            }
+        }
+    }
+    let mut positive: Vec<f64> = r.iter().copied().filter(|v| *v > 0.0).collect();
+    positive.sort_by(f64::total_cmp);
+    let fallback = positive.get(positive.len() / 2).copied().unwrap_or(1.0);
+    // Rounded down to f32, so that two spheres touching at most stay apart.
+    let down = |v: f64| {
+        let f = v as f32;
+        if f as f64 > v {
+            f32::from_bits(f.to_bits() - 1)
+        } else {
+            f
+        }
+    };
+    r.into_iter().map(|v| down(if v > 0.0 { v } else { fallback })).collect()
 }
 
 /// A particle as drawn: world centre, radius and colour (linear RGB).
@@ -135,15 +199,33 @@ pub fn spheres(input: &PointsInput, s: &Settings) -> Result<(Vec<Sphere>, Option
     let m = input.node_to_world;
     let scale = DMat3::from_mat4(m).determinant().abs().cbrt();
     let h = p.smoothing_length.as_ref();
-    if s.radius == 0.0 && h.is_none() {
-        bail!("the particles have no smoothing length h: give settings.radius");
+    // Each particle's own radius (node units), where `radius` gives none.
+    let by_spacing = s.radius_by_spacing();
+    if s.radius == 0.0 && !by_spacing && h.is_none() {
+        bail!("the particles have no smoothing length h: give settings.radius, or radius_of = \"spacing\"");
     }
+    let found;
+    let spacing: Option<&[f32]> = match (by_spacing, input.spacing) {
+        (false, _) => None,
+        (true, Some(r)) => Some(r),
+        (true, None) => {
+            found = spacing_radii(p);
+            Some(&found)
+        }
+    };
     let values = values(p, input.color_by)?;
     let range = values.as_ref().map(|(name, v)| {
         let r = input.range.unwrap_or_else(|| volterra_formats::finite_range(v.iter().copied()).map_or([0.0, 1.0], |(lo, hi)| [lo, hi]));
         (name.clone(), r)
     });
-    let radius = |i: usize| if s.radius > 0.0 { s.radius } else { h.unwrap()[i] as f64 } * scale;
+    let radius = |i: usize| {
+        scale
+            * match (s.radius > 0.0, spacing) {
+                (true, _) => s.radius,
+                (false, Some(r)) => r[i] as f64,
+                (false, None) => h.unwrap()[i] as f64,
+            }
+    };
     // The first bad radius (the lowest index, whatever the threads).
     if let Some(i) = (0..p.len()).into_par_iter().find_first(|&i| !(radius(i).is_finite() && radius(i) > 0.0)) {
         bail!("particle {i} has radius {} (h must be positive and finite)", radius(i));
