@@ -54,8 +54,11 @@ pub struct RenderCache {
     series: Mutex<HashMap<SeriesKey, Arc<series_scale::SeriesScale>>>,
     /// Each particle set's nearest-neighbour radii (`points::spacing_radii`), keyed by the
     /// particles' address (held, so it stays taken).
-    spacing: Mutex<HashMap<usize, (Arc<volterra_formats::ParticleSet>, Arc<Vec<f32>>)>>,
+    spacing: Mutex<HashMap<usize, PreparedSpacing>>,
 }
+
+/// The particles (held so their address stays taken) and their nearest-neighbour radii.
+type PreparedSpacing = (Arc<volterra_formats::ParticleSet>, Arc<Vec<f32>>);
 
 type SeriesKey = (usize, usize, Option<String>, [u64; 16], bool);
 
