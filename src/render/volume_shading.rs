@@ -1,12 +1,17 @@
 //! Gradient shading of volume samples, as VTK's `vtkVolumeProperty` with `ShadeOn` under
-//! VTK's default two-sided lighting: each sample's colour C becomes
+//! VTK's default two-sided lighting (its fixed-point mapper's `vtkEncodedGradientShader`):
+//! each sample's colour C becomes
 //!
-//!   C · (ambient + Σ diffuse · |N·L| · light) + Σ specular · max(N'·H, 0)^power · light
+//!   C · (ambient + Σ diffuse · max(N'·L, 0) · light) + Σ specular · (N'·H)^power · light
 //!
-//! where N is the unit gradient of the real-valued field in world millimetres (N' the one
-//! of ±N that faces the light), L the unit vector toward the light, H the half vector of L
-//! and the direction toward the eye, and `light` its colour × intensity. Opacity is not
-//! changed. A scene without lights is lit by a white headlight (VTK's default light).
+//! where N is the unit gradient of the real-valued field in world millimetres and N' the
+//! one of ±N that faces the eye, L the unit vector toward the light, H the half vector of
+//! L and the direction toward the eye, and `light` its colour × intensity; the highlight
+//! only where N'·L > 0 and N'·H > 0.001 (VTK's). Under the headlight N'·L = |N·L|; a light
+//! from the side leaves the surface that faces away from it dark, as VTK does (until
+//! 2026-12-06 the normal was turned toward the light instead: |N·L|, 14.8 % from VTK's
+//! fixed-point mapper on a side-lit sphere where the headlight gave 0.40 %). Opacity is
+//! not changed. A scene without lights is lit by a white headlight (VTK's default light).
 //! The ambient term is ambient · C, as VTK's GPU mapper applies it (its fixed-point mapper
 //! scales it by the lights' ambient colour, black by default).
 //! Where the gradient is exactly zero (a flat region) there is no normal: the sample is
@@ -94,10 +99,11 @@ impl Shader {
             let (lambert, highlight) = match normal {
                 None => (1.0, 0.0),
                 Some(n) => {
-                    // Two-sided: the side of the surface that faces the light.
-                    let n = if n.dot(to_light) < 0.0 { -n } else { n };
+                    // Two-sided, as VTK: the side of the surface that faces the eye.
+                    let n = if n.dot(to_eye) < 0.0 { -n } else { n };
                     let h = (to_light + to_eye).normalize_or_zero();
-                    (n.dot(to_light), n.dot(h).max(0.0).powf(specular_power))
+                    let (nl, nh) = (n.dot(to_light), n.dot(h));
+                    (nl.max(0.0), if nl > 0.0 && nh > 0.001 { nh.powf(specular_power) } else { 0.0 })
                 }
             };
             for k in 0..3 {
@@ -221,10 +227,10 @@ impl ParallelLighting {
             let (lambert, highlight) = match normal {
                 None => (1.0, 0.0),
                 Some(n) => {
-                    // Two-sided: the side of the surface that faces the light.
-                    let n = if n.dot(to_light) < 0.0 { -n } else { n };
-                    let nh = n.dot(h).max(0.0);
-                    (n.dot(to_light), if self.specular > 0.0 { self.pow(nh) } else { 0.0 })
+                    // Two-sided, as VTK: the side of the surface that faces the eye.
+                    let n = if n.dot(to_eye) < 0.0 { -n } else { n };
+                    let (nl, nh) = (n.dot(to_light), n.dot(h));
+                    (nl.max(0.0), if self.specular > 0.0 && nl > 0.0 && nh > 0.001 { self.pow(nh) } else { 0.0 })
                 }
             };
             d += colour * (self.diffuse * lambert);

@@ -100,10 +100,26 @@ def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=F
     if shading.get("shade", False):
         # VTK's own headlight has a black ambient colour, so its fixed-point mapper would drop
         # the ambient term (its GPU mapper, as Slicer's, keeps it): a white-ambient headlight
-        # makes the model ours, C·(ambient + diffuse·|n·l|) + specular·(n·h)^power.
+        # makes the model ours, C·(ambient + diffuse·max(n·l, 0)) + specular·(n·h)^power.
+        # The scene's directional lights instead, where it has any (one: VTK adds the
+        # ambient term once per light).
+        scene_lights = [l for l in scene.get("light", []) if l.get("kind", "directional") == "directional"]
+        if len(scene_lights) > 1:
+            raise SystemExit("vtk_volume.py: one directional light at most (VTK adds the ambient term per light)")
         light = vtk.vtkLight()
-        light.SetLightTypeToHeadlight()
         light.SetAmbientColor(1.0, 1.0, 1.0)
+        if scene_lights:
+            l = scene_lights[0]
+            d = l["direction"]  # the way the light travels
+            light.SetLightTypeToSceneLight()
+            light.SetPositional(False)
+            light.SetFocalPoint(0.0, 0.0, 0.0)
+            light.SetPosition(-d[0], -d[1], -d[2])
+            c = l.get("color", [1.0, 1.0, 1.0])
+            light.SetColor(*c)
+            light.SetIntensity(l.get("intensity", 1.0))
+        else:
+            light.SetLightTypeToHeadlight()
         ren.AddLight(light)
     cam = ren.GetActiveCamera()
     c = scene["camera"]
