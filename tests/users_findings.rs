@@ -252,3 +252,45 @@ fn dicom_without_an_image_and_resampled_gaps_are_said_plainly() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("1 gap off the usual (2.000 mm); resampled to uniform 1.0000 mm spacing (the median gap) over"), "{text}");
 }
+
+/// `--max-memory` counts what a GPU whose memory is the host's holds (lavapipe's textures
+/// live in the process's memory, allocated by Mesa): a terrain whose textures do not fit is
+/// refused before they are made, and one that fits reports a peak that includes them and
+/// stays within the limit (before, the report said 27 MiB for a render whose resident
+/// memory was 192 MiB, 1.1–1.7× the limit).
+#[test]
+fn max_memory_counts_the_gpus_textures_where_they_live_in_host_memory() {
+    let Some(gpu) = common::gpu() else { return };
+    let host = matches!(gpu.info.device_type, wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu);
+    let dir = tempfile::tempdir().unwrap();
+    let n = 2400usize;
+    let hf = common::utm_heightfield(n, n, |c, r| Some((300.0 + 50.0 * ((c as f64) / 97.0).sin() * ((r as f64) / 83.0).cos()) as f32));
+    volterra_formats::geotiff::write_geotiff(&dir.path().join("dem.tif"), &hf).unwrap();
+    let scene = dir.path().join("dem.toml");
+    std::fs::write(
+        &scene,
+        "[image]\nwidth = 160\nheight = 120\n[camera]\nposition = [536000.0, 4100000.0, 40000.0]\nfocal_point = [536000.0, 4164000.0, 300.0]\n\
+         [[node]]\nname = \"dem\"\nkind = \"heightfield\"\nfile = \"dem.tif\"\nrenderer = \"terrain\"\n",
+    )
+    .unwrap();
+    let render = |limit: &str| {
+        let o = Command::new(common::volterra_bin())
+            .args(["--max-memory", limit, "render", scene.to_str().unwrap(), "-o", dir.path().join("t.exr").to_str().unwrap()])
+            .output()
+            .unwrap();
+        (o.status.success(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let textures = (n * n * 4) as f64 / (1 << 20) as f64;
+    let (ok, err) = render("40M");
+    assert!(!ok && err.contains("the height pyramid"), "{err}");
+    let (ok, err) = render("400M");
+    assert!(ok, "{err}");
+    let line = err.lines().find(|l| l.starts_with("memory: peak")).unwrap().to_string();
+    let peak: f64 = line.split_whitespace().nth(2).unwrap().parse().unwrap();
+    eprintln!("{line} (heights texture {textures:.1} MiB)");
+    assert!(!line.contains("over the limit"), "{line}");
+    if host {
+        assert!(line.contains("with the GPU"), "{line}");
+        assert!(peak > textures, "the peak {peak} MiB leaves out the GPU's {textures:.1} MiB of heights");
+    }
+}

@@ -653,7 +653,11 @@ fn main() -> ExitCode {
         // What the command held at most, against the limit it was given.
         let peak = formats::memory::peak();
         let over = if peak > limit { " — over the limit: a bug, please report it" } else { "" };
-        eprintln!("memory: peak {} of the {} limit{over}", formats::memory::human_bytes(peak), formats::memory::human_bytes(limit));
+        // Where the GPU's memory is the host's, its textures and buffers are in the count.
+        let gpu = formats::memory::host_gpu()
+            .map(|g| format!(" (with the GPU '{g}''s textures and buffers, which live in host memory)"))
+            .unwrap_or_default();
+        eprintln!("memory: peak {} of the {} limit{gpu}{over}", formats::memory::human_bytes(peak), formats::memory::human_bytes(limit));
     }
     match outcome {
         Ok(_) => ExitCode::SUCCESS,

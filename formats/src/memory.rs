@@ -10,7 +10,8 @@
 use crate::error::{ErrorKind, FormatError, Result};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::OnceLock;
 
 static IN_USE: AtomicUsize = AtomicUsize::new(0);
 static PEAK: AtomicUsize = AtomicUsize::new(0);
@@ -61,16 +62,69 @@ fn counted(bytes: usize) {
     }
 }
 
-/// Heap bytes in use now (0 where [`CountingAllocator`] is not installed).
-pub fn in_use() -> u64 {
+/// What the process held outside its heap when a GPU whose memory is the host's was
+/// opened (code, libraries, the driver itself): growth beyond it is the GPU's textures and
+/// buffers (and the driver's own work), allocated by the driver, not through this
+/// allocator. u64::MAX: no such GPU opened.
+static NON_HEAP_BASELINE: AtomicU64 = AtomicU64::new(u64::MAX);
+static HOST_GPU: OnceLock<String> = OnceLock::new();
+
+/// Says that the GPU `name` keeps its textures and buffers in host memory (a software
+/// renderer such as lavapipe, or an integrated GPU): from now on what the process holds
+/// outside the heap beyond what it held now counts as in use, against the limit and in the
+/// peak (`--max-memory` covered only the heap, and a terrain on lavapipe grew to 1.7× the
+/// limit while the report said a third of it).
+pub fn gpu_memory_is_host(name: &str) {
+    if HOST_GPU.set(name.to_string()).is_ok() {
+        let non_heap = resident().map_or(0, |r| r.saturating_sub(in_heap()));
+        NON_HEAP_BASELINE.store(non_heap, Ordering::Relaxed);
+    }
+}
+
+/// The GPU whose memory is the host's, where one was opened.
+pub fn host_gpu() -> Option<&'static str> {
+    HOST_GPU.get().map(String::as_str)
+}
+
+/// The process's resident memory and its peak (bytes), from /proc/self/status.
+fn resident_and_peak() -> Option<(u64, u64)> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kib = |key: &str| -> Option<u64> { text.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse::<u64>().ok() };
+    Some((kib("VmRSS:")? * 1024, kib("VmHWM:")? * 1024))
+}
+
+fn resident() -> Option<u64> {
+    resident_and_peak().map(|(r, _)| r)
+}
+
+fn in_heap() -> u64 {
     IN_USE.load(Ordering::Relaxed) as u64
 }
 
-/// The most heap bytes held at once so far (within the small allocations between two large
-/// ones; 0 where [`CountingAllocator`] is not installed).
+/// Bytes in use now: the heap (0 where [`CountingAllocator`] is not installed), and where a
+/// GPU keeps its memory in the host's (`gpu_memory_is_host`), what the process has grown
+/// outside its heap since that GPU opened.
+pub fn in_use() -> u64 {
+    let heap = in_heap();
+    let baseline = NON_HEAP_BASELINE.load(Ordering::Relaxed);
+    if baseline == u64::MAX {
+        return heap;
+    }
+    let outside = resident().map_or(0, |r| r.saturating_sub(heap).saturating_sub(baseline));
+    heap + outside
+}
+
+/// The most bytes held at once so far, as `in_use` counts them (the heap's within the small
+/// allocations between two large ones; with a GPU in host memory, the process's peak
+/// resident memory less what it held outside the heap when the GPU opened).
 pub fn peak() -> u64 {
     let now = IN_USE.load(Ordering::Relaxed);
-    PEAK.fetch_max(now, Ordering::Relaxed).max(now) as u64
+    let heap_peak = PEAK.fetch_max(now, Ordering::Relaxed).max(now) as u64;
+    let baseline = NON_HEAP_BASELINE.load(Ordering::Relaxed);
+    match (baseline, resident_and_peak()) {
+        (u64::MAX, _) | (_, None) => heap_peak,
+        (_, Some((_, hwm))) => heap_peak.max(hwm.saturating_sub(baseline)),
+    }
 }
 
 /// What one command may allocate, handed to every reader and every renderer's preparation

@@ -19,6 +19,18 @@ pub struct Device {
 
 static DEVICE: OnceLock<Result<Device, SharedError>> = OnceLock::new();
 
+/// What a GPU whose memory is the host's holds while a renderer first draws, beyond the
+/// textures and buffers the renderer asks for (the driver compiling its shaders at the first
+/// dispatch, its threads' working memory): 18 MiB measured on lavapipe for a terrain frame,
+/// so 24 MiB are allowed for it when the renderers check the memory limit.
+pub fn driver_working_memory() -> u64 {
+    if volterra_formats::memory::host_gpu().is_some() {
+        24 << 20
+    } else {
+        0
+    }
+}
+
 /// The shared device, or why there is none (asked once per process).
 pub fn device() -> Result<&'static Device> {
     DEVICE.get_or_init(|| open().map_err(SharedError::new)).as_ref().map_err(|e| anyhow::Error::new(e.clone()))
@@ -58,6 +70,10 @@ fn open() -> Result<Device> {
     }))
     .map_err(|e| anyhow!("cannot open the GPU '{}': {e}", adapter.get_info().name))?;
     let host_mapped_storage = features.contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
+    // Its textures and buffers then live in the host's memory: counted against the limit.
+    if shared_memory {
+        volterra_formats::memory::gpu_memory_is_host(&info.name);
+    }
     Ok(Device { device, queue, info, host_mapped_storage })
 }
 

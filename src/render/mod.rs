@@ -299,8 +299,15 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
         }
         (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), Loaded::Terrain(heights)) => {
             let prepared = timed(&mut prepare, || {
+                // The GPU opened first: where its memory is the host's, what its driver holds
+                // (its compiled pipelines) is then in use when the textures are checked
+                // against the memory limit.
+                if matches!(settings, NodeSettings::Terrain(_)) {
+                    terrain::gpu::gpu()?;
+                }
                 let p = cache.terrain(&heights, texture.clone(), node_to_world, scene.terrain_span(node), scene.limits())?;
                 if matches!(settings, NodeSettings::Terrain(_)) {
+                    p.check_gpu_upload(scene.limits())?;
                     p.prepare_gpu()?;
                 }
                 Ok(p)
@@ -377,6 +384,18 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 }
             }
             let spacing = s.radius_by_spacing().then(|| timed(&mut prepare, || Ok(cache.spacing(&particles)))).transpose()?;
+            // The GPU's buffers against the memory limit (in host memory on lavapipe): each
+            // particle's instance or splat records (4.7 tiles a splat, 32 bytes each, at most
+            // 128 MiB a pass), the targets and their read-back, the driver's working memory.
+            let gpu_bytes = match s.style {
+                points::PointStyle::Spheres => particles.len() as u64 * 64,
+                points::PointStyle::Splats => (particles.len() as u64 * 160).min(128 << 20),
+            } + (size.0 * size.1) as u64 * 48
+                + gpu::driver_working_memory();
+            scene
+                .limits()
+                .check(&scene.source, "the points' GPU buffers", &[gpu_bytes])
+                .with_context(|| format!("node '{}'", desc.name))?;
             let input = points::PointsInput {
                 particles: &particles,
                 node_to_world,

@@ -234,9 +234,11 @@ impl Prepared {
         span: Option<[f64; 2]>,
         limits: &Limits,
     ) -> Result<Prepared> {
-        // The GPU's textures, against the memory limit (on lavapipe they live in host memory,
-        // allocated by Mesa outside this count; the grid shares the heights): 4 bytes a
-        // sample of heights (up to 5 % more in tiles) and a pyramid of a sixth of that.
+        // The GPU's textures, against the memory limit (where they live in host memory, as
+        // on lavapipe, the limit counts what the process holds outside its heap too; the grid
+        // shares the heights): 4 bytes a sample of heights (up to 5 % more in tiles) and a
+        // pyramid of a sixth of that. (The GPU ray-caster checks its uploads' staging and
+        // the driver's working memory too, in `check_gpu_upload`.)
         let georef = heights.georef();
         let samples = (georef.width * georef.height) as u64;
         limits.check(std::path::Path::new("terrain"), "the height pyramid", &[samples, GPU_BYTES_PER_SAMPLE])?;
@@ -253,6 +255,21 @@ impl Prepared {
             None => grid,
         };
         Ok(Prepared { grid, texture, placement, gpu: std::sync::OnceLock::new() })
+    }
+
+    /// Checks against `limits`, before the GPU's textures are made, all they take: the
+    /// textures (`GPU_BYTES_PER_SAMPLE`), the staging of two bands of rows (16 MiB each at
+    /// most), and the driver's working memory where its memory is the host's. Nothing where
+    /// they are made already.
+    pub fn check_gpu_upload(&self, limits: &Limits) -> Result<()> {
+        if self.gpu.get().is_some() {
+            return Ok(());
+        }
+        let samples = (self.grid.nx * self.grid.ny) as u64;
+        let staging = (2 * 4 * samples).min(32 << 20);
+        let bytes = samples * GPU_BYTES_PER_SAMPLE + staging + crate::render::gpu::driver_working_memory();
+        limits.check(std::path::Path::new("terrain"), "the height pyramid and its upload", &[bytes])?;
+        Ok(())
     }
 
     /// Builds the GPU's pyramid and textures now (else on the first GPU render).
