@@ -152,6 +152,8 @@ pub fn grid_json(s: &GridSummary) -> Value {
         "dims": [g.width, g.height],
         "cell_size": g.cell_size,
         "cell_size_native": g.cell_size_native,
+        "cell_size_unit": g.units.cell_size_unit(),
+        "elevation_unit": g.units.elevation_unit(),
         "origin": g.origin,
         "crs": g.crs.description,
         "epsg": g.crs.epsg,
@@ -207,7 +209,8 @@ pub fn grid_text(sm: &GridSummary, stats: bool) -> String {
     let c = |v: f64| coordinate(v, geo);
     let mut s = String::new();
     s += &format!("heightfield {} × {} samples\n", g.width, g.height);
-    s += &format!("cell size   {} m × {} m", num(g.cell_size[0]), num(g.cell_size[1]));
+    let (cell_unit, elevation_unit) = (g.units.cell_size_unit(), g.units.elevation_unit());
+    s += &format!("cell size   {} {cell_unit} × {} {cell_unit}", num(g.cell_size[0]), num(g.cell_size[1]));
     if geo {
         s += &format!(" (from {}° × {}°)", g.cell_size_native[0], g.cell_size_native[1]);
     }
@@ -245,12 +248,14 @@ pub fn grid_text(sm: &GridSummary, stats: bool) -> String {
         s += "            (longitude and latitude: volterra converts UTM and Web Mercator only; gdalinfo gives them for any CRS)\n";
     }
     match sm.summary.range {
-        Some((min, max)) => s += &format!("elevation   {} .. {} m\n", num(min as f64), num(max as f64)),
+        Some((min, max)) => s += &format!("elevation   {} .. {} {elevation_unit}\n", num(min as f64), num(max as f64)),
         None => s += "elevation   no valid samples (every sample is NoData)\n",
     }
     if let (true, Some((mean, std))) = (stats, sm.summary.mean_std) {
         let valid = g.width * g.height - sm.summary.nodata;
-        s += &format!("statistics  mean {mean:.3} m, standard deviation {std:.3} m over {valid} valid samples (as gdalinfo -stats)\n");
+        s += &format!(
+            "statistics  mean {mean:.3} {elevation_unit}, standard deviation {std:.3} {elevation_unit} over {valid} valid samples (as gdalinfo -stats)\n"
+        );
     }
     let value = sm.nodata_value.map(num).unwrap_or_else(|| "none declared".into());
     s += &format!("nodata      {} samples (value {value})\n", sm.summary.nodata);

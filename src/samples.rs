@@ -257,6 +257,7 @@ pub fn fractal_dem(levels: u32, cell: f64, seed: u64) -> Heightfield {
         nodata_value: Some(-32768.0),
         notes: vec!["volterra fractal DEM".into()],
         attributes: Vec::new(),
+        units: volterra_formats::heightfield::GridUnits::METRES,
     }
 }
 

@@ -50,7 +50,7 @@ fn check_fingerprint(what: &str, values: &[f64], r: &Value, tol: f64, errors: &m
 fn options_for(rel: &str) -> LoadOptions {
     let mut o = LoadOptions::default();
     if rel.ends_with("ps_height_1k.png") {
-        o.png = PngHeightOptions { vertical_scale: 0.1, cell_size: 160.0, ..Default::default() };
+        o.png = PngHeightOptions { vertical_scale: Some(0.1), cell_size: Some(160.0), ..Default::default() };
     }
     o
 }

@@ -34,6 +34,7 @@ fn field(w: usize, h: usize, cell: f64, f: impl Fn(usize, usize) -> f32) -> Heig
         nodata_value: None,
         notes: vec![],
         attributes: Vec::new(),
+        units: volterra_formats::heightfield::GridUnits::METRES,
     }
 }
 
@@ -305,7 +306,7 @@ fn real_dems_fly_and_walk_agree_with_the_reference() {
     if common::gpu().is_none() {
         return;
     }
-    let opts = volterra::formats::png_height::PngHeightOptions { vertical_scale: 0.1, cell_size: 160.0, ..Default::default() };
+    let opts = volterra::formats::png_height::PngHeightOptions { vertical_scale: Some(0.1), cell_size: Some(160.0), ..Default::default() };
     let puget =
         volterra::formats::png_height::read_png_heightmap(&data.join("terrain/ps_height_1k.png"), &opts, &Default::default()).unwrap();
     let pysheds = volterra::formats::geotiff::read_geotiff(&data.join("terrain/pysheds_dem.tif"), &Default::default()).unwrap();

@@ -44,6 +44,7 @@ fn drape_grid(w: usize, h: usize, pixel: f64, origin: [f64; 2], crs: Crs) -> Hei
         nodata_value: None,
         notes: vec![],
         attributes: vec![],
+        units: volterra_formats::heightfield::GridUnits::METRES,
     }
 }
 

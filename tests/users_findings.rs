@@ -294,3 +294,44 @@ fn max_memory_counts_the_gpus_textures_where_they_live_in_host_memory() {
         assert!(peak > textures, "the peak {peak} MiB leaves out the GPU's {textures:.1} MiB of heights");
     }
 }
+
+/// A PNG heightmap has units only where they are given: without a vertical scale its
+/// elevations are grey levels, without a cell size its samples are 1 apart without a unit
+/// (`info` claimed metres for both); a slope or hillshade of it says its angles mean nothing.
+#[test]
+fn a_png_heightmap_has_metres_only_where_they_are_given() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("dem.png");
+    let levels: Vec<u16> = (0..12 * 8).map(|i| (i * 100) as u16).collect();
+    volterra_formats::image::write_png_grey16(&png, 12, 8, &levels).unwrap();
+    let p = png.to_str().unwrap();
+    let text = String::from_utf8_lossy(&volterra(&["info", p]).stdout).into_owned();
+    assert!(text.contains("cell size   1 sample × 1 sample\n") && text.contains("elevation   0 .. 9500 grey level\n"), "{text}");
+    assert!(!text.contains(" m\n") && !text.contains(" m ×"), "{text}");
+    let bare: serde_json::Value = serde_json::from_slice(&volterra(&["info", "--json", p]).stdout).unwrap();
+    assert_eq!((bare["cell_size_unit"].as_str(), bare["elevation_unit"].as_str()), (Some("sample"), Some("grey level")));
+    // Given both, metres: 0.5 m per level, 25 m cells.
+    let o = volterra(&["info", "--json", "--vertical-scale", "0.5", "--cell-size", "25", p]);
+    let given: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!((given["cell_size_unit"].as_str(), given["elevation_unit"].as_str()), (Some("m"), Some("m")), "{given}");
+    assert_eq!((given["max"].as_f64(), given["cell_size"][0].as_f64()), (Some(4750.0), Some(25.0)));
+    // Terrarium is metres by definition; its cells still have no size.
+    let rgb = dir.path().join("terrarium.png");
+    // R·256 + G + B/256 − 32768: 128, 10, 0 is 10 m.
+    let img = volterra_formats::image::RgbImage { width: 3, height: 2, data: [128, 10, 0].repeat(6) };
+    volterra_formats::image::write_png_rgb8(&rgb, &img).unwrap();
+    let o = volterra(&["info", "--json", "--encoding", "terrarium", rgb.to_str().unwrap()]);
+    let t: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (t["cell_size_unit"].as_str(), t["elevation_unit"].as_str(), t["max"].as_f64()),
+        (Some("sample"), Some("m"), Some(10.0)),
+        "{t}"
+    );
+    // Slope of unitless numbers: written, with a warning naming what is missing.
+    let out = dir.path().join("slope.tif");
+    let o = volterra(&["dem", "slope", p, out.to_str().unwrap(), "--cell-size", "25"]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && e.contains("angles mean nothing: its elevations are grey levels (give --vertical-scale"), "{e}");
+    let o = volterra(&["dem", "slope", p, out.to_str().unwrap(), "--cell-size", "25", "--vertical-scale", "0.5"]);
+    assert!(o.status.success() && !String::from_utf8_lossy(&o.stderr).contains("warning"), "{}", String::from_utf8_lossy(&o.stderr));
+}

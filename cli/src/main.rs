@@ -104,13 +104,13 @@ impl HeightmapArgs {
     fn options(&self, limits: Limits) -> Result<LoadOptions> {
         let mut o = LoadOptions { limits, ..LoadOptions::default() };
         if let Some(v) = self.vertical_scale {
-            o.png.vertical_scale = v;
+            o.png.vertical_scale = Some(v);
         }
         if let Some(v) = self.vertical_offset {
             o.png.vertical_offset = v;
         }
         if let Some(v) = self.cell_size {
-            o.png.cell_size = v;
+            o.png.cell_size = Some(v);
         }
         if let Some(e) = self.encoding {
             o.png.encoding = match e {
@@ -1116,6 +1116,18 @@ fn cmd_dem(
         DemProduct::Contours => unreachable!("contours are drawn by cmd_contours"),
     };
     op.check(src.size()).with_context(|| input.display().to_string())?;
+    // Slopes and shading compare a height step with a cell step: without metres for both
+    // (a PNG heightmap given no vertical scale or cell size) the angles mean nothing.
+    if matches!(product, DemProduct::Slope | DemProduct::Hillshade) && grid.units != formats::GridUnits::METRES {
+        let lacks = match (grid.units.elevation_in_metres, grid.units.cell_size_in_metres) {
+            (false, false) => {
+                "its elevations are grey levels and its cells have no size (give --vertical-scale and --cell-size, in metres)"
+            }
+            (false, true) => "its elevations are grey levels (give --vertical-scale, metres per level)",
+            _ => "its cells have no size (give --cell-size, in metres)",
+        };
+        eprintln!("warning: {}: the {what}'s angles mean nothing: {lacks}", input.display());
+    }
     let progress = progress::TerminalProgress::default();
     use volterra::render::driver::Progress as _;
     progress.begin(what, grid.height as u64);

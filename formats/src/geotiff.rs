@@ -5,7 +5,7 @@
 
 use crate::error::{FormatError, Result};
 use crate::gdal_sidecar;
-use crate::heightfield::{metres_per_degree, Crs, Heightfield, NodataMask};
+use crate::heightfield::{metres_per_degree, Crs, GridUnits, Heightfield, NodataMask};
 use crate::memory::{human_bytes, Limits};
 use std::io::BufReader;
 use std::path::Path;
@@ -1060,6 +1060,7 @@ fn finish(path: &Path, raster: Raster, conversion: Metres) -> Result<Heightfield
         nodata_value,
         notes,
         attributes,
+        units: GridUnits::METRES,
     })
 }
 

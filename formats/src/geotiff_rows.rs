@@ -15,7 +15,7 @@
 
 use crate::error::{FormatError, Result};
 use crate::geotiff::{cell_size_metres, open_elevation, read_chunk_at, sample_f64, sample_metres, tiff_err, Chunk, GeoTiffOptions, Opened};
-use crate::heightfield::{bilinear_height, summarise, GridGeoref, HeightRows, RowsSummary};
+use crate::heightfield::{bilinear_height, summarise, GridGeoref, GridUnits, HeightRows, RowsSummary};
 use crate::memory::Limits;
 use std::collections::HashMap;
 use std::io::BufReader;
@@ -84,7 +84,15 @@ impl GeoTiffRows {
         let cell_size = cell_size_metres(path, &crs, origin[1], h, scale, &mut notes)?;
         Ok(GeoTiffRows {
             path: path.to_path_buf(),
-            georef: GridGeoref { width: w as usize, height: h as usize, cell_size, cell_size_native: scale, origin, crs },
+            georef: GridGeoref {
+                width: w as usize,
+                height: h as usize,
+                cell_size,
+                cell_size_native: scale,
+                origin,
+                crs,
+                units: GridUnits::METRES,
+            },
             nodata_value,
             notes,
             attributes,

@@ -594,6 +594,7 @@ mod tests {
             cell_size_native: [30.0, 30.0],
             origin: [500_015.0, 4_199_985.0],
             crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into(), metres_per_unit: 1.0 },
+            units: crate::heightfield::GridUnits::METRES,
         }
     }
 

@@ -49,6 +49,41 @@ pub struct Heightfield {
     /// What the file says about itself, for `info`, in the order shown: data type,
     /// compression, codes, patient, study and series (name, value as people read it).
     pub attributes: Vec<(String, String)>,
+    /// Whether the cell size and the elevations are metres, or only sample steps and
+    /// stored levels (a PNG heightmap given no cell size or vertical scale).
+    pub units: GridUnits,
+}
+
+/// Whether a raster's numbers carry units. A GeoTIFF's do (its CRS and metres); a PNG
+/// heightmap holds grey levels a sample apart, and has metres only where the scene or the
+/// command line gives a vertical scale and a cell size — until then `info` and the scalar
+/// bar say "grey level" and "sample", not "m".
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GridUnits {
+    /// The cell size is in metres (else one sample step, unitless).
+    pub cell_size_in_metres: bool,
+    /// The elevations are in metres (else stored levels, unitless).
+    pub elevation_in_metres: bool,
+}
+
+impl GridUnits {
+    pub const METRES: GridUnits = GridUnits { cell_size_in_metres: true, elevation_in_metres: true };
+    /// The unit of the cell size, as printed: "m" or "sample".
+    pub fn cell_size_unit(&self) -> &'static str {
+        if self.cell_size_in_metres {
+            "m"
+        } else {
+            "sample"
+        }
+    }
+    /// The unit of the elevations, as printed: "m" or "grey level".
+    pub fn elevation_unit(&self) -> &'static str {
+        if self.elevation_in_metres {
+            "m"
+        } else {
+            "grey level"
+        }
+    }
 }
 
 impl Heightfield {
@@ -77,6 +112,7 @@ impl Heightfield {
             cell_size_native: self.cell_size_native,
             origin: self.origin,
             crs: self.crs.clone(),
+            units: self.units,
         }
     }
 
@@ -266,6 +302,7 @@ pub struct GridGeoref {
     /// Map coordinates of the centre of the north-west sample.
     pub origin: [f64; 2],
     pub crs: Crs,
+    pub units: GridUnits,
 }
 
 /// The elevation at (x, y) metres east and north of the south-west sample's centre of a

@@ -44,7 +44,7 @@ pub use memory::Limits;
 pub use volume::{Affine, Rescale, ScalarType, Volume, VoxelData};
 
 pub use exr_io::FloatImage;
-pub use heightfield::{Crs, Heightfield, NodataMask};
+pub use heightfield::{Crs, GridUnits, Heightfield, NodataMask};
 pub use image::RgbImage;
 pub use particles::{ParticleArrayNames, ParticleSet, PointArray};
 

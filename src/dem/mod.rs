@@ -724,6 +724,7 @@ mod tests {
             nodata_value: None,
             notes: vec![],
             attributes: vec![],
+            units: volterra_formats::heightfield::GridUnits::METRES,
         }
     }
 

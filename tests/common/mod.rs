@@ -125,6 +125,7 @@ pub fn utm_heightfield(w: usize, h: usize, elevation: impl Fn(usize, usize) -> O
         nodata_value: Some(-32768.0),
         notes: vec![],
         attributes: vec![],
+        units: volterra_formats::heightfield::GridUnits::METRES,
     }
 }
 

@@ -105,6 +105,7 @@ pub fn bench_dem(size: usize) -> Heightfield {
         nodata_value: None,
         notes: vec![],
         attributes: Vec::new(),
+        units: volterra_formats::heightfield::GridUnits::METRES,
     }
 }
 

@@ -102,6 +102,16 @@ impl TerrainGrid {
         [self.z_ref + self.z_lo, self.z_ref + self.z_hi]
     }
 
+    /// What the elevations are measured in, as the scalar bar prints it: "m", or "grey
+    /// level" for a PNG heightmap given no vertical scale (rows read from a GeoTIFF are
+    /// metres).
+    pub fn elevation_unit(&self) -> &'static str {
+        match &self.samples {
+            Samples::Held(hf) => hf.units.elevation_unit(),
+            Samples::Rows(_) => "m",
+        }
+    }
+
     /// The grid of heights read row by row from `rows` (the elevation range found by
     /// reading every row once).
     pub fn from_rows(rows: Arc<dyn HeightRows>, node_to_world: DMat4) -> Result<TerrainGrid> {

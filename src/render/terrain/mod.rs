@@ -328,7 +328,7 @@ impl Prepared {
         let spans = inside(s0) && inside(s0 + s1 * cx) && inside(t0) && inside(t0 + t1 * cy);
         let covered = spans && self.texture.as_ref().is_some_and(|t| t.rgba.chunks_exact(4).all(|p| p[3] == 255));
         (!covered && g.any_valid).then(|| super::colormap::ColourScale {
-            title: "elevation (m)".into(),
+            title: format!("elevation ({})", g.elevation_unit()),
             colormap,
             range: colour_range.unwrap_or(g.elevations()),
         })
