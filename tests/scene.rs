@@ -83,7 +83,13 @@ fn unknown_keys_and_missing_files_are_one_line_errors_with_place() {
     volterra_formats::nifti::write_nifti(&dir.path().join("v.nii"), &vol).unwrap();
     let bad = write(dir.path(), "bad.toml", &CUBE_SCENE.replace("parallel_scale = 10.0", "parallel_scale = 10.0\nzoom = 2"));
     let e = format!("{:#}", Scene::load(&bad, &[]).err().unwrap());
-    assert!(e.contains("bad.toml") && e.contains("line 12") && e.contains("unknown field `zoom`"), "{e}");
+    assert!(
+        e.contains("bad.toml")
+            && e.contains("line 12")
+            && e.contains("unknown key `zoom`")
+            && e.contains("known keys: position, focal_point"),
+        "{e}"
+    );
     assert_eq!(e.lines().count(), 1, "{e}");
     let missing = write(dir.path(), "missing.toml", &CUBE_SCENE.replace("v.nii", "nothere.nii"));
     let e = format!("{:#}", Scene::load(&missing, &[]).err().unwrap());

@@ -808,10 +808,14 @@ impl Opened {
     }
 }
 
+/// What a caller holds (bytes) for a number of samples it reads: textures of so many bytes a
+/// sample, say, and buffers or working memory that do not grow with them.
+pub type HeldBytes<'a> = &'a dyn Fn(u64) -> u64;
+
 /// Opens a GeoTIFF elevation raster at the finest level (the full raster or an overview)
-/// whose window (`opts.extent`, else the whole level) fits the memory limit when each of
-/// its samples holds `held_per_sample` bytes (None: the decoded sample's size).
-pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held_per_sample: Option<u64>) -> Result<Opened> {
+/// whose window (`opts.extent`, else the whole level) fits the memory limit when the caller
+/// holds `held(samples)` bytes for the window's samples (None: the decoded samples' size).
+pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held: Option<HeldBytes>) -> Result<Opened> {
     let (mut d, images) = open_images(path)?;
     let (spp, sample_bytes) = sample_layout(path, &mut d)?;
     if spp != 1 {
@@ -840,9 +844,22 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
             }
         }
     };
-    let per_sample = held_per_sample.unwrap_or(sample_bytes);
-    let need = |i: &Image| window(i).map(|win| [(win[2] - win[0] + 1) as u64, (win[3] - win[1] + 1) as u64, per_sample]);
-    let what = if opts.extent.is_some() { "elevation raster's window" } else { "elevation raster" };
+    let need = |i: &Image| {
+        window(i).map(|win| {
+            let samples = (win[2] - win[0] + 1) as u64 * (win[3] - win[1] + 1) as u64;
+            match held {
+                Some(held) => [held(samples), 1, 1],
+                None => [samples, sample_bytes, 1],
+            }
+        })
+    };
+    let what = match (opts.extent.is_some(), held.is_some()) {
+        (true, false) => "elevation raster's window",
+        (false, false) => "elevation raster",
+        // The caller's own copies (a GPU's textures, say) are what is counted.
+        (true, true) => "elevation raster's window, as its renderer holds it,",
+        (false, true) => "elevation raster, as its renderer holds it,",
+    };
     let candidates = match opts.level {
         None => &images[..],
         Some(k) if k < images.len() => &images[k..=k],
@@ -929,8 +946,8 @@ pub(crate) fn open_elevation(path: &Path, opts: &GeoTiffOptions, limits: &Limits
 }
 
 /// Where a read of a GeoTIFF elevation raster would come from, found without reading its
-/// samples: what `open_elevation` chooses for `opts` at `held_per_sample` bytes a sample
-/// (None: the decoded sample's size), and the full raster's grid beside it.
+/// samples: what `open_elevation` chooses for `opts` where the caller holds `held(samples)`
+/// bytes (None: the decoded samples' size), and the full raster's grid beside it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ElevationPlan {
     /// The level chosen (0 the full raster, k its k-th overview, largest first) and how
@@ -951,8 +968,8 @@ pub struct ElevationPlan {
     pub crs: Crs,
 }
 
-pub fn elevation_plan(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held_per_sample: Option<u64>) -> Result<ElevationPlan> {
-    let o = open_elevation(path, opts, limits, held_per_sample)?;
+pub fn elevation_plan(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held: Option<HeldBytes>) -> Result<ElevationPlan> {
+    let o = open_elevation(path, opts, limits, held)?;
     let (full_size, full_origin, full_cell_size_native) = o.full;
     Ok(ElevationPlan {
         level: o.level_number,

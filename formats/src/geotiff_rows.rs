@@ -14,7 +14,9 @@
 //! (`failure`): the readers that copy rows are hot loops that return no errors.
 
 use crate::error::{FormatError, Result};
-use crate::geotiff::{cell_size_metres, open_elevation, read_chunk_at, sample_f64, sample_metres, tiff_err, Chunk, GeoTiffOptions, Opened};
+use crate::geotiff::{
+    cell_size_metres, open_elevation, read_chunk_at, sample_f64, sample_metres, tiff_err, Chunk, GeoTiffOptions, HeldBytes, Opened,
+};
 use crate::heightfield::{bilinear_height, summarise, GridGeoref, GridUnits, HeightRows, RowsSummary};
 use crate::memory::Limits;
 use std::collections::HashMap;
@@ -69,7 +71,13 @@ impl GeoTiffRows {
     /// raster or an overview — whose window fits the memory limit at `held_per_sample`
     /// bytes a sample: what the caller keeps of each sample it reads.
     pub fn open(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held_per_sample: u64) -> Result<GeoTiffRows> {
-        let mut o = open_elevation(path, opts, limits, Some(held_per_sample))?;
+        Self::open_holding(path, opts, limits, &|samples| samples.saturating_mul(held_per_sample))
+    }
+
+    /// As `open`, where the caller holds `held(samples)` bytes for the samples it reads (the
+    /// GPU's textures, and its upload's staging and driver memory that do not grow with them).
+    pub fn open_holding(path: &Path, opts: &GeoTiffOptions, limits: &Limits, held: HeldBytes) -> Result<GeoTiffRows> {
+        let mut o = open_elevation(path, opts, limits, Some(held))?;
         let (cw, ch) = crate::guard::third_party(path, "the TIFF decoder", || Ok(o.d.chunk_dimensions()))?;
         if cw == 0 || ch == 0 {
             return Err(FormatError::invalid(path, "TIFF tiles or strips of size 0"));

@@ -74,7 +74,15 @@ static HOST_GPU: OnceLock<String> = OnceLock::new();
 /// outside the heap beyond what it held now counts as in use, against the limit and in the
 /// peak (`--max-memory` covered only the heap, and a terrain on lavapipe grew to 1.7× the
 /// limit while the report said a third of it).
+///
+/// Only where [`CountingAllocator`] is installed (the heap is counted, so what lies outside
+/// it is known): elsewhere (a test harness, a Python process) the growth outside a heap
+/// that is not counted would be the whole process's, other threads' work included.
 pub fn gpu_memory_is_host(name: &str) {
+    // The GPU's instance and adapter are on the heap now: a count of 0 means none is kept.
+    if in_heap() == 0 {
+        return;
+    }
     if HOST_GPU.set(name.to_string()).is_ok() {
         let non_heap = resident().map_or(0, |r| r.saturating_sub(in_heap()));
         NON_HEAP_BASELINE.store(non_heap, Ordering::Relaxed);

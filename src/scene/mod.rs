@@ -27,6 +27,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
+use volterra_formats::geotiff::HeldBytes;
 use volterra_formats::geotiff_rows::GeoTiffRows;
 use volterra_formats::heightfield::GridGeoref;
 use volterra_formats::png_height::PngHeightOptions;
@@ -473,6 +474,15 @@ pub struct Scene {
 }
 
 /// The line (1-based) of a byte offset in `text`.
+/// What the GPU ray-caster holds for a GeoTIFF level's samples
+/// (`render::terrain::gpu_held_bytes`), with the GPU opened first: where its memory is the
+/// host's, what its driver holds from then on (its compiled pipelines) is in use when a
+/// level is chosen. Without a GPU the renderer says so when it draws.
+fn gpu_held_bytes() -> impl Fn(u64) -> u64 {
+    let _ = crate::render::terrain::gpu::gpu();
+    crate::render::terrain::gpu_held_bytes
+}
+
 fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
 }
@@ -1153,7 +1163,8 @@ impl Scene {
             return Ok(None);
         }
         let gpu = matches!(self.node_settings(node), Some(NodeSettings::Terrain(_)));
-        let held = gpu.then_some(crate::render::terrain::GPU_BYTES_PER_SAMPLE);
+        let gpu_held = gpu.then(gpu_held_bytes);
+        let held = gpu_held.as_ref().map(|h| h as HeldBytes);
         let whole = GeoTiffOptions::default();
         let read_whole = elevation_plan(&path, &whole, &self.limits, held).ok();
         if read_whole.as_ref().is_some_and(|p| p.level == 0) {
@@ -1163,7 +1174,7 @@ impl Scene {
         // fits, a plan holding nothing (any level "fits").
         let full = match &read_whole {
             Some(p) => p.clone(),
-            None => elevation_plan(&path, &whole, &self.limits, Some(0))?,
+            None => elevation_plan(&path, &whole, &self.limits, Some(&|_| 0))?,
         };
         if full.crs.geographic {
             return Ok(None);
@@ -1312,10 +1323,11 @@ impl Scene {
         if !gpu || volterra_formats::detect(&path)? != volterra_formats::FileKind::GeoTiff {
             return self.heightfield(node).map(TerrainData::Held);
         }
-        let held_per_sample = crate::render::terrain::GPU_BYTES_PER_SAMPLE;
         let rows = self.height_rows[node]
             .get_or_init(|| {
-                GeoTiffRows::open(&path, &opts.geotiff, &self.limits, held_per_sample).map(Arc::new).map_err(|e| SharedError::new(e.into()))
+                GeoTiffRows::open_holding(&path, &opts.geotiff, &self.limits, &gpu_held_bytes())
+                    .map(Arc::new)
+                    .map_err(|e| SharedError::new(e.into()))
             })
             .clone()
             .map_err(anyhow::Error::new)?;

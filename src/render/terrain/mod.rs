@@ -157,6 +157,15 @@ impl Settings {
 /// the pyramid of half floats (a sixth of that).
 pub const GPU_BYTES_PER_SAMPLE: u64 = 5;
 
+/// All the GPU ray-caster takes for a heightfield of `samples` samples: its textures
+/// (`GPU_BYTES_PER_SAMPLE`), the staging of two bands of rows as they are uploaded (16 MiB
+/// each at most), and the driver's working memory where the GPU's memory is the host's.
+/// What a GeoTIFF's level is chosen by, and what is checked before the textures are made.
+pub fn gpu_held_bytes(samples: u64) -> u64 {
+    let staging = samples.saturating_mul(8).min(32 << 20);
+    samples.saturating_mul(GPU_BYTES_PER_SAMPLE).saturating_add(staging).saturating_add(crate::render::gpu::driver_working_memory())
+}
+
 /// What the terrain renderers draw: one heightfield node.
 pub struct TerrainInput<'a> {
     pub heightfield: &'a Heightfield,
@@ -257,17 +266,13 @@ impl Prepared {
         Ok(Prepared { grid, texture, placement, gpu: std::sync::OnceLock::new() })
     }
 
-    /// Checks against `limits`, before the GPU's textures are made, all they take: the
-    /// textures (`GPU_BYTES_PER_SAMPLE`), the staging of two bands of rows (16 MiB each at
-    /// most), and the driver's working memory where its memory is the host's. Nothing where
-    /// they are made already.
+    /// Checks against `limits`, before the GPU's textures are made, all they take
+    /// (`gpu_held_bytes`). Nothing where they are made already.
     pub fn check_gpu_upload(&self, limits: &Limits) -> Result<()> {
         if self.gpu.get().is_some() {
             return Ok(());
         }
-        let samples = (self.grid.nx * self.grid.ny) as u64;
-        let staging = (2 * 4 * samples).min(32 << 20);
-        let bytes = samples * GPU_BYTES_PER_SAMPLE + staging + crate::render::gpu::driver_working_memory();
+        let bytes = gpu_held_bytes((self.grid.nx * self.grid.ny) as u64);
         limits.check(std::path::Path::new("terrain"), "the height pyramid and its upload", &[bytes])?;
         Ok(())
     }
