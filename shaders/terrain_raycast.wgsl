@@ -231,52 +231,47 @@ fn patch_heights(c: vec2<i32>) -> vec4<f32> {
     return vec4<f32>(from_eye(z.x), from_eye(z.y), from_eye(z.z), from_eye(z.w));
 }
 
-// The height gradient (metres per metre, east and north) at sample c: central
-// differences, one-sided where a neighbour is NoData or beyond the edge, 0 where both are
-// (the rule of TerrainGrid::sample_gradient).
-fn sample_gradient(c: vec2<i32>) -> vec2<f32> {
+// The stored height of sample c, or HOLE beyond the grid's edge.
+fn height_or_hole(c: vec2<i32>) -> f32 {
     let last = vec2<i32>(i32(P.size.z), i32(P.size.w));
-    let z = height_at(c);
-    var g = vec2<f32>(0.0);
-    for (var axis = 0; axis < 2; axis++) {
-        var step = vec2<i32>(1, 0);
-        if axis == 1 {
-            step = vec2<i32>(0, 1);
-        }
-        let up = c + step;
-        let down = c - step;
-        var z_up = HOLE;
-        var z_down = HOLE;
-        if up[axis] <= last[axis] {
-            z_up = height_at(up);
-        }
-        if down[axis] >= 0 {
-            z_down = height_at(down);
-        }
-        let has_up = z_up > -1.0e38;
-        let has_down = z_down > -1.0e38;
-        var diff = 0.0;
-        if has_up && has_down {
-            diff = 0.5 * (z_up - z_down);
-        } else if has_up {
-            diff = z_up - z;
-        } else if has_down {
-            diff = z - z_down;
-        }
-        g[axis] = diff / P.extent[2 + axis];
+    if any(c < vec2<i32>(0)) || any(c > last) {
+        return HOLE;
     }
-    return g;
+    return height_at(c);
+}
+
+// A sample's height difference along one axis (metres per cell) from the heights below, at
+// and above it: central, one-sided where a neighbour is NoData or beyond the edge, 0 where
+// both are (the rule of TerrainGrid::sample_gradient).
+fn axis_difference(z_down: f32, z: f32, z_up: f32) -> f32 {
+    let has_up = z_up > -1.0e38;
+    let has_down = z_down > -1.0e38;
+    if has_up && has_down {
+        return 0.5 * (z_up - z_down);
+    } else if has_up {
+        return z_up - z;
+    } else if has_down {
+        return z - z_down;
+    }
+    return 0.0;
 }
 
 // The shading normal's local form (east, north, up; not unit) at (u, v) in patch c: the
-// corner samples' gradients interpolated bilinearly, so that normals are continuous across
-// patch borders (no facets) while the intersection stays the exact bilinear patch's.
+// corner samples' gradients (metres per metre) interpolated bilinearly, so that normals
+// are continuous across patch borders (no facets) while the intersection stays the exact
+// bilinear patch's. The four gradients share their samples: the corners and their eight
+// neighbours along the axes are read once each (12 reads; a gradient at a time read 20).
 fn smooth_local_normal(c: vec2<i32>, u: f32, v: f32) -> vec3<f32> {
-    let g00 = sample_gradient(c);
-    let g10 = sample_gradient(c + vec2<i32>(1, 0));
-    let g01 = sample_gradient(c + vec2<i32>(0, 1));
-    let g11 = sample_gradient(c + vec2<i32>(1, 1));
-    let g = mix(mix(g00, g10, u), mix(g01, g11, u), v);
+    let z00 = height_or_hole(c);
+    let z10 = height_or_hole(c + vec2<i32>(1, 0));
+    let z01 = height_or_hole(c + vec2<i32>(0, 1));
+    let z11 = height_or_hole(c + vec2<i32>(1, 1));
+    let g00 = vec2<f32>(axis_difference(height_or_hole(c + vec2<i32>(-1, 0)), z00, z10), axis_difference(height_or_hole(c + vec2<i32>(0, -1)), z00, z01));
+    let g10 = vec2<f32>(axis_difference(z00, z10, height_or_hole(c + vec2<i32>(2, 0))), axis_difference(height_or_hole(c + vec2<i32>(1, -1)), z10, z11));
+    let g01 = vec2<f32>(axis_difference(height_or_hole(c + vec2<i32>(-1, 1)), z01, z11), axis_difference(z00, z01, height_or_hole(c + vec2<i32>(0, 2))));
+    let g11 = vec2<f32>(axis_difference(z01, z11, height_or_hole(c + vec2<i32>(2, 1))), axis_difference(z10, z11, height_or_hole(c + vec2<i32>(1, 2))));
+    let cell = P.extent.zw;
+    let g = mix(mix(g00 / cell, g10 / cell, u), mix(g01 / cell, g11 / cell, u), v);
     return vec3<f32>(-g.x, -g.y, 1.0);
 }
 

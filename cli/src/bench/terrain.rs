@@ -231,6 +231,17 @@ pub fn run(b: &TerrainBench) -> Result<()> {
                         ..Row::timed(config, camera_name, size, build_ms, 1e3 * median(&mut times), memory)
                     });
                 }
+                // What the view pays for, at 1 ray per pixel: the quadtree row above has smooth
+                // normals and no shadows; these change one thing each.
+                for (config, sh) in [
+                    ("quadtree, faceted normals", Shading { smooth: false, ..shading.clone() }),
+                    ("quadtree, with shadows", Shading { shadows: true, ..shading.clone() }),
+                ] {
+                    let view = View { grid: &grid, rays: &rays, shading: &sh, traversal: Traversal::Quadtree, max_steps: cap };
+                    let mut times = terrain.time_frames(gpu, &view, b.runs)?;
+                    let memory = terrain.gpu_bytes as f64 / (1 << 20) as f64;
+                    rows.push(Row::timed(config.into(), camera_name, size, build_ms, 1e3 * median(&mut times), memory));
+                }
             }
             bar.inc(1);
         }

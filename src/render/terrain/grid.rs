@@ -258,7 +258,7 @@ impl TerrainGrid {
     /// The unit world-space normal of the patch at (u, v).
     /// The height gradient at sample (i, j) in metres per metre (east, north): central
     /// differences, one-sided where a neighbour is NoData or beyond the edge, 0 along an
-    /// axis where both are. The same rule as the shader's `sample_gradient`.
+    /// axis where both are. The same rule as the shader's `axis_difference`.
     pub fn sample_gradient(&self, i: usize, j: usize) -> [f64; 2] {
         let z = self.height(i, j) as f64;
         let at = |i: Option<usize>, j: Option<usize>| -> Option<f64> {
