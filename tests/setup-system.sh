@@ -2,8 +2,9 @@
 # System packages volterra needs to build and test (Debian/Ubuntu). Installs only what is
 # missing; uses sudo when not root.
 #   libcharls-dev   CharLS, the JPEG-LS decoder dicom-pixeldata links
-#   cmake           charls-sys 2.4 builds its bundled CharLS with CMake (not every
-#                   machine has it: a fresh one here did not)
+#   cmake           charls-sys 2.4 builds its bundled CharLS with CMake, turbojpeg-sys its
+#                   bundled libjpeg-turbo 3 (12-bit JPEG) (not every machine has it: a
+#                   fresh one here did not)
 #   python3-venv    the venv for the reference readers (tests only)
 #   mesa-vulkan-drivers, libvulkan1  lavapipe, the software Vulkan adapter the terrain
 #                   ray-caster's tests run on where there is no GPU

@@ -490,8 +490,17 @@ fn decode_frames(info: &ImageInfo, limits: &Limits) -> Result<Vec<u8>> {
     } else {
         None
     };
+    let jpeg12 = info.transfer_syntax == uids::JPEG_EXTENDED12_BIT && info.bits_stored > 8 && info.samples_per_pixel == 1;
     let (data, spp, planar) = if let Some(rgb) = rgb_jpeg {
         (rgb?, 3, false)
+    } else if let Some(fragments) = pixel_fragments.filter(|_| jpeg12 && bytes_per == 2) {
+        // 12-bit lossy JPEG: libjpeg-turbo 3 (dicom-pixeldata's jpeg-decoder is 8-bit only).
+        let (rows, columns) = (info.rows as usize, info.columns as usize);
+        limits.check(&info.path, "the decoded JPEG frames", &[info.frames as u64, rows as u64, columns as u64, 4])?;
+        let data = crate::guard::third_party(&info.path, "the 12-bit JPEG decoder", || {
+            crate::dicom_jpeg12::decode_frames(&info.path, fragments, info.frames as usize, rows, columns)
+        })?;
+        (data, 1, false)
     } else if info.transfer_syntax == uids::RLE_LOSSLESS {
         let fragments = pixel_fragments.ok_or_else(|| FormatError::invalid(&info.path, "RLE pixel data is not encapsulated"))?;
         let spp = info.samples_per_pixel as usize;
@@ -507,8 +516,8 @@ fn decode_frames(info: &ImageInfo, limits: &Limits) -> Result<Vec<u8>> {
                     FormatError::unsupported(
                         &info.path,
                         format!(
-                            "unsupported transfer syntax JPEG Extended at {} bits (dicom-pixeldata decodes only 8-bit lossy JPEG)",
-                            info.bits_stored
+                            "unsupported: JPEG Extended at {} bits with {} samples a pixel (12-bit JPEG is read for one sample a pixel)",
+                            info.bits_stored, info.samples_per_pixel
                         ),
                     )
                 } else {

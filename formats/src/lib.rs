@@ -7,6 +7,7 @@
 
 pub mod atomic;
 pub mod dicom;
+mod dicom_jpeg12;
 mod dicom_rle;
 mod dicom_scan;
 pub mod dicom_write;

@@ -33,7 +33,7 @@ VOLTERRA, OUT = sys.argv[1], sys.argv[2]
 SHARED = sys.argv[3] if len(sys.argv) > 3 else None
 LOSSY = {
     "1.2.840.10008.1.2.4.50": 2,  # JPEG baseline: decoders differ by a grey level or two
-    "1.2.840.10008.1.2.4.51": 2,
+    "1.2.840.10008.1.2.4.51": 2,  # 12-bit extended: libjpeg-turbo and pylibjpeg's libjpeg differ by 1
     "1.2.840.10008.1.2.4.91": 2,  # JPEG 2000 (lossy allowed)
 }
 
