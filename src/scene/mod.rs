@@ -473,7 +473,6 @@ pub struct Scene {
     view_windows: Vec<Option<Arc<view_window::ViewWindow>>>,
 }
 
-/// The line (1-based) of a byte offset in `text`.
 /// What the GPU ray-caster holds for a GeoTIFF level's samples
 /// (`render::terrain::gpu_held_bytes`), with the GPU opened first: where its memory is the
 /// host's, what its driver holds from then on (its compiled pipelines) is in use when a
@@ -483,6 +482,7 @@ fn gpu_held_bytes() -> impl Fn(u64) -> u64 {
     crate::render::terrain::gpu_held_bytes
 }
 
+/// The line (1-based) of a byte offset in `text`.
 fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
 }
