@@ -94,15 +94,16 @@ pub fn host_gpu() -> Option<&'static str> {
     HOST_GPU.get().map(String::as_str)
 }
 
-/// The process's resident memory and its peak (bytes), from /proc/self/status.
-fn resident_and_peak() -> Option<(u64, u64)> {
+/// A memory line of /proc/self/status ("VmRSS:", "VmHWM:"), in bytes (None: not Linux).
+pub fn proc_status_bytes(key: &str) -> Option<u64> {
     let text = std::fs::read_to_string("/proc/self/status").ok()?;
-    let kib = |key: &str| -> Option<u64> { text.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse::<u64>().ok() };
-    Some((kib("VmRSS:")? * 1024, kib("VmHWM:")? * 1024))
+    let kib: u64 = text.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }
 
+/// The process's resident memory (bytes).
 fn resident() -> Option<u64> {
-    resident_and_peak().map(|(r, _)| r)
+    proc_status_bytes("VmRSS:")
 }
 
 fn in_heap() -> u64 {
@@ -129,10 +130,10 @@ pub fn peak() -> u64 {
     let now = IN_USE.load(Ordering::Relaxed);
     let heap_peak = PEAK.fetch_max(now, Ordering::Relaxed).max(now) as u64;
     let baseline = NON_HEAP_BASELINE.load(Ordering::Relaxed);
-    match (baseline, resident_and_peak()) {
-        (u64::MAX, _) | (_, None) => heap_peak,
-        (_, Some((_, hwm))) => heap_peak.max(hwm.saturating_sub(baseline)),
+    if baseline == u64::MAX {
+        return heap_peak;
     }
+    proc_status_bytes("VmHWM:").map_or(heap_peak, |hwm| heap_peak.max(hwm.saturating_sub(baseline)))
 }
 
 /// What one command may allocate, handed to every reader and every renderer's preparation

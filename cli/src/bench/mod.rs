@@ -11,6 +11,8 @@ pub mod terrain;
 
 use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
+/// A memory line of /proc/self/status, in bytes (the memory limit's own reader).
+pub use volterra_formats::memory::proc_status_bytes;
 use volterra_formats::Limits;
 
 /// What every benchmark runs with, whichever it is.
@@ -76,11 +78,4 @@ pub fn median(v: &mut [f64]) -> f64 {
     } else {
         0.5 * (v[m - 1] + v[m])
     }
-}
-
-/// A memory line of /proc/self/status ("VmHWM:", "VmRSS:"), in bytes (None: not Linux).
-pub fn proc_status_bytes(key: &str) -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let kb: u64 = s.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
 }
