@@ -504,7 +504,8 @@ fn dem_products_take_gdaldems_creation_options() {
         assert!(same && got_nodata == want_nodata, "{args:?}: cells differ from gdaldem's");
     }
     for (args, says) in [
-        (&["-of", "COG"][..], "-of COG is not written here"),
+        (&["-of", "COG", "-co", "TILED=YES"][..], "TILED is a GTiff option; a COG is always tiled"),
+        (&["-of", "COG", "-co", "RESAMPLING=MODE"][..], "RESAMPLING=MODE"),
         (&["-co", "PHOTOMETRIC=RGB"][..], "creation option PHOTOMETRIC is not one this writer takes"),
         (&["-co", "COMPRESS=JPEG"][..], "COMPRESS=JPEG"),
     ] {
@@ -526,4 +527,111 @@ fn dem_products_take_gdaldems_creation_options() {
         .output()
         .unwrap();
     assert!(String::from_utf8_lossy(&o.stderr).contains("PREDICTOR=3 is for floating-point samples"));
+}
+
+/// The cells of overview `level` (0 the full raster, k its k-th overview) of band `band`,
+/// as GDAL reads them (`-oo OVERVIEW_LEVEL`), as f32, and which are NoData.
+fn level_cells(path: &Path, dir: &Path, level: usize, band: usize) -> (Vec<f32>, Vec<bool>) {
+    let f32_path = dir.join(format!("{}.l{level}.b{band}.f32.tif", path.file_stem().unwrap().to_string_lossy()));
+    let mut cmd = Command::new("gdal_translate");
+    cmd.args(["-q", "-ot", "Float32", "-b", &band.to_string()]);
+    if level > 0 {
+        cmd.args(["-oo", &format!("OVERVIEW_LEVEL={}", level - 1)]);
+    }
+    run(cmd.arg(path).arg(&f32_path));
+    let hf = volterra_formats::geotiff::read_geotiff(&f32_path, &Default::default()).unwrap();
+    let nodata: Vec<bool> = (0..hf.elevations.len()).map(|i| hf.nodata.get(i)).collect();
+    (hf.elevations, nodata)
+}
+
+/// GDAL's validator of Cloud-Optimised GeoTIFFs (Debian's python3-gdal), with its full
+/// check of the tiles' leaders and trailers: what it says of `path`.
+fn validate_cog(path: &Path) -> Option<String> {
+    let python = Path::new("/usr/bin/python3");
+    let ok = python.exists()
+        && Command::new(python)
+            .args(["-c", "import osgeo_utils.samples.validate_cloud_optimized_geotiff"])
+            .output()
+            .is_ok_and(|o| o.status.success());
+    if !ok {
+        assert!(!common::under_ci(), "python3-gdal missing under CI (tests/setup-system.sh installs it)");
+        eprintln!("SKIPPED: GDAL's COG validator (apt install python3-gdal)");
+        return None;
+    }
+    let out = Command::new(python)
+        .args(["-m", "osgeo_utils.samples.validate_cloud_optimized_geotiff", "--full-check=yes"])
+        .arg(path)
+        .output()
+        .unwrap();
+    Some(format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)))
+}
+
+/// `-of COG` writes what GDAL's COG driver writes from the same product (`volterra dem …;
+/// gdal_translate -of COG`): the same overview sizes (halvings rounded down until one fits
+/// in a block), every level's cells equal to GDAL's — the default CUBIC resampling
+/// cascaded from level to level, NoData and the alpha band's mask as GDAL treats them,
+/// bytes rounded as GDAL rounds — for a float product with NoData holes (slope), bytes
+/// with NoData 0 (hillshade), RGB and RGBA (color-relief); LZW, tiled, the layout
+/// GDAL's validator accepts with its full check. Odd sizes, so that no level halves evenly.
+#[test]
+fn dem_products_as_cogs_equal_gdals_cog_driver() {
+    if gdaldem().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let hf = common::utm_heightfield(701, 533, |c, r| {
+        let hole = (c as i64 - 300).pow(2) + (r as i64 - 200).pow(2) < 40 * 40 || (c > 600 && r < 37);
+        (!hole).then_some((400.0 + 60.0 * (c as f64 / 37.0).sin() * (r as f64 / 53.0).cos() + 0.4 * r as f64) as f32)
+    });
+    let dem = dir.path().join("dem.tif");
+    volterra_formats::geotiff::write_geotiff(&dem, &hf).unwrap();
+    let palette = dir.path().join("palette.txt");
+    std::fs::write(&palette, "nv 0 0 0 0\n0% 20 60 200 120\n50% 200 200 80\n100% white\n").unwrap();
+    let cases: [(&str, &[&str]); 4] = [("slope", &[]), ("hillshade", &[]), ("color-relief", &[]), ("color-relief", &["--alpha"])];
+    for (k, (product, our_args)) in cases.into_iter().enumerate() {
+        let (plain, reference, ours) = (
+            dir.path().join(format!("g{k}.tif")),
+            dir.path().join(format!("gdal_cog{k}.tif")),
+            dir.path().join(format!("ours_cog{k}.tif")),
+        );
+        // GDAL's COG is made from our own GTiff product (equal to gdaldem's, as the tests
+        // above show), so that only the COG writing is compared.
+        let mut g = Command::new(common::volterra_bin());
+        g.args(["dem", product]).arg(&dem).arg(&plain).args(our_args);
+        if product == "color-relief" {
+            g.arg("--palette").arg(&palette);
+        }
+        run(&mut g);
+        run(Command::new("gdal_translate").args(["-q", "-of", "COG", "-co", "BLOCKSIZE=128"]).arg(&plain).arg(&reference));
+        let mut v = Command::new(common::volterra_bin());
+        v.args(["dem", product]).arg(&dem).arg(&ours).args(["-of", "COG", "-co", "BLOCKSIZE=128"]).args(our_args);
+        if product == "color-relief" {
+            v.arg("--palette").arg(&palette);
+        }
+        run(&mut v);
+        let tag = format!("{product} {our_args:?}");
+        let info = |p: &Path| -> serde_json::Value {
+            let i: serde_json::Value = serde_json::from_str(&run(Command::new("gdalinfo").arg("-json").arg(p))).unwrap();
+            let b = &i["bands"][0];
+            serde_json::json!({"structure": i["metadata"]["IMAGE_STRUCTURE"], "block": b["block"], "overviews": b["overviews"],
+                "bands": i["bands"].as_array().unwrap().len()})
+        };
+        let (want, got) = (info(&reference), info(&ours));
+        assert_eq!(got, want, "{tag}: gdalinfo's layout, compression, blocks, overviews");
+        assert_eq!(want["overviews"].as_array().unwrap().len(), 3, "{tag}: 350×266 → 175×133 → 87×66");
+        assert_eq!(grid_of(&ours), grid_of(&reference), "{tag}");
+        let bands = want["bands"].as_u64().unwrap() as usize;
+        for level in 0..=3 {
+            for band in 1..=bands {
+                let (a, an) = level_cells(&ours, dir.path(), level, band);
+                let (b, bn) = level_cells(&reference, dir.path(), level, band);
+                // NoData reads as NaN: compared by the masks.
+                let differing = a.iter().zip(&b).filter(|(p, q)| p != q && !(p.is_nan() && q.is_nan())).count();
+                assert_eq!((differing, an == bn), (0, true), "{tag}: level {level} band {band}: cells (or NoData) differ from GDAL's");
+            }
+        }
+        if let Some(said) = validate_cog(&ours) {
+            assert!(said.contains("is a valid cloud optimized GeoTIFF") && !said.contains("arning"), "{tag}: {said}");
+        }
+    }
 }

@@ -16,9 +16,10 @@
 #                   `volterra slurm`'s job arrays for real
 #   ffmpeg          `volterra movie` (frames to MP4/GIF)
 #   gdal-bin        gdaldem and gdalinfo, the reference for `volterra dem` (tests only)
+#   python3-gdal    GDAL's Cloud-Optimised GeoTIFF validator, for `volterra dem -of COG` (tests only)
 set -euo pipefail
 need=()
-for pkg in libcharls-dev cmake python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0 slurmctld slurmd slurm-client munge ffmpeg gdal-bin; do
+for pkg in libcharls-dev cmake python3-venv mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0 slurmctld slurmd slurm-client munge ffmpeg gdal-bin python3-gdal; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

@@ -261,12 +261,15 @@ enum Command {
         input: PathBuf,
         /// The GeoTIFF written.
         output: PathBuf,
-        /// Output format (gdaldem -of, also written -of): GTiff.
+        /// Output format (gdaldem -of, also written -of): GTiff, or COG (a Cloud-Optimised
+        /// GeoTIFF as GDAL's COG driver writes it: tiled, overviews, directories first).
         #[arg(long = "of", value_name = "FORMAT", default_value = "GTiff")]
         output_format: String,
-        /// A GTiff creation option (gdaldem -co, also written -co; repeatable):
+        /// A creation option (gdaldem -co, also written -co; repeatable). GTiff:
         /// COMPRESS=NONE|DEFLATE|LZW|ZSTD, PREDICTOR=1|2|3, TILED=YES, BLOCKXSIZE=N,
-        /// BLOCKYSIZE=N, ZLEVEL=1..9, ZSTD_LEVEL=1..22. Default: uncompressed strips, as gdaldem.
+        /// BLOCKYSIZE=N, ZLEVEL=1..9, ZSTD_LEVEL=1..22 (default: uncompressed strips, as
+        /// gdaldem). COG: COMPRESS (default LZW), LEVEL, PREDICTOR=YES|NO|STANDARD|FLOATING_POINT,
+        /// BLOCKSIZE (512), RESAMPLING=CUBIC|BILINEAR (CUBIC), OVERVIEWS=AUTO|NONE.
         #[arg(long = "co", value_name = "KEY=VALUE")]
         creation_options: Vec<String>,
         /// Vertical exaggeration (gdaldem -z).
@@ -763,13 +766,13 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
                 _ => volterra::dem::ColorMode::Interpolate,
             };
             let write = match output_format.to_ascii_uppercase().as_str() {
-                "GTIFF" => formats::geotiff_write::WriteOptions::from_creation_options(&creation_options).map_err(|e| anyhow!("-co: {e}"))?,
-                // A COG's directories and overviews come before its tiles: not this writer's
-                // strip-by-strip layout. Said rather than written as a plain GeoTIFF.
-                "COG" => anyhow::bail!(
-                    "-of COG is not written here; write a tiled GeoTIFF (-co TILED=YES -co BLOCKXSIZE=512 -co BLOCKYSIZE=512) and make it a COG with gdal_translate -of COG"
-                ),
-                other => anyhow::bail!("-of {other}: volterra dem writes GTiff"),
+                "GTIFF" => {
+                    formats::geotiff_write::WriteOptions::from_creation_options(&creation_options).map_err(|e| anyhow!("-co: {e}"))?
+                }
+                "COG" => {
+                    formats::geotiff_write::WriteOptions::from_cog_creation_options(&creation_options).map_err(|e| anyhow!("-co: {e}"))?
+                }
+                other => anyhow::bail!("-of {other}: volterra dem writes GTiff or COG"),
             };
             cmd_dem(product, &input, &output, &options, &ReliefArgs { palette, alpha, mode }, &write, &read.options(limits)?)
         }

@@ -13,9 +13,11 @@
 //! 4 GiB is written as BigTIFF (as GDAL's `BIGTIFF=IF_NEEDED`).
 
 use crate::atomic::write_atomically;
+pub use crate::cog_write::CogLayout;
 use crate::error::{FormatError, Result};
 use crate::geotiff::{KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_TYPE, KEY_PROJ_LINEAR_UNITS, KEY_RASTER_TYPE, KEY_VERTICAL_UNITS};
 use crate::heightfield::{Crs, GridGeoref, Heightfield};
+use crate::overview::Resampling;
 use rayon::prelude::*;
 use std::io::{Seek, Write};
 use std::path::Path;
@@ -84,12 +86,15 @@ pub struct WriteOptions {
     pub tiles: Option<[usize; 2]>,
     /// Deflate's level (1–9; default 3, see `compress`) or ZSTD's (1–22; default 9).
     pub level: Option<i32>,
+    /// A Cloud-Optimised GeoTIFF (`-of COG`): tiled as `tiles` says, with overviews,
+    /// directories first (`cog_write`).
+    pub cog: Option<CogLayout>,
 }
 
 impl Default for WriteOptions {
     /// What `write_band` and `write_geotiff` write: Deflate strips.
     fn default() -> Self {
-        WriteOptions { compression: Compression::Deflate, predictor: None, tiles: None, level: None }
+        WriteOptions { compression: Compression::Deflate, predictor: None, tiles: None, level: None, cog: None }
     }
 }
 
@@ -167,6 +172,78 @@ impl WriteOptions {
         if tiled {
             o.tiles = Some(block);
         }
+        Ok(o)
+    }
+
+    /// GDAL's COG driver options (`-of COG -co KEY=VALUE`) over its defaults: LZW, no
+    /// predictor, 512² tiles, overviews by CUBIC resampling until one fits in a tile.
+    /// `PREDICTOR=YES` is 2 for bytes and 3 for floats, as GDAL chooses. GTiff-only options
+    /// (TILED, BLOCKXSIZE) are refused naming COG's own.
+    pub fn from_cog_creation_options(options: &[String]) -> std::result::Result<WriteOptions, String> {
+        let mut layout = CogLayout { block: 512, resampling: Resampling::Cubic, overviews: true };
+        let mut o = WriteOptions { compression: Compression::Lzw, predictor: Some(1), tiles: None, level: None, cog: None };
+        for opt in options {
+            let (k, v) = opt.split_once('=').ok_or_else(|| format!("creation option '{opt}' is not KEY=VALUE"))?;
+            let (k, v) = (k.trim().to_ascii_uppercase(), v.trim());
+            let number = |what: &str| v.parse::<i64>().map_err(|_| format!("{what}={v} is not a whole number"));
+            match k.as_str() {
+                "COMPRESS" => {
+                    o.compression = match v.to_ascii_uppercase().as_str() {
+                        "NONE" => Compression::None,
+                        "DEFLATE" => Compression::Deflate,
+                        "LZW" => Compression::Lzw,
+                        "ZSTD" => Compression::Zstd,
+                        other => return Err(format!("COMPRESS={other}: this writer has NONE, DEFLATE, LZW and ZSTD")),
+                    }
+                }
+                "LEVEL" => o.level = Some(number("LEVEL")? as i32),
+                "PREDICTOR" => {
+                    o.predictor = match v.to_ascii_uppercase().as_str() {
+                        "NO" | "FALSE" | "OFF" | "1" => Some(1),
+                        // Chosen by the samples when written (see `Layout::predictor`).
+                        "YES" | "TRUE" | "ON" => None,
+                        "STANDARD" | "2" => Some(2),
+                        "FLOATING_POINT" | "3" => Some(3),
+                        other => return Err(format!("PREDICTOR={other}: YES, NO, STANDARD or FLOATING_POINT")),
+                    }
+                }
+                "BLOCKSIZE" => {
+                    let b = number("BLOCKSIZE")?;
+                    if b < 16 || b % 16 != 0 || b > 4096 {
+                        return Err(format!("BLOCKSIZE={b}: a multiple of 16, at most 4096"));
+                    }
+                    layout.block = b as usize;
+                }
+                "RESAMPLING" | "OVERVIEW_RESAMPLING" => {
+                    layout.resampling = Resampling::parse(v)
+                        .ok_or_else(|| format!("RESAMPLING={v}: this writer computes overviews as GDAL does by CUBIC (its default) or BILINEAR"))?;
+                }
+                "OVERVIEWS" => {
+                    layout.overviews = match v.to_ascii_uppercase().as_str() {
+                        // The product has no overviews of its own to copy: all three make them.
+                        "AUTO" | "IGNORE_EXISTING" | "FORCE_USE_EXISTING" => true,
+                        "NONE" => false,
+                        other => return Err(format!("OVERVIEWS={other}: AUTO or NONE")),
+                    }
+                }
+                "BIGTIFF" => {} // IF_NEEDED is what this writer does
+                "TILED" | "BLOCKXSIZE" | "BLOCKYSIZE" | "ZLEVEL" | "ZSTD_LEVEL" => {
+                    return Err(format!("{k} is a GTiff option; a COG is always tiled and takes BLOCKSIZE and LEVEL"))
+                }
+                other => {
+                    return Err(format!(
+                        "creation option {other} is not one this COG writer takes (COMPRESS, LEVEL, PREDICTOR, BLOCKSIZE, RESAMPLING, OVERVIEWS, BIGTIFF)"
+                    ))
+                }
+            }
+        }
+        match (o.compression, o.level) {
+            (Compression::Deflate, Some(l)) if !(1..=9).contains(&l) => return Err(format!("LEVEL={l}: 1 to 9 for DEFLATE")),
+            (Compression::Zstd, Some(l)) if !(1..=22).contains(&l) => return Err(format!("LEVEL={l}: 1 to 22 for ZSTD")),
+            _ => {}
+        }
+        o.tiles = Some([layout.block; 2]);
+        o.cog = Some(layout);
         Ok(o)
     }
 }
@@ -286,6 +363,16 @@ pub fn write_band_strips_with<E: From<FormatError>>(
     let padded = opts.tiles.map_or([grid.width, grid.height], |[tw, th]| [grid.width.div_ceil(tw) * tw, grid.height.div_ceil(th) * th]);
     let raw = (padded[0] * padded[1] * kind.samples() * kind.sample_bytes()) as u64;
     let layout = Layout { grid, kind, nodata, elevation, rows_per_strip, opts: *opts };
+    if let Some(cog) = opts.cog {
+        // COG's PREDICTOR=YES (None here) is 3 for floats, as GDAL chooses.
+        let predictor = match (opts.compression, opts.predictor, kind) {
+            (Compression::None, ..) => 1,
+            (_, Some(p), _) => p,
+            (_, None, BandKind::F32) => 3,
+            (_, None, _) => 2,
+        };
+        return crate::cog_write::write_cog(path, grid, kind, nodata, elevation, opts, cog, predictor, fill);
+    }
     // The error `fill` returned, kept while the writer's own error unwinds the write.
     let mut failed: Option<E> = None;
     let written = write_atomically(path, |w| {
@@ -335,10 +422,10 @@ impl Layout<'_> {
 
 /// One strip (or tile) filled and compressed: its samples are kept to be refilled.
 #[derive(Default)]
-struct Strip {
-    f32s: Vec<f32>,
-    bytes: Vec<u8>,
-    compressed: Vec<u8>,
+pub(crate) struct Strip {
+    pub(crate) f32s: Vec<f32>,
+    pub(crate) bytes: Vec<u8>,
+    pub(crate) compressed: Vec<u8>,
 }
 
 fn write_strips<W: Write + Seek, K: TiffKind>(
@@ -403,7 +490,7 @@ fn write_strips<W: Write + Seek, K: TiffKind>(
 
 /// The tile of `strip` (rows of `width` cells) whose first column is `col`, `size` cells,
 /// into `tile`: cells beyond the raster's right and bottom edges are 0.
-fn cut_tile(strip: &Strip, tile: &mut Strip, kind: BandKind, [width, col]: [usize; 2], [tw, th]: [usize; 2]) {
+pub(crate) fn cut_tile(strip: &Strip, tile: &mut Strip, kind: BandKind, [width, col]: [usize; 2], [tw, th]: [usize; 2]) {
     let spp = kind.samples();
     let (row, trow) = (width * spp, tw * spp);
     let n = (col + tw).min(width) - col;
@@ -433,7 +520,7 @@ fn cut_tile(strip: &Strip, tile: &mut Strip, kind: BandKind, [width, col]: [usiz
 /// differenced along the row (predictor 3, as GDAL and libtiff write it), by differences
 /// of their 32-bit patterns (predictor 2, libtiff's), or as they are (predictor 1). Then
 /// zlib (Deflate), LZW (TIFF's, as libtiff codes it), ZSTD, or none.
-fn compress(s: &mut Strip, kind: BandKind, predictor: u16, row_samples: usize, opts: &WriteOptions) {
+pub(crate) fn compress(s: &mut Strip, kind: BandKind, predictor: u16, row_samples: usize, opts: &WriteOptions) {
     use std::io::Write as _;
     let spp = kind.samples();
     let mut predicted: Vec<u8> = Vec::new();
@@ -547,10 +634,29 @@ fn write_tags<W: Write + Seek, K: TiffKind>(
         dir.write_tag(Tag::StripOffsets, K::convert_slice(&offsets))?;
         dir.write_tag(Tag::StripByteCounts, K::convert_slice(&counts))?;
     }
+    let g = geo_tags(grid, l.elevation);
+    dir.write_tag(Tag::ModelPixelScaleTag, &g.pixel_scale[..])?;
+    dir.write_tag(Tag::ModelTiepointTag, &g.tiepoint[..])?;
+    dir.write_tag(Tag::GeoKeyDirectoryTag, &g.keys[..])?;
+    if let Some(v) = l.nodata {
+        dir.write_tag(Tag::GdalNodata, &*format!("{v}"))?;
+    }
+    Ok(())
+}
+
+/// A raster's georeferencing as GeoTIFF tags: ModelPixelScale, ModelTiepoint (the
+/// north-west corner, PixelIsArea) and the GeoKey directory.
+pub(crate) struct GeoTags {
+    pub(crate) pixel_scale: [f64; 3],
+    pub(crate) tiepoint: [f64; 6],
+    pub(crate) keys: Vec<u16>,
+}
+
+/// The tags of `grid`'s georeferencing; `elevation`: its cells are elevations in metres
+/// (said as the vertical units).
+pub(crate) fn geo_tags(grid: &GridGeoref, elevation: bool) -> GeoTags {
     let [sx, sy] = grid.cell_size_native;
     let corner = [grid.origin[0] - 0.5 * sx, grid.origin[1] + 0.5 * sy];
-    dir.write_tag(Tag::ModelPixelScaleTag, &[sx, sy, 0.0][..])?;
-    dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..])?;
     let mut keys: Vec<u16> = vec![1, 1, 0, 0];
     let mut push = |id: u16, v: u16| keys.extend_from_slice(&[id, 0, 1, v]);
     if grid.crs != Crs::local() {
@@ -571,15 +677,11 @@ fn write_tags<W: Write + Seek, K: TiffKind>(
             push(KEY_PROJ_LINEAR_UNITS, code);
         }
     }
-    if l.elevation {
+    if elevation {
         push(KEY_VERTICAL_UNITS, 9001);
     }
     keys[3] = ((keys.len() - 4) / 4) as u16;
-    dir.write_tag(Tag::GeoKeyDirectoryTag, &keys[..])?;
-    if let Some(v) = l.nodata {
-        dir.write_tag(Tag::GdalNodata, &*format!("{v}"))?;
-    }
-    Ok(())
+    GeoTags { pixel_scale: [sx, sy, 0.0], tiepoint: [0.0, 0.0, 0.0, corner[0], corner[1], 0.0], keys }
 }
 
 #[cfg(test)]

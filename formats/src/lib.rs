@@ -6,6 +6,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod atomic;
+mod cog_write;
 pub mod dicom;
 mod dicom_jpeg12;
 mod dicom_rle;
@@ -26,6 +27,7 @@ pub mod memory;
 pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;
+pub mod overview;
 pub mod particles;
 pub mod png_height;
 pub mod projection;

@@ -243,7 +243,12 @@ pub fn write_product(
         None => (default_rows_per_strip(w, kind), w),
     };
     // The input rows of a strip and its neighbours', and the writer's strips.
-    let held = (rows_per_strip as u64 + 2) * w as u64 * 4 + 2 * writer_bytes(width, kind, rows_per_strip);
+    let mut held = (rows_per_strip as u64 + 2) * w as u64 * 4 + 2 * writer_bytes(width, kind, rows_per_strip);
+    if opts.cog.is_some() {
+        // A COG's overviews: a row of tiles a level (together less than the full
+        // raster's) and the rows each resampler spans (f64 values and masks, ≤ 9 rows).
+        held += (rows_per_strip * width * kind.samples() * 4) as u64 + 9 * 16 * (w * kind.samples()) as u64;
+    }
     limits.check(output, "the rows and strips of a band of the product", &[held])?;
     write_product_strips(src, grid, op, output, rows_per_strip, opts, rows_done)
 }
