@@ -495,19 +495,7 @@ fn encode_ifd(e: &[Entry], at: u64, next: u64, big: bool) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::heightfield::Crs;
-
-    fn grid(w: usize, h: usize) -> GridGeoref {
-        GridGeoref {
-            width: w,
-            height: h,
-            cell_size: [30.0, 30.0],
-            cell_size_native: [30.0, 30.0],
-            origin: [500_015.0, 4_199_985.0],
-            crs: Crs { epsg: Some(32610), geographic: false, description: "EPSG:32610".into(), metres_per_unit: 1.0 },
-            units: crate::heightfield::GridUnits::METRES,
-        }
-    }
+    use crate::geotiff_write::tests::grid;
 
     #[test]
     fn a_cog_reads_back_with_its_overviews_and_directories_first() {

@@ -119,19 +119,10 @@ impl WriteOptions {
         let mut o = WriteOptions::gdal_default();
         let (mut tiled, mut block) = (false, [256usize, 256]);
         for opt in options {
-            let (k, v) = opt.split_once('=').ok_or_else(|| format!("creation option '{opt}' is not KEY=VALUE"))?;
-            let (k, v) = (k.trim().to_ascii_uppercase(), v.trim());
+            let (k, v) = key_value(opt)?;
             let number = |what: &str| v.parse::<i64>().map_err(|_| format!("{what}={v} is not a whole number"));
             match k.as_str() {
-                "COMPRESS" => {
-                    o.compression = match v.to_ascii_uppercase().as_str() {
-                        "NONE" => Compression::None,
-                        "DEFLATE" | "ADOBE_DEFLATE" => Compression::Deflate,
-                        "LZW" => Compression::Lzw,
-                        "ZSTD" => Compression::Zstd,
-                        other => return Err(format!("COMPRESS={other}: this writer has NONE, DEFLATE, LZW and ZSTD")),
-                    }
-                }
+                "COMPRESS" => o.compression = compression(v)?,
                 "PREDICTOR" => {
                     let p = number("PREDICTOR")?;
                     if !(1..=3).contains(&p) {
@@ -183,19 +174,10 @@ impl WriteOptions {
         let mut layout = CogLayout { block: 512, resampling: Resampling::Cubic, overviews: true };
         let mut o = WriteOptions { compression: Compression::Lzw, predictor: Some(1), tiles: None, level: None, cog: None };
         for opt in options {
-            let (k, v) = opt.split_once('=').ok_or_else(|| format!("creation option '{opt}' is not KEY=VALUE"))?;
-            let (k, v) = (k.trim().to_ascii_uppercase(), v.trim());
+            let (k, v) = key_value(opt)?;
             let number = |what: &str| v.parse::<i64>().map_err(|_| format!("{what}={v} is not a whole number"));
             match k.as_str() {
-                "COMPRESS" => {
-                    o.compression = match v.to_ascii_uppercase().as_str() {
-                        "NONE" => Compression::None,
-                        "DEFLATE" => Compression::Deflate,
-                        "LZW" => Compression::Lzw,
-                        "ZSTD" => Compression::Zstd,
-                        other => return Err(format!("COMPRESS={other}: this writer has NONE, DEFLATE, LZW and ZSTD")),
-                    }
-                }
+                "COMPRESS" => o.compression = compression(v)?,
                 "LEVEL" => o.level = Some(number("LEVEL")? as i32),
                 "PREDICTOR" => {
                     o.predictor = match v.to_ascii_uppercase().as_str() {
@@ -245,6 +227,23 @@ impl WriteOptions {
         o.tiles = Some([layout.block; 2]);
         o.cog = Some(layout);
         Ok(o)
+    }
+}
+
+/// A creation option's key (upper case) and value.
+fn key_value(opt: &str) -> std::result::Result<(String, &str), String> {
+    let (k, v) = opt.split_once('=').ok_or_else(|| format!("creation option '{opt}' is not KEY=VALUE"))?;
+    Ok((k.trim().to_ascii_uppercase(), v.trim()))
+}
+
+/// GDAL's `COMPRESS` value, of those this writer has.
+fn compression(v: &str) -> std::result::Result<Compression, String> {
+    match v.to_ascii_uppercase().as_str() {
+        "NONE" => Ok(Compression::None),
+        "DEFLATE" | "ADOBE_DEFLATE" => Ok(Compression::Deflate),
+        "LZW" => Ok(Compression::Lzw),
+        "ZSTD" => Ok(Compression::Zstd),
+        other => Err(format!("COMPRESS={other}: this writer has NONE, DEFLATE, LZW and ZSTD")),
     }
 }
 
@@ -685,10 +684,11 @@ pub(crate) fn geo_tags(grid: &GridGeoref, elevation: bool) -> GeoTags {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn grid(w: usize, h: usize) -> GridGeoref {
+    /// A UTM grid of 30 m cells.
+    pub(crate) fn grid(w: usize, h: usize) -> GridGeoref {
         GridGeoref {
             width: w,
             height: h,
