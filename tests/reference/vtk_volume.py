@@ -6,8 +6,11 @@ writes each image as a float RGBA OpenEXR (colour over black, alpha = accumulate
 
 Usage: vtk_volume.py OUT_DIR SCENE.toml...
        vtk_volume.py --bench SPEC.json   (for `volterra bench shear-warp`: renders each view
-       of one scene `runs` times after a warm-up, prints {"ms": [[per-run ms]...]} and
-       writes the images to the spec's paths)
+       of one scene `runs` times after a warm-up, for each of the spec's `configs` (sample
+       distance in voxels of the finest axis, ImageSampleDistance; default [[1, 1]]),
+       prints {"configs": [{"sample_distance", "image_sample_distance", "ms": [[per-run
+       ms]...]}...], "vtk"} and writes each config's images to the spec's paths, each
+       path's stem followed by "_sd{sd}_isd{isd}")
        vtk_volume.py --clinical SPEC.json   (for `volterra bench clinical`: the first view's
        frame timed from reading the file — nibabel + numpy into vtkImageData — to the end of
        its first render, then each further view rendered once, timed; prints
@@ -26,7 +29,7 @@ import vtk
 from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 
 
-def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=False):
+def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=False, sample_distance=1.0, image_sample_distance=1.0):
     start = time.perf_counter()
     with open(scene_path, "rb") as f:
         scene = tomllib.load(f)
@@ -86,9 +89,11 @@ def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=F
     mapper = vtk.vtkFixedPointVolumeRayCastMapper()
     mapper.SetInputData(image)
     mapper.SetAutoAdjustSampleDistances(0)
-    # One sample per voxel along the finest axis (1 for the 1 mm comparison scenes).
-    mapper.SetSampleDistance(float(spacing.min()))
-    mapper.SetImageSampleDistance(1.0)
+    # One sample per voxel along the finest axis (1 for the 1 mm comparison scenes), or
+    # `sample_distance` voxels; one ray per pixel, or one per `image_sample_distance`
+    # pixels (VTK interpolates between them).
+    mapper.SetSampleDistance(float(sample_distance * spacing.min()))
+    mapper.SetImageSampleDistance(float(image_sample_distance))
     volume = vtk.vtkVolume()
     volume.SetMapper(mapper)
     volume.SetProperty(prop)
@@ -182,6 +187,12 @@ def write_image(win, w, h, path):
     OpenEXR.File(header, {"RGBA": np.ascontiguousarray(rgba)}).write(path)
 
 
+def config_path(path, sd, isd):
+    """A bench image's path for one configuration: its stem followed by _sd{sd}_isd{isd}."""
+    stem, ext = os.path.splitext(path)
+    return f"{stem}_sd{sd:g}_isd{isd:g}{ext}"
+
+
 def main():
     if sys.argv[1] == "--clinical":
         import resource
@@ -195,8 +206,12 @@ def main():
     if sys.argv[1] == "--bench":
         with open(sys.argv[2]) as f:
             spec = json.load(f)
-        ms = render(spec["scene"], None, spec["views"], spec["runs"], spec.get("shading"))
-        print(json.dumps({"ms": ms, "vtk": vtk.vtkVersion.GetVTKVersion()}))
+        configs = []
+        for sd, isd in spec.get("configs", [[1.0, 1.0]]):
+            views = [dict(v, image=config_path(v["image"], sd, isd)) for v in spec["views"]]
+            ms = render(spec["scene"], None, views, spec["runs"], spec.get("shading"), sample_distance=sd, image_sample_distance=isd)
+            configs.append({"sample_distance": sd, "image_sample_distance": isd, "ms": ms})
+        print(json.dumps({"configs": configs, "vtk": vtk.vtkVersion.GetVTKVersion()}))
         return
     out = sys.argv[1]
     os.makedirs(out, exist_ok=True)

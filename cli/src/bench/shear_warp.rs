@@ -30,6 +30,15 @@ pub struct ShearWarpBench {
 #[derive(Debug, Clone, Serialize)]
 pub struct Row {
     pub config: String,
+    /// What the row draws, so that only like rows are compared: projection, blend mode
+    /// and shading ("parallel composite shaded", "perspective mip", …).
+    pub family: String,
+    /// On its family's speed/error Pareto front: no row of the family is both as fast and
+    /// as close to the reference, and better in one.
+    pub pareto: bool,
+    /// For a VTK row: the fastest volterra row of its family that is both faster and
+    /// closer to the reference, if any.
+    pub dominated_by: Option<String>,
     pub median_ms: f64,
     pub rel_rmse: f64,
     /// Relative RMSE at each view, in the order of `views`.
@@ -185,6 +194,9 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         let row = Row {
             config: name,
+            family: family(set, blend, shade),
+            pareto: false,
+            dominated_by: None,
             median_ms: median(&mut ms),
             rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
             rel_rmse_views: err.clone(),
@@ -209,9 +221,10 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
             )?);
         }
     }
-    // More ratios, and two samples per slab (the default), so the speed-against-error
+    // More ratios (below 1: fewer rays than voxels, as VTK's ImageSampleDistance 2 casts
+    // fewer than pixels), and two samples per slab (the default), so the speed-against-error
     // curves are visible.
-    for (per_slab, ratios) in [(1, &[1.5, 1.75, 2.0, 3.0][..]), (2, &[1.0, 1.5, 2.0, 2.26, 3.0][..])] {
+    for (per_slab, ratios) in [(1, &[0.5, 0.75, 1.5, 1.75, 2.0, 3.0][..]), (2, &[1.0, 1.5, 2.0, 2.26, 3.0][..])] {
         for &ratio in ratios {
             rows.extend(time_config(
                 format!("shear-warp {} ×{ratio} {per_slab}/slab", shear_warp::Leaping::Overlapped.name()),
@@ -236,17 +249,18 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
 
     // Gradient shading (the node's coefficients, or VTK's defaults), against the shaded
     // reference.
-    for ratio in [1.5, 2.0, 3.0] {
+    for (per_slab, ratio) in [(1, 0.75), (1, 1.0), (2, 1.5), (2, 2.0), (2, 3.0)] {
         rows.extend(time_shaded(
-            format!("shaded shear-warp ×{ratio} 2/slab"),
+            format!("shaded shear-warp ×{ratio} {per_slab}/slab"),
             BlendMode::Composite,
-            shear_warp::Settings { supersampling: ratio, ..Default::default() },
+            shear_warp::Settings { supersampling: ratio, slab_samples: per_slab, ..Default::default() },
             true,
         )?);
     }
     rows.extend(time_shaded("shaded shear-warp auto (default)".into(), BlendMode::Composite, Default::default(), true)?);
     // The nearest-pixel warp: one intermediate ray per final pixel instead of about four.
     let nearest = shear_warp::Settings { warp: shear_warp::WarpFilter::Nearest, ..Default::default() };
+    rows.extend(time_config("shear-warp overlapped auto, nearest warp".into(), BlendMode::Composite, nearest.clone())?);
     rows.extend(time_shaded("shaded shear-warp auto, nearest warp".into(), BlendMode::Composite, nearest.clone(), true)?);
 
     // Perspective (the same views at 30°), unshaded and shaded, against the perspective
@@ -254,6 +268,16 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     rows.extend(time_in(perspective, "shear-warp overlapped auto (default)".into(), BlendMode::Composite, Default::default(), false)?);
     rows.extend(time_in(perspective, "shaded shear-warp auto (default)".into(), BlendMode::Composite, Default::default(), true)?);
     rows.extend(time_in(perspective, "shaded shear-warp auto, nearest warp".into(), BlendMode::Composite, nearest, true)?);
+    // Cheaper perspective configurations, so VTK's perspective rows (sample distances and
+    // ImageSampleDistance) meet ours along the whole speed/error curve.
+    for (per_slab, ratio) in [(1, 0.75), (1, 1.0), (1, 1.5), (2, 2.0)] {
+        let s = shear_warp::Settings { supersampling: ratio, slab_samples: per_slab, ..Default::default() };
+        rows.extend(time_in(perspective, format!("shear-warp overlapped ×{ratio} {per_slab}/slab"), BlendMode::Composite, s, false)?);
+    }
+    for (per_slab, ratio) in [(1, 0.75), (1, 1.0), (2, 1.5), (2, 2.0)] {
+        let s = shear_warp::Settings { supersampling: ratio, slab_samples: per_slab, ..Default::default() };
+        rows.extend(time_in(perspective, format!("shaded shear-warp ×{ratio} {per_slab}/slab"), BlendMode::Composite, s, true)?);
+    }
 
     // VTK's fixed-point mapper through Python, same views, same references.
     for set in &sets {
@@ -268,6 +292,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
     }
 
+    mark_pareto(&mut rows);
     let rows_path = b.env.work_dir.join("shear_warp_rows.json");
     std::fs::write(&rows_path, serde_json::to_string_pretty(&rows)?)?;
     if b.only.is_none() {
@@ -277,19 +302,44 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {
         println!("{w}×{h}, {} views, median of {} runs per view, {} threads", cams.len(), b.runs, rayon::current_num_threads());
-        println!("{:<38} {:>10} {:>10} {:>9} {:>12}  rel. RMSE per view", "config", "median ms", "rel. RMSE", "PSNR dB", "ms/Mpixel");
+        println!("(* on its family's speed/error Pareto front: projection, blend mode and shading alike)");
+        println!("{:<48} {:>10} {:>10} {:>9} {:>12}  rel. RMSE per view", "config", "median ms", "rel. RMSE", "PSNR dB", "ms/Mpixel");
         for r in &rows {
             let mp = r.ms_per_mpixel.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
             let views: Vec<String> = r.rel_rmse_views.iter().map(|e| format!("{:.2}", 100.0 * e)).collect();
             println!(
-                "{:<38} {:>10.1} {:>9.2}% {:>9.2} {:>12}  {}",
-                r.config,
+                "{:<48} {:>10.1} {:>9.2}% {:>9.2} {:>12}  {}",
+                format!("{}{}", if r.pareto { "* " } else { "  " }, r.config),
                 r.median_ms,
                 100.0 * r.rel_rmse,
                 r.psnr_db,
                 mp,
                 views.join(" ")
             );
+        }
+        // Each VTK configuration against ours: is some volterra configuration of its family
+        // both faster and closer to the reference?
+        for r in rows.iter().filter(|r| r.config.contains("vtk")) {
+            match &r.dominated_by {
+                Some(by) => {
+                    let o = rows.iter().find(|o| &o.config == by).expect("a row");
+                    println!(
+                        "{} ({:.1} ms, {:.2} %): faster and closer: {} ({:.1} ms, {:.2} %)",
+                        r.config,
+                        r.median_ms,
+                        100.0 * r.rel_rmse,
+                        o.config,
+                        o.median_ms,
+                        100.0 * o.rel_rmse
+                    )
+                }
+                None => println!(
+                    "{} ({:.1} ms, {:.2} %): no volterra configuration is both faster and closer",
+                    r.config,
+                    r.median_ms,
+                    100.0 * r.rel_rmse
+                ),
+            }
         }
     }
     Ok(())
@@ -300,11 +350,47 @@ fn intermediate_pixels(f: &Frame) -> f64 {
     f.stats.counter("intermediate_pixels").unwrap_or(1.0)
 }
 
-/// VTK's row, with `ShadeOn` and these coefficients when `shading` is given (shading off
-/// otherwise, whatever the scene says).
+/// The family of a row drawn in `set` (see `Row::family`).
+fn family(set: &ViewSet, blend: BlendMode, shade: bool) -> String {
+    let projection = if set.prefix.is_empty() { "parallel" } else { "perspective" };
+    let blend = if blend == BlendMode::Mip { "mip" } else { "composite" };
+    format!("{projection} {blend}{}", if shade { " shaded" } else { "" })
+}
+
+/// VTK's configurations on the table: sample distance (voxels of the finest axis) and
+/// ImageSampleDistance (pixels between rays), so its whole speed/error curve is there.
+const VTK_CONFIGS: [(f64, f64); 6] = [(0.5, 1.0), (1.0, 1.0), (2.0, 1.0), (0.5, 2.0), (1.0, 2.0), (2.0, 2.0)];
+
+/// Marks each family's Pareto front, and for each VTK row the fastest volterra row of its
+/// family that is both faster and closer to the reference.
+fn mark_pareto(rows: &mut [Row]) {
+    let better =
+        |a: &Row, b: &Row| a.median_ms <= b.median_ms && a.rel_rmse <= b.rel_rmse && (a.median_ms < b.median_ms || a.rel_rmse < b.rel_rmse);
+    let is_vtk = |r: &Row| r.config.contains("vtk");
+    for i in 0..rows.len() {
+        let (r, family) = (&rows[i], &rows[i].family);
+        let pareto = !rows.iter().any(|o| &o.family == family && better(o, r));
+        let dominated_by = is_vtk(r)
+            .then(|| {
+                rows.iter()
+                    .filter(|o| &o.family == family && !is_vtk(o) && o.median_ms < r.median_ms && o.rel_rmse < r.rel_rmse)
+                    .min_by(|a, b| a.median_ms.total_cmp(&b.median_ms))
+                    .map(|o| o.config.clone())
+            })
+            .flatten();
+        (rows[i].pareto, rows[i].dominated_by) = (pareto, dominated_by);
+    }
+}
+
+/// VTK's rows (one per `VTK_CONFIGS` entry), with `ShadeOn` and these coefficients when
+/// `shading` is given (shading off otherwise, whatever the scene says).
 fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: Option<&VolumeShading>) -> Result<Vec<Row>> {
     let tag = format!("{}{}", if set.prefix.is_empty() { "" } else { "_perspective" }, if shading.is_some() { "_shaded" } else { "" });
     let image = |v: usize| b.env.work_dir.join(format!("vtk_{v}{tag}.exr"));
+    let family = family(set, BlendMode::Composite, shading.is_some());
+    // The script writes each configuration's image beside the view's (vtk_volume.py's
+    // config_path).
+    let config_image = |v: usize, (sd, isd): (f64, f64)| b.env.work_dir.join(format!("vtk_{v}{tag}_sd{sd}_isd{isd}.exr"));
     let spec_views: Vec<serde_json::Value> = set
         .cams
         .iter()
@@ -315,7 +401,9 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
         })
         .collect();
     let shading = serde_json::to_value(shading.copied().unwrap_or_default())?;
-    let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs, "shading": shading});
+    let configs: Vec<[f64; 2]> = VTK_CONFIGS.iter().map(|&(sd, isd)| [sd, isd]).collect();
+    let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs, "shading": shading,
+                                  "configs": configs});
     let spec_path = b.env.work_dir.join("vtk_spec.json");
     std::fs::write(&spec_path, spec.to_string())?;
     let out = std::process::Command::new(&b.env.python)
@@ -328,31 +416,39 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
         bail!("vtk_volume.py failed: {}", crate::child::last_line(&out.stderr));
     }
     let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
-    let mut ms: Vec<f64> = v["ms"]
-        .as_array()
-        .context("no timings")?
-        .iter()
-        .flat_map(|r| r.as_array().cloned().unwrap_or_default())
-        .filter_map(|x| x.as_f64())
-        .collect();
-    let (mut err, mut psnr) = (Vec::new(), Vec::new());
-    for (i, r) in refs.iter().enumerate() {
-        let img = volterra_formats::exr_io::read_exr(&image(i), &b.env.limits)?;
-        err.push(rel_rmse(&rgba_of(&img), r));
-        psnr.push(rgba_psnr(&rgba_of(&img), r));
+    let mut rows = Vec::new();
+    for (c, &config) in v["configs"].as_array().context("no configurations")?.iter().zip(&VTK_CONFIGS) {
+        let mut ms: Vec<f64> = c["ms"]
+            .as_array()
+            .context("no timings")?
+            .iter()
+            .flat_map(|r| r.as_array().cloned().unwrap_or_default())
+            .filter_map(|x| x.as_f64())
+            .collect();
+        let (mut err, mut psnr) = (Vec::new(), Vec::new());
+        for (i, r) in refs.iter().enumerate() {
+            let img = volterra_formats::exr_io::read_exr(&config_image(i, config), &b.env.limits)?;
+            err.push(rel_rmse(&rgba_of(&img), r));
+            psnr.push(rgba_psnr(&rgba_of(&img), r));
+        }
+        rows.push(Row {
+            config: format!(
+                "{}{}vtk fixed-point {} sd {} isd {}",
+                set.prefix,
+                if tag.ends_with("_shaded") { "shaded " } else { "" },
+                v["vtk"].as_str().unwrap_or(""),
+                config.0,
+                config.1
+            ),
+            family: family.clone(),
+            pareto: false,
+            dominated_by: None,
+            median_ms: median(&mut ms),
+            rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+            rel_rmse_views: err.clone(),
+            psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
+            ms_per_mpixel: None,
+        });
     }
-    let row = Row {
-        config: format!(
-            "{}{}vtk fixed-point {}",
-            set.prefix,
-            if tag.ends_with("_shaded") { "shaded " } else { "" },
-            v["vtk"].as_str().unwrap_or("")
-        ),
-        median_ms: median(&mut ms),
-        rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
-        rel_rmse_views: err.clone(),
-        psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
-        ms_per_mpixel: None,
-    };
-    Ok(vec![row])
+    Ok(rows)
 }

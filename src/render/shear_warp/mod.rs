@@ -309,6 +309,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let footprint = warp::Footprint::new(&fac, w, h, iw, fac.height, settings.warp);
     let samples = AtomicU64::new(0);
     let slabs_leapt = AtomicU64::new(0);
+    let pairs = AtomicU64::new(0);
     let termination = settings.termination as f32;
     // x extent of the slices (a one-voxel axis spans ±0.5).
     let (x_lo, x_hi) = if nx == 1 { (-0.5, 0.5) } else { (0.0, (nx - 1) as f64) };
@@ -375,6 +376,10 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         };
         let mut n_samples = 0u64;
         let mut n_leapt = 0u64;
+        // (Intermediate row, slice pair)s set up for compositing (issue 45 measured their
+        // cost: skipping those whose every block is clear, 0–94 % of them on the clinical
+        // orbit's views, bit for bit the same frames, left the frame time unchanged).
+        let mut n_pairs = 0u64;
         let x_of = |u: usize, m: &SliceMap| u as f64 * m.scale + m.x0;
         let y_at = |vf: f64, z: usize| vf * maps[z].scale + maps[z].y0;
 
@@ -555,6 +560,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
                 if back_span.is_none() && !(y_lo..=y_hi).contains(&yp) {
                     continue;
                 }
+                n_pairs += 1;
                 let front_slice = (yp >= y_lo && yp <= y_hi).then(|| {
                     let (f0, f1, fw) = rows(yp, ny);
                     SliceRows::new(axis, zp, f0, f1, fw)
@@ -755,6 +761,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         }
         samples.fetch_add(n_samples, Ordering::Relaxed);
         slabs_leapt.fetch_add(n_leapt, Ordering::Relaxed);
+        pairs.fetch_add(n_pairs, Ordering::Relaxed);
     })?;
 
     let mut frame = warp(&inter, &fac, w, h, settings.warp)?;
@@ -764,6 +771,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         counters: vec![
             ("samples".into(), samples.load(Ordering::Relaxed) as f64),
             ("runs_leapt".into(), slabs_leapt.load(Ordering::Relaxed) as f64),
+            ("row_slice_pairs".into(), pairs.load(Ordering::Relaxed) as f64),
             ("supersampling".into(), fac.ratio),
             ("intermediate_pixels".into(), ((u_clip_hi + 1 - u_clip_lo) * (v_clip_hi + 1 - v_clip_lo)) as f64),
             ("intermediate_pixels_read".into(), footprint.count as f64),
