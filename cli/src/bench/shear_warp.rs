@@ -49,6 +49,24 @@ pub struct Row {
     pub ms_per_mpixel: Option<f64>,
 }
 
+impl Row {
+    /// A row of the median of `ms`, the mean of the views' errors and PSNRs; not yet
+    /// compared with the others (`mark_pareto`).
+    fn new(config: String, family: String, ms: &mut [f64], err: Vec<f64>, psnr: &[f64], ms_per_mpixel: Option<f64>) -> Row {
+        Row {
+            config,
+            family,
+            pareto: false,
+            dominated_by: None,
+            median_ms: median(ms),
+            rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
+            rel_rmse_views: err,
+            psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
+            ms_per_mpixel,
+        }
+    }
+}
+
 /// The scene's view and four more: oblique, exactly 45° between two axes (where the
 /// principal axis switches), a second oblique from below, and exactly axis-aligned.
 fn views(cam: &Camera) -> Vec<Camera> {
@@ -192,17 +210,7 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
                 drop(f);
             }
         }
-        let row = Row {
-            config: name,
-            family: family(set, blend, shade),
-            pareto: false,
-            dominated_by: None,
-            median_ms: median(&mut ms),
-            rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
-            rel_rmse_views: err.clone(),
-            psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
-            ms_per_mpixel: Some(median(&mut mpix)),
-        };
+        let row = Row::new(name, family(set, blend, shade), &mut ms, err, &psnr, Some(median(&mut mpix)));
         if !b.json {
             eprintln!("{:<38} {:>9.1} ms {:>8.2} %", row.config, row.median_ms, 100.0 * row.rel_rmse);
         }
@@ -431,24 +439,15 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
             err.push(rel_rmse(&rgba_of(&img), r));
             psnr.push(rgba_psnr(&rgba_of(&img), r));
         }
-        rows.push(Row {
-            config: format!(
-                "{}{}vtk fixed-point {} sd {} isd {}",
-                set.prefix,
-                if tag.ends_with("_shaded") { "shaded " } else { "" },
-                v["vtk"].as_str().unwrap_or(""),
-                config.0,
-                config.1
-            ),
-            family: family.clone(),
-            pareto: false,
-            dominated_by: None,
-            median_ms: median(&mut ms),
-            rel_rmse: err.iter().sum::<f64>() / err.len() as f64,
-            rel_rmse_views: err.clone(),
-            psnr_db: psnr.iter().sum::<f64>() / psnr.len() as f64,
-            ms_per_mpixel: None,
-        });
+        let config = format!(
+            "{}{}vtk fixed-point {} sd {} isd {}",
+            set.prefix,
+            if tag.ends_with("_shaded") { "shaded " } else { "" },
+            v["vtk"].as_str().unwrap_or(""),
+            config.0,
+            config.1
+        );
+        rows.push(Row::new(config, family.clone(), &mut ms, err, &psnr, None));
     }
     Ok(rows)
 }
