@@ -16,7 +16,7 @@
 
 use crate::atomic::write_atomically;
 use crate::error::{FormatError, Result};
-use crate::geotiff_write::{compress, cut_tile, geo_tags, needs_bigtiff, BandKind, Compression, Strip, StripMut, WriteOptions};
+use crate::geotiff_write::{compress, cut_tile, geo_tags, needs_bigtiff, BandKind, Strip, StripMut, WriteOptions};
 use crate::heightfield::GridGeoref;
 use crate::overview::{cog_levels, Downsampler, Resampling};
 use rayon::prelude::*;
@@ -153,7 +153,7 @@ fn feed(p: &mut Pyramid, levels: &mut [Level], down: &mut [Downsampler], rows: &
                 }
                 let mut out = Strip::default();
                 p.store_row(v, m, &mut out);
-                if let Err(e) = feed_row(p, coarser, rest, out) {
+                if let Err(e) = feed(p, coarser, rest, &out) {
                     failed = Some(e);
                 }
             });
@@ -185,11 +185,6 @@ fn feed(p: &mut Pyramid, levels: &mut [Level], down: &mut [Downsampler], rows: &
     Ok(())
 }
 
-/// One resampled row into `levels[0]` (and on down).
-fn feed_row(p: &mut Pyramid, levels: &mut [Level], down: &mut [Downsampler], row: Strip) -> Result<()> {
-    feed(p, levels, down, &row)
-}
-
 /// Writes a COG as `geotiff_write::write_band_strips_with` writes a tiled GeoTIFF: `fill`
 /// hands over a row of tiles at a time (`layout.block` rows, the last fewer).
 #[allow(clippy::too_many_arguments)]
@@ -218,17 +213,7 @@ pub(crate) fn write_cog<E: From<FormatError>>(
     let mut down: Vec<Downsampler> = sizes.windows(2).map(|s| Downsampler::new(s[0], s[1], spp, layout.resampling)).collect();
     let mut strip = Strip::default();
     for first in (0..h).step_by(layout.block) {
-        let n = (h - first).min(layout.block) * w * spp;
-        match kind {
-            BandKind::F32 => {
-                strip.f32s.resize(n, 0.0);
-                fill(first, StripMut::F32(&mut strip.f32s))?;
-            }
-            _ => {
-                strip.bytes.resize(n, 0);
-                fill(first, StripMut::U8(&mut strip.bytes))?;
-            }
-        }
+        strip.fill_rows(kind, first, (h - first).min(layout.block) * w * spp, &mut fill)?;
         feed(&mut p, &mut levels, &mut down, &strip)?;
     }
     drop(strip);
@@ -385,13 +370,7 @@ fn entries(
     e.push(long(256, w as u32));
     e.push(long(257, h as u32));
     e.push(shorts(258, &vec![if kind == BandKind::F32 { 32 } else { 8 }; spp]));
-    let compression = match opts.compression {
-        Compression::None => 1,
-        Compression::Deflate => 8,
-        Compression::Lzw => 5,
-        Compression::Zstd => 50000,
-    };
-    e.push(shorts(259, &[compression]));
+    e.push(shorts(259, &[opts.compression.tiff_code()]));
     e.push(shorts(262, &[if spp >= 3 { 2 } else { 1 }]));
     e.push(shorts(277, &[spp as u16]));
     e.push(shorts(284, &[1]));

@@ -74,6 +74,18 @@ pub enum Compression {
     Zstd,
 }
 
+impl Compression {
+    /// The TIFF Compression tag's value.
+    pub(crate) fn tiff_code(self) -> u16 {
+        match self {
+            Compression::None => 1,
+            Compression::Deflate => 8,
+            Compression::Lzw => 5,
+            Compression::Zstd => 50000,
+        }
+    }
+}
+
 /// How a GeoTIFF is laid out and compressed: GDAL's GTiff creation options `COMPRESS`,
 /// `PREDICTOR`, `TILED` with `BLOCKXSIZE`/`BLOCKYSIZE`, `ZLEVEL` and `ZSTD_LEVEL`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -427,6 +439,28 @@ pub(crate) struct Strip {
     pub(crate) compressed: Vec<u8>,
 }
 
+impl Strip {
+    /// Sizes the strip's samples of `kind` to `n` and has `fill` fill them from row `first`.
+    pub(crate) fn fill_rows<E>(
+        &mut self,
+        kind: BandKind,
+        first: usize,
+        n: usize,
+        fill: &mut (impl FnMut(usize, StripMut) -> std::result::Result<(), E> + ?Sized),
+    ) -> std::result::Result<(), E> {
+        match kind {
+            BandKind::F32 => {
+                self.f32s.resize(n, 0.0);
+                fill(first, StripMut::F32(&mut self.f32s))
+            }
+            _ => {
+                self.bytes.resize(n, 0);
+                fill(first, StripMut::U8(&mut self.bytes))
+            }
+        }
+    }
+}
+
 fn write_strips<W: Write + Seek, K: TiffKind>(
     enc: &mut TiffEncoder<W, K>,
     path: &Path,
@@ -452,17 +486,7 @@ fn write_strips<W: Write + Seek, K: TiffKind>(
         // Filled in order (a reader of rows reads them in order), compressed in parallel.
         for (k, s) in pool[..in_batch].iter_mut().enumerate() {
             let first = (first_strip + k) * l.rows_per_strip;
-            let n = (h - first).min(l.rows_per_strip) * row_samples;
-            match l.kind {
-                BandKind::F32 => {
-                    s.f32s.resize(n, 0.0);
-                    fill(first, StripMut::F32(&mut s.f32s))?;
-                }
-                _ => {
-                    s.bytes.resize(n, 0);
-                    fill(first, StripMut::U8(&mut s.bytes))?;
-                }
-            }
+            s.fill_rows(l.kind, first, (h - first).min(l.rows_per_strip) * row_samples, fill)?;
         }
         let predictor = l.predictor();
         let chunks: &mut [Strip] = if l.opts.tiles.is_some() {
@@ -602,13 +626,7 @@ fn write_tags<W: Write + Seek, K: TiffKind>(
     dir.write_tag(Tag::ImageWidth, grid.width as u32)?;
     dir.write_tag(Tag::ImageLength, grid.height as u32)?;
     dir.write_tag(Tag::BitsPerSample, &vec![bits; spp as usize][..])?;
-    let compression: u16 = match l.opts.compression {
-        Compression::None => 1,
-        Compression::Deflate => 8,
-        Compression::Lzw => 5,
-        Compression::Zstd => 50000,
-    };
-    dir.write_tag(Tag::Compression, compression)?;
+    dir.write_tag(Tag::Compression, l.opts.compression.tiff_code())?;
     dir.write_tag(Tag::PhotometricInterpretation, if spp >= 3 { 2u16 } else { 1u16 })?;
     dir.write_tag(Tag::SamplesPerPixel, spp)?;
     if let Some([tw, th]) = l.opts.tiles {
