@@ -231,3 +231,59 @@ fn a_side_lit_shaded_ball_is_lit_as_vtk_lights_it() {
     assert!(errors[0] < 0.04, "headlight {:.2} %", 100.0 * errors[0]);
     assert!(errors[1] < 1.5 * errors[0].max(0.01), "side-lit {:.2} %, headlight {:.2} %", 100.0 * errors[1], 100.0 * errors[0]);
 }
+
+/// `volterra bench clinical --curve` (issue 45, bench honesty): our configurations and
+/// VTK's six (sample distance 0.5/1/2 voxels × ImageSampleDistance 1/2) on one
+/// speed/error table against the same reference, the Pareto front and each VTK row's
+/// dominating volterra row consistent with the figures, and the plot written. A thin
+/// 512 × 512 × 8 phantom keeps it short.
+#[test]
+fn bench_clinical_curve_puts_ours_and_vtks_configurations_on_one_table() {
+    let python = repo_path("tests/reference/.venv/bin/python");
+    if !python.exists() {
+        assert!(!common::under_ci(), "{} missing (CI=true)", python.display());
+        eprintln!("SKIPPED: no reference venv");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let plot = dir.path().join("curve.png");
+    let out = std::process::Command::new(common::volterra_bin())
+        .args(["bench", "clinical", "--slices", "8", "--frames", "2", "--curve", "--json"])
+        .arg("--work-dir")
+        .arg(dir.path())
+        .arg("--plot")
+        .arg(&plot)
+        .arg("--python")
+        .arg(&python)
+        .arg("--scripts")
+        .arg(repo_path("tests/reference"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = report["curve"].as_array().expect("curve rows");
+    let (ours, vtk): (Vec<_>, Vec<_>) = rows.iter().partition(|r| r["config"].as_str().unwrap().starts_with("volterra"));
+    assert_eq!(ours.len(), 7);
+    assert_eq!(vtk.len(), 6);
+    let (ms, err) = (|r: &serde_json::Value| r["median_ms"].as_f64().unwrap(), |r: &serde_json::Value| r["rel_rmse"].as_f64().unwrap());
+    for r in rows {
+        assert!(ms(r) > 0.0 && err(r) > 0.0 && err(r) < 1.0, "{r}");
+    }
+    // The curve's default row is the main row's first view, drawn again.
+    assert_eq!(err(ours[0]), report["rel_rmse_first_view"]["ours"].as_f64().unwrap());
+    // Finer sampling is closer on both sides.
+    let named = |name: &str| rows.iter().find(|r| r["config"].as_str().unwrap().ends_with(name)).unwrap();
+    assert!(err(named("sd 0.5 isd 1")) < err(named("sd 2 isd 2")));
+    assert!(err(named("volterra defaults")) < err(named("volterra ×1 1/slab")));
+    // The front and the dominating rows as the figures say.
+    let better = |a: &serde_json::Value, b: &serde_json::Value| ms(a) <= ms(b) && err(a) <= err(b) && (ms(a) < ms(b) || err(a) < err(b));
+    for r in rows {
+        assert_eq!(r["pareto"].as_bool().unwrap(), !rows.iter().any(|o| better(o, r)), "{r}");
+    }
+    for r in &vtk {
+        let faster_closer = ours.iter().filter(|o| ms(o) < ms(r) && err(o) < err(r));
+        let fastest = faster_closer.min_by(|a, b| ms(a).total_cmp(&ms(b))).map(|o| o["config"].as_str().unwrap());
+        assert_eq!(r["dominated_by"].as_str(), fastest, "{r}");
+    }
+    assert!(plot.is_file(), "the plot is written");
+}

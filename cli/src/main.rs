@@ -520,6 +520,16 @@ enum BenchCommand {
         /// directory, about 45 s at N = 400 on 2 cores).
         #[arg(long)]
         error: bool,
+        /// Also draw speed against error (measures the error too): our configurations
+        /// (the defaults, ratios 1, 1.5 and 2, one sample per slab, the nearest warp) and
+        /// VTK's at sample distances 0.5, 1 and 2 voxels × ImageSampleDistance 1 and 2, each
+        /// as its further frames' median against its first view's error, the Pareto front
+        /// marked; the plot goes to --plot.
+        #[arg(long)]
+        curve: bool,
+        /// Where to write the speed/error plot (--curve).
+        #[arg(long, default_value = "out/bench_clinical.png")]
+        plot: PathBuf,
         /// Print the results as JSON.
         #[arg(long)]
         json: bool,
@@ -882,8 +892,19 @@ fn cmd_bench(bench: BenchCommand, limits: Limits) -> Result<()> {
                 plot,
             })
         }
-        BenchCommand::Clinical { slices, frames, json, sets, error, common } => {
-            b::clinical::run(&b::clinical::ClinicalBench { env: common.resolve(limits)?, slices, frames, json, sets, error })
+        BenchCommand::Clinical { slices, frames, json, sets, error, curve, plot, common } => {
+            if curve {
+                plot_dir(&plot)?;
+            }
+            b::clinical::run(&b::clinical::ClinicalBench {
+                env: common.resolve(limits)?,
+                slices,
+                frames,
+                json,
+                sets,
+                error: error || curve,
+                curve: curve.then_some(plot),
+            })
         }
         BenchCommand::Points { count, style, image: (width, height), runs, json, common } => {
             b::points::run(&b::points::PointsBench { env: common.resolve(limits)?, count, style, width, height, runs, json })

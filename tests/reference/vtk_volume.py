@@ -14,7 +14,10 @@ Usage: vtk_volume.py OUT_DIR SCENE.toml...
        vtk_volume.py --clinical SPEC.json   (for `volterra bench clinical`: the first view's
        frame timed from reading the file — nibabel + numpy into vtkImageData — to the end of
        its first render, then each further view rendered once, timed; prints
-       {"first_ms", "further_ms", "peak_bytes", "vtk"})
+       {"first_ms", "further_ms", "peak_bytes", "vtk", "curve"}; for each of the spec's
+       `configs` (as --bench's, default none) the same again after the peak is taken, its
+       images at config_path: curve = [{"sample_distance", "image_sample_distance",
+       "first_ms", "further_ms"}...])
 """
 import json
 import time
@@ -201,7 +204,13 @@ def main():
             spec = json.load(f)
         ms = render(spec["scene"], None, spec["views"], first_frame=True)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-        print(json.dumps({"first_ms": ms[0], "further_ms": ms[1:], "peak_bytes": peak, "vtk": vtk.vtkVersion.GetVTKVersion()}))
+        curve = []
+        for sd, isd in spec.get("configs", []):
+            views = [dict(v, image=config_path(v["image"], sd, isd)) for v in spec["views"]]
+            t = render(spec["scene"], None, views, first_frame=True, sample_distance=sd, image_sample_distance=isd)
+            curve.append({"sample_distance": sd, "image_sample_distance": isd, "first_ms": t[0], "further_ms": t[1:]})
+        print(json.dumps({"first_ms": ms[0], "further_ms": ms[1:], "peak_bytes": peak, "vtk": vtk.vtkVersion.GetVTKVersion(),
+                          "curve": curve}))
         return
     if sys.argv[1] == "--bench":
         with open(sys.argv[2]) as f:

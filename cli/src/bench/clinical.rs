@@ -8,12 +8,16 @@
 //! preview settings: a 4³-averaged copy of the volume, made by the first). Peak memory of each side after the phantom is written (ours: the
 //! process's resident peak from there; VTK's: its process's peak). With `--error`, the
 //! first view of each side against the reference ray caster's (rendered once, cached).
+//! With `--curve`, speed against error: our configurations and VTK's (sample distances and
+//! ImageSampleDistance), each its further frames' median against its first view's error,
+//! in a table and a plot with the Pareto front marked (issue 45: bench honesty).
 
 use super::median;
+use super::shear_warp::{mark_pareto, Row, VTK_CONFIGS};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use volterra::compare::{rgba_pixels, rgba_rel_rmse};
+use volterra::compare::{rgba_pixels, rgba_psnr, rgba_rel_rmse};
 use volterra::render::{render_node_with, RenderCache};
 use volterra::scene::presets::{Preset, ValueStats};
 use volterra::scene::{Camera, Scene};
@@ -30,7 +34,24 @@ pub struct ClinicalBench {
     pub sets: Vec<String>,
     /// Measure the first view of each side against the reference ray caster.
     pub error: bool,
+    /// Draw speed against error (`--curve`, which implies `error`) into this PNG.
+    pub curve: Option<PathBuf>,
 }
+
+/// The family every row of the curve belongs to (`Row::family`).
+const FAMILY: &str = "perspective composite shaded";
+
+/// Our configurations on the speed/error curve: the defaults, fixed ratios (intermediate
+/// pixels per voxel of the base plane), one sample per slab and the nearest warp.
+const OUR_CURVE: [(&str, &[&str]); 7] = [
+    ("defaults", &[]),
+    ("×1", &["node.ct.settings.supersampling=1"]),
+    ("×1 1/slab", &["node.ct.settings.supersampling=1", "node.ct.settings.slab_samples=1"]),
+    ("×1.5", &["node.ct.settings.supersampling=1.5"]),
+    ("×2", &["node.ct.settings.supersampling=2"]),
+    ("nearest warp", &["node.ct.settings.warp=nearest"]),
+    ("×2 nearest warp", &["node.ct.settings.supersampling=2", "node.ct.settings.warp=nearest"]),
+];
 
 /// The camera directions of the frames: the first from the front (anterior, +y) and
 /// right, then round; the table lies behind the patient.
@@ -131,27 +152,47 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     drop((scene, preview_scene, cache, first));
 
     // VTK in its own process.
+    // With --curve, VTK's further configurations follow in the same process (after its
+    // peak is taken), each reading the file again.
+    let configs: Vec<[f64; 2]> = if b.curve.is_some() { VTK_CONFIGS.iter().map(|&(sd, isd)| [sd, isd]).collect() } else { Vec::new() };
     let spec = serde_json::json!({
         "scene": std::fs::canonicalize(&scene_path)?,
         "views": (0..=b.frames).map(|k| serde_json::json!({"position": view(k, dist).position,
             "image": b.env.work_dir.join(format!("vtk_clinical_{k}.exr"))})).collect::<Vec<_>>(),
+        "configs": configs,
     });
     let spec_path = b.env.work_dir.join("vtk_clinical.json");
     std::fs::write(&spec_path, spec.to_string())?;
     let vtk = run_vtk(&b.env.python, &b.env.scripts, &spec_path);
 
     // The first view against the truth (after both sides' peaks were taken).
-    let errors = if b.error {
-        let reference = reference_image(b, &scene_path, &cam)?;
+    let reference = if b.error { Some(reference_image(b, &scene_path, &cam)?) } else { None };
+    let errors = if let Some(reference) = &reference {
         let vtk_first = b.env.work_dir.join("vtk_clinical_0.exr");
         let vtk_error = vtk
             .as_ref()
             .ok()
             .and_then(|_| volterra_formats::exr_io::read_exr(&vtk_first, &b.env.limits).ok())
-            .map(|img| rgba_rel_rmse(&rgba_pixels(&img), &reference));
-        Some((rgba_rel_rmse(&first_rgba, &reference), vtk_error))
+            .map(|img| rgba_rel_rmse(&rgba_pixels(&img), reference));
+        Some((rgba_rel_rmse(&first_rgba, reference), vtk_error))
     } else {
         None
+    };
+    // Speed against error: our configurations, then VTK's.
+    let curve = match (&b.curve, &reference) {
+        (Some(plot), Some(reference)) => {
+            let mut rows = our_curve(b, &scene_path, dist, reference)?;
+            match &vtk {
+                Ok(v) => rows.extend(vtk_curve(b, v, reference)?),
+                Err(e) => eprintln!("VTK's curve skipped: {e:#}"),
+            }
+            mark_pareto(&mut rows);
+            let rows_path = b.env.work_dir.join("clinical_rows.json");
+            std::fs::write(&rows_path, serde_json::to_string_pretty(&rows)?)?;
+            super::plot(&b.env.python, &b.env.scripts, "plot_bench.py", &rows_path, plot, "plot");
+            Some(rows)
+        }
+        _ => None,
     };
 
     let mut further_sorted = further.clone();
@@ -166,6 +207,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
         "rel_rmse_first_view": errors.map(|(ours, vtk)| serde_json::json!({"ours": ours, "vtk": vtk})),
         "vtk": vtk.as_ref().map_err(|e| format!("{e:#}")).ok(),
         "vtk_error": vtk.as_ref().err().map(|e| format!("{e:#}")),
+        "curve": curve,
     });
     if b.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -226,7 +268,72 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
         let vtk = vtk.map(|e| format!("{:.2} %", 100.0 * e)).unwrap_or_else(|| "-".into());
         println!("first view against the reference ray caster (relative RMSE): volterra {:.2} %, VTK {vtk}", 100.0 * ours);
     }
+    if let Some(rows) = &curve {
+        println!("speed against error: further frames' median, the first view's error (* on the Pareto front)");
+        println!("{:<44} {:>10} {:>10} {:>9}", "config", "median ms", "rel. RMSE", "PSNR dB");
+        for r in rows {
+            let name = format!("{}{}", if r.pareto { "* " } else { "  " }, r.config);
+            println!("{name:<44} {:>10.0} {:>9.2}% {:>9.2}", r.median_ms, 100.0 * r.rel_rmse, r.psnr_db);
+        }
+        for r in rows.iter().filter(|r| r.config.contains("vtk")) {
+            let by = r.dominated_by.as_ref().and_then(|by| rows.iter().find(|o| &o.config == by));
+            match by {
+                Some(o) => println!(
+                    "{} ({:.0} ms, {:.2} %): faster and closer: {} ({:.0} ms, {:.2} %)",
+                    r.config,
+                    r.median_ms,
+                    100.0 * r.rel_rmse,
+                    o.config,
+                    o.median_ms,
+                    100.0 * o.rel_rmse
+                ),
+                None => println!(
+                    "{} ({:.0} ms, {:.2} %): no volterra configuration is both faster and closer",
+                    r.config,
+                    r.median_ms,
+                    100.0 * r.rel_rmse
+                ),
+            }
+        }
+    }
     Ok(())
+}
+
+/// Our rows of the curve: each configuration of `OUR_CURVE` (after the bench's own
+/// `--set`s) loaded afresh, its first view against the reference, its further frames timed
+/// (the same orbit as the main row's).
+fn our_curve(b: &ClinicalBench, scene_path: &Path, dist: f64, reference: &[[f32; 4]]) -> Result<Vec<Row>> {
+    let mut rows = Vec::new();
+    for (name, sets) in OUR_CURVE {
+        eprintln!("curve: volterra {name}");
+        let sets: Vec<String> = b.sets.iter().cloned().chain(sets.iter().map(|s| s.to_string())).collect();
+        let scene = Scene::load(scene_path, &sets)?.with_limits(b.env.limits);
+        let cache = RenderCache::default();
+        let first = render_node_with(&scene, 0, &view(0, dist), (512, 512), &cache)?.context("the node draws nothing")?;
+        let mut ms = Vec::new();
+        for k in 1..=b.frames {
+            let t = Instant::now();
+            render_node_with(&scene, 0, &view(k, dist), (512, 512), &cache)?;
+            ms.push(1000.0 * t.elapsed().as_secs_f64());
+        }
+        let (err, psnr) = (rgba_rel_rmse(&first.rgba, reference), rgba_psnr(&first.rgba, reference));
+        rows.push(Row::new(format!("volterra {name}"), FAMILY.into(), &mut ms, vec![err], &[psnr], None));
+    }
+    Ok(rows)
+}
+
+/// VTK's rows of the curve, from its script's `curve` (one entry per `VTK_CONFIGS`) and the
+/// first view's image of each configuration.
+fn vtk_curve(b: &ClinicalBench, v: &serde_json::Value, reference: &[[f32; 4]]) -> Result<Vec<Row>> {
+    let mut rows = Vec::new();
+    for (c, &(sd, isd)) in v["curve"].as_array().context("VTK's script gave no curve")?.iter().zip(&VTK_CONFIGS) {
+        let mut ms: Vec<f64> = c["further_ms"].as_array().context("no timings")?.iter().filter_map(|x| x.as_f64()).collect();
+        let image = b.env.work_dir.join(format!("vtk_clinical_0_sd{sd}_isd{isd}.exr"));
+        let img = rgba_pixels(&volterra_formats::exr_io::read_exr(&image, &b.env.limits)?);
+        let config = format!("vtk fixed-point {} sd {sd} isd {isd}", v["vtk"].as_str().unwrap_or(""));
+        rows.push(Row::new(config, FAMILY.into(), &mut ms, vec![rgba_rel_rmse(&img, reference)], &[rgba_psnr(&img, reference)], None));
+    }
+    Ok(rows)
 }
 
 /// The reference ray caster's image of the bench scene's first view (RGBA), cached in the

@@ -52,7 +52,7 @@ pub struct Row {
 impl Row {
     /// A row of the median of `ms`, the mean of the views' errors and PSNRs; not yet
     /// compared with the others (`mark_pareto`).
-    fn new(config: String, family: String, ms: &mut [f64], err: Vec<f64>, psnr: &[f64], ms_per_mpixel: Option<f64>) -> Row {
+    pub(super) fn new(config: String, family: String, ms: &mut [f64], err: Vec<f64>, psnr: &[f64], ms_per_mpixel: Option<f64>) -> Row {
         Row {
             config,
             family,
@@ -367,11 +367,11 @@ fn family(set: &ViewSet, blend: BlendMode, shade: bool) -> String {
 
 /// VTK's configurations on the table: sample distance (voxels of the finest axis) and
 /// ImageSampleDistance (pixels between rays), so its whole speed/error curve is there.
-const VTK_CONFIGS: [(f64, f64); 6] = [(0.5, 1.0), (1.0, 1.0), (2.0, 1.0), (0.5, 2.0), (1.0, 2.0), (2.0, 2.0)];
+pub(super) const VTK_CONFIGS: [(f64, f64); 6] = [(0.5, 1.0), (1.0, 1.0), (2.0, 1.0), (0.5, 2.0), (1.0, 2.0), (2.0, 2.0)];
 
 /// Marks each family's Pareto front, and for each VTK row the fastest volterra row of its
 /// family that is both faster and closer to the reference.
-fn mark_pareto(rows: &mut [Row]) {
+pub(super) fn mark_pareto(rows: &mut [Row]) {
     let better =
         |a: &Row, b: &Row| a.median_ms <= b.median_ms && a.rel_rmse <= b.rel_rmse && (a.median_ms < b.median_ms || a.rel_rmse < b.rel_rmse);
     let is_vtk = |r: &Row| r.config.contains("vtk");

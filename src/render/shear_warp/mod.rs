@@ -778,7 +778,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             ("table_levels".into(), n_levels as f64),
             ("principal_axis".into(), fac.perm[2] as f64),
         ],
-        notes: vec![],
+        notes: prep.take_lean_note().into_iter().collect(),
         nodes: vec![],
     };
     Ok(frame)

@@ -36,8 +36,17 @@ impl Axis {
 /// A transparent-block mask and the key of the transparency test it was made under.
 type KeyedMask = (u64, Arc<ClearMask>);
 
-/// The largest permuted copy kept beside another axis's (bytes).
-const KEEP_EVERY_AXIS: u64 = 128 << 20;
+/// Which permuted copies are kept once a view has used their axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum KeepAxes {
+    /// Every axis's, while the memory limit leaves room (`room_for_another_copy`): a view
+    /// turning across 45° then needs no new slices.
+    WhereMemoryAllows,
+    /// One axis's at a time: each new axis's copy replaces the others, written into the
+    /// memory of one no frame holds (the lean path, which tests force).
+    #[cfg(test)]
+    One,
+}
 
 /// A volume prepared for shear-warp rendering. Everything here depends only on the
 /// volume: transfer-function and view changes reuse it. No quantised copy of the whole
@@ -62,9 +71,11 @@ pub struct Prepared {
     clear_masks: Mutex<HashMap<(usize, usize), KeyedMask>>,
     /// Coarser copies made so far (voxels averaged 2³, 4³), see `coarser`.
     coarse: Mutex<[Option<Arc<Prepared>>; 2]>,
-    /// The largest permuted copy kept beside another axis's (`KEEP_EVERY_AXIS`; tests
-    /// lower it).
-    keep_every_axis: u64,
+    /// Which axes' copies are kept (tests force the lean path).
+    keep_axes: KeepAxes,
+    /// Set when a turn replaced the copies kept for other axes because another would not
+    /// fit the memory limit; the next frame reports it (`take_lean_note`).
+    lean_note: Mutex<Option<String>>,
 }
 
 impl Prepared {
@@ -93,7 +104,8 @@ impl Prepared {
             clear_masks: Mutex::default(),
             limits: *limits,
             coarse: Mutex::default(),
-            keep_every_axis: KEEP_EVERY_AXIS,
+            keep_axes: KeepAxes::WhereMemoryAllows,
+            lean_note: Mutex::default(),
         })
     }
 
@@ -180,21 +192,32 @@ impl Prepared {
     }
 
     /// The slices along `perm[2]`, quantised and permuted once and kept (checked against
-    /// the memory limit the first time). Copies of up to `KEEP_EVERY_AXIS` bytes are kept
-    /// for every axis a view has used; a larger one replaces the others, so a clinical
-    /// volume costs itself, one u16 copy and its maps however the camera turns (a turn
-    /// across 45° rebuilds: 0.07–0.12 s for the copy and, where the axis's transparent-block
-    /// mask is not kept from an earlier visit, 0.09–0.10 s for the overlapped map at
-    /// 512 × 512 × 400 on 2 cores). The replaced copy's memory is written over by the new
-    /// one where no frame holds it: `volterra bench clinical` (six views, five of them
-    /// turns), further frames 607–621 → 552–570 ms.
+    /// the memory limit the first time). The copy is kept beside those of the other axes
+    /// a view has used while the memory limit leaves room (`room_for_another_copy`), as
+    /// VTK keeps its volume whatever the view: a clinical CT then costs itself, three u16
+    /// copies and their maps — 512 × 512 × 400 int16: about 1.0 GiB at the peak, where
+    /// VTK's fixed-point mapper with nibabel peaks at 1.41–1.48 GiB — and a turn across
+    /// 45° costs a further frame, not a new copy (0.07–0.12 s) and map (0.09–0.10 s). Where
+    /// it does not fit, the new copy replaces the others (the lean path: the volume, one
+    /// copy and its map), written into the memory of one no frame holds, and the frame says
+    /// so.
     pub(super) fn axis(&self, perm: [usize; 3]) -> Result<Arc<Axis>> {
         let mut axes = self.axes.lock().unwrap();
         if let Some(a) = &axes[perm[2]] {
             return Ok(a.clone());
         }
         let bytes = self.volume.voxel_count() as u64 * 2;
-        let mut reuse = if bytes > self.keep_every_axis { lent_buffer(&mut axes) } else { None };
+        let others = axes.iter().flatten().count();
+        let keep = others == 0 || (self.keep_axes == KeepAxes::WhereMemoryAllows && room_for_another_copy(&self.limits, bytes));
+        let mut reuse = if keep { None } else { lent_buffer(&mut axes) };
+        if !keep && self.keep_axes == KeepAxes::WhereMemoryAllows {
+            *self.lean_note.lock().unwrap() = Some(format!(
+                "shear-warp: the view turned to another principal axis and its slices ({}) replaced the other axes' copies, \
+                 as keeping them too would pass the memory limit ({}): each such turn re-slices the volume",
+                volterra_formats::memory::human_bytes(bytes),
+                volterra_formats::memory::human_bytes(self.limits.bytes())
+            ));
+        }
         self.limits.check(Path::new("shear-warp"), "the slices along the viewing axis", &[self.volume.voxel_count() as u64, 2])?;
         let axis = Arc::new({
             let d = self.dims;
@@ -227,6 +250,25 @@ impl Prepared {
         axes[perm[2]] = Some(axis.clone());
         Ok(axis)
     }
+}
+
+impl Prepared {
+    /// The note of a turn that took the lean path since the last call, if any.
+    pub(super) fn take_lean_note(&self) -> Option<String> {
+        self.lean_note.lock().unwrap().take()
+    }
+}
+
+/// Whether a further permuted copy of `bytes` may be kept beside the others: it, its
+/// overlapped map (a quarter of its size) and as much again as the copy for the frame's
+/// own buffers must fit in what the memory limit leaves (a set limit counts what the
+/// process holds; the default one, the memory available, already leaves it out).
+fn room_for_another_copy(limits: &Limits, bytes: u64) -> bool {
+    let spare = match limits.max_bytes {
+        Some(max) => max.saturating_sub(volterra_formats::memory::in_use()),
+        None => limits.bytes(),
+    };
+    spare >= bytes.saturating_mul(9) / 4
 }
 
 /// Drops every kept copy and returns the memory of one that no frame still holds, for the
@@ -380,7 +422,7 @@ mod tests {
         let dims = [37, 41, 35];
         let n = dims[0] * dims[1] * dims[2];
         let v = volume(dims, (0..n).map(|i| ((i * 7919) % 20011) as i16 - 10000).collect());
-        let p = Prepared { keep_every_axis: 0, ..Prepared::new(&v, &Default::default()).unwrap() };
+        let p = Prepared { keep_axes: KeepAxes::One, ..Prepared::new(&v, &Default::default()).unwrap() };
         for perm in [[1, 2, 0], [2, 0, 1], [0, 1, 2], [1, 2, 0]] {
             let a = p.axis(perm).unwrap();
             assert_holds_every_voxel(&p, &a, perm);
@@ -407,6 +449,33 @@ mod tests {
         assert_eq!(fresh, data);
     }
 
+    /// Every axis's copy is kept while the memory limit leaves room for it, its map and the
+    /// frame; where it does not, a new axis's copy replaces the others and the next frame
+    /// says so, once.
+    #[test]
+    fn every_axis_copy_is_kept_where_the_limit_leaves_room_else_the_lean_turn_says_so() {
+        let dims = [37, 41, 35];
+        let n = dims[0] * dims[1] * dims[2];
+        let v = volume(dims, (0..n).map(|i| ((i * 7919) % 20011) as i16 - 10000).collect());
+        let perms = [[1, 2, 0], [2, 0, 1], [0, 1, 2]];
+        let roomy = Prepared::new(&v, &Limits::max(1 << 30)).unwrap();
+        for perm in perms {
+            assert_holds_every_voxel(&roomy, &roomy.axis(perm).unwrap(), perm);
+        }
+        assert_eq!(roomy.axes.lock().unwrap().iter().flatten().count(), 3, "every axis's copy kept");
+        assert_eq!(roomy.take_lean_note(), None);
+        // Room for the volume's copy and one permuted copy, not for two more.
+        let tight = Prepared::new(&v, &Limits::max(4 * n as u64)).unwrap();
+        tight.axis(perms[0]).unwrap();
+        assert_eq!(tight.take_lean_note(), None, "the first copy replaces nothing");
+        let a = tight.axis(perms[1]).unwrap();
+        assert_holds_every_voxel(&tight, &a, perms[1]);
+        assert_eq!(tight.axes.lock().unwrap().iter().flatten().count(), 1, "the lean path keeps one copy");
+        let note = tight.take_lean_note().expect("the lean turn is reported");
+        assert!(note.contains("replaced the other axes' copies") && note.contains("memory limit"), "{note}");
+        assert_eq!(tight.take_lean_note(), None, "reported once");
+    }
+
     /// A view turning back to an axis whose copy (and map) another axis replaced uses the
     /// transparent-block mask kept for it, and draws the same image bit for bit.
     #[test]
@@ -427,7 +496,7 @@ mod tests {
             })
             .collect();
         let v = volume(dims, values);
-        let p = Prepared { keep_every_axis: 0, ..Prepared::new(&v, &Default::default()).unwrap() };
+        let p = Prepared { keep_axes: KeepAxes::One, ..Prepared::new(&v, &Default::default()).unwrap() };
         let tf = TransferFunction {
             scalar_opacity: vec![[0.0, 0.0], [700.0, 0.4]],
             color: vec![[0.0, 1.0, 0.5, 0.2], [900.0, 1.0, 1.0, 1.0]],
