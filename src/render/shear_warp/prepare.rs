@@ -536,6 +536,92 @@ mod tests {
         assert!(again.rgba == first.rgba && again.depth == first.depth, "the image differs on the way back");
     }
 
+    /// Issue 45's hard cases for kept copies: a view turning across 45° and back with
+    /// every axis's copy kept draws each view as a fresh preparation does, bit for bit; a
+    /// transfer-function change keeps the copies (the same memory) and draws as a fresh
+    /// preparation under the new one; a memory limit too tight for another copy takes
+    /// the lean path, says so on that frame, and draws the same images.
+    #[test]
+    fn kept_copies_draw_as_fresh_ones_through_turns_tf_changes_and_the_lean_path() {
+        use crate::render::shear_warp::{render, Input, Settings};
+        use crate::render::Frame;
+        use crate::scene::{BlendMode, Camera, TransferFunction, VolumeShading};
+        // A shaded shell and a bright core in a dark box, 64 × 60 × 56.
+        let dims = [64, 60, 56];
+        let values = (0..dims[0] * dims[1] * dims[2])
+            .map(|i| {
+                let p = [i % dims[0], i / dims[0] % dims[1], i / (dims[0] * dims[1])];
+                let r = (0..3).map(|a| (p[a] as f64 - dims[a] as f64 / 2.0).powi(2)).sum::<f64>().sqrt();
+                (if r < 6.0 {
+                    900.0
+                } else if (18.0..22.0).contains(&r) {
+                    400.0 + 10.0 * (p[0] % 5) as f64
+                } else {
+                    -50.0
+                }) as i16
+            })
+            .collect();
+        let v = volume(dims, values);
+        let tf = |a: f64| TransferFunction {
+            scalar_opacity: vec![[0.0, 0.0], [700.0, a], [2000.0, 0.9]],
+            color: vec![[0.0, 1.0, 0.5, 0.2], [1800.0, 1.0, 1.0, 1.0]],
+            scalar_opacity_unit_distance: 1.0,
+            gradient_opacity: Vec::new(),
+        };
+        let shading = VolumeShading { shade: true, ..Default::default() };
+        // Ratio 1 keeps the intermediate image below the tight limit's room.
+        let settings = Settings { supersampling: 1.0, ..Default::default() };
+        let draw = |p: &Prepared, dir: [f64; 3], tf: &TransferFunction| -> Frame {
+            let cam = Camera {
+                position: dir.map(|d| 300.0 * d),
+                focal_point: [32.0, 30.0, 28.0],
+                view_up: if dir[2].abs() > 0.9 { [0.0, 1.0, 0.0] } else { [0.0, 0.0, 1.0] },
+                view_angle: 30.0,
+                parallel_projection: false,
+                parallel_scale: 1.0,
+            };
+            let input = Input {
+                prepared: p,
+                node_to_world: DMat4::IDENTITY,
+                tf,
+                blend: BlendMode::Composite,
+                shading: Some(&shading),
+                lights: &[],
+                crop: &[],
+                second: None,
+            };
+            render(&input, &cam.rays(24, 24), &settings).unwrap()
+        };
+        let same = |a: &Frame, b: &Frame| a.rgba == b.rgba && a.depth == b.depth;
+        let (z_view, x_view) = ([0.2, 0.1, 1.0], [1.0, 0.2, 0.1]);
+        let (tf1, tf2) = (tf(0.4), tf(0.1));
+        let fresh = |dir: [f64; 3], tf: &TransferFunction| draw(&Prepared::new(&v, &Default::default()).unwrap(), dir, tf);
+        let (want_z, want_x, want_z2) = (fresh(z_view, &tf1), fresh(x_view, &tf1), fresh(z_view, &tf2));
+        assert!(want_z.rgba.iter().any(|px| px[3] > 0.1) && want_z.rgba.iter().flatten().all(|c| c.is_finite()));
+
+        let roomy = Prepared::new(&v, &Limits::max(1 << 30)).unwrap();
+        let first = draw(&roomy, z_view, &tf1);
+        assert!(same(&first, &want_z) && first.stats.notes.is_empty());
+        assert!(same(&draw(&roomy, x_view, &tf1), &want_x), "the turn to x");
+        let z_copy = roomy.axes.lock().unwrap()[2].clone().expect("z's copy kept");
+        assert!(same(&draw(&roomy, z_view, &tf1), &want_z), "the turn back to z");
+        // A transfer-function change: the same copy, the new function's image.
+        assert!(same(&draw(&roomy, z_view, &tf2), &want_z2), "after the transfer function changed");
+        assert!(Arc::ptr_eq(&z_copy, roomy.axes.lock().unwrap()[2].as_ref().unwrap()), "the copy was remade");
+
+        // Room for one copy and the frame, not for a second copy: the lean path.
+        let copy = 2 * v.voxel_count() as u64;
+        let tight = Prepared::new(&v, &Limits::max(2 * copy)).unwrap();
+        let f = draw(&tight, z_view, &tf1);
+        assert!(same(&f, &want_z) && f.stats.notes.is_empty());
+        let f = draw(&tight, x_view, &tf1);
+        assert!(same(&f, &want_x), "the lean turn to x");
+        assert!(f.stats.notes.iter().any(|n| n.contains("replaced the other axes' copies")), "{:?}", f.stats.notes);
+        assert_eq!(tight.axes.lock().unwrap().iter().flatten().count(), 1);
+        let f = draw(&tight, z_view, &tf1);
+        assert!(same(&f, &want_z), "the lean turn back to z");
+    }
+
     #[test]
     fn values_are_quantised_over_their_real_range_and_slices_permuted_per_axis() {
         let dims = [4, 3, 2];
