@@ -306,7 +306,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     prep.limits.check(std::path::Path::new("shear-warp"), "the intermediate image", &[iw as u64, fac.height as u64, 20])?;
     let mut inter = Intermediate { width: iw, rgba: filled(iw * fac.height, [0.0; 4]), depth: filled(iw * fac.height, f32::INFINITY) };
     // Only the intermediate pixels the warp reads are composited.
-    let footprint = warp::Footprint::new(&fac, w, h, iw, fac.height, settings.warp);
+    let footprint = warp::Footprint::of(&fac, w, h, iw, fac.height, settings.warp);
     let samples = AtomicU64::new(0);
     let slabs_leapt = AtomicU64::new(0);
     let pairs = AtomicU64::new(0);
