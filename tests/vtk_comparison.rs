@@ -11,6 +11,18 @@ use volterra::compare::{rgba_pixels as rgba, rgba_psnr as psnr, rgba_rel_rmse as
 use volterra::render::{self, Frame};
 use volterra::scene::Scene;
 
+/// The reference venv's Python (tests/setup_venv.py); None, with a printed reason, where
+/// it is missing outside CI (under CI=true its absence fails the test).
+fn reference_python() -> Option<std::path::PathBuf> {
+    let python = repo_path("tests/reference/.venv/bin/python");
+    if !python.exists() {
+        assert!(!common::under_ci(), "{} missing (CI=true)", python.display());
+        eprintln!("SKIPPED: no reference venv");
+        return None;
+    }
+    Some(python)
+}
+
 fn render_with(scene: &Scene, renderer: &str) -> Frame {
     let path = scene.source.clone();
     let s = Scene::load(&path, &[format!("node.aneurism.renderer={renderer}")]).unwrap();
@@ -95,14 +107,7 @@ fn shaded_shear_warp_has_half_vtks_error_on_clinical_volumes() {
 /// opaque on a 0.52 mm angiography).
 #[test]
 fn the_vtk_reference_reads_scaled_anisotropic_oblique_volumes_in_millimetres() {
-    let python = repo_path("tests/reference/.venv/bin/python");
-    if !python.exists() {
-        if common::under_ci() {
-            panic!("{} missing (CI=true)", python.display());
-        }
-        eprintln!("SKIPPED: no reference venv");
-        return;
-    }
+    let Some(python) = reference_python() else { return };
     let dir = tempfile::tempdir().unwrap();
     let (nx, ny, nz) = (48usize, 40, 36);
     let spacing = [0.5, 0.6, 0.9];
@@ -181,12 +186,7 @@ scalar_opacity_unit_distance = 2.0
 /// turned toward the light instead, |n·l|, 36.8 % from it here).
 #[test]
 fn a_side_lit_shaded_ball_is_lit_as_vtk_lights_it() {
-    let python = repo_path("tests/reference/.venv/bin/python");
-    if !python.exists() {
-        assert!(!common::under_ci(), "{} missing (CI=true)", python.display());
-        eprintln!("SKIPPED: no reference venv");
-        return;
-    }
+    let Some(python) = reference_python() else { return };
     let dir = tempfile::tempdir().unwrap();
     let n = 48usize;
     // The signed distance to a ball of radius 9 mm (positive inside), 0.5 mm voxels.
@@ -239,12 +239,7 @@ fn a_side_lit_shaded_ball_is_lit_as_vtk_lights_it() {
 /// 512 × 512 × 8 phantom keeps it short.
 #[test]
 fn bench_clinical_curve_puts_ours_and_vtks_configurations_on_one_table() {
-    let python = repo_path("tests/reference/.venv/bin/python");
-    if !python.exists() {
-        assert!(!common::under_ci(), "{} missing (CI=true)", python.display());
-        eprintln!("SKIPPED: no reference venv");
-        return;
-    }
+    let Some(python) = reference_python() else { return };
     let dir = tempfile::tempdir().unwrap();
     let plot = dir.path().join("curve.png");
     let out = std::process::Command::new(common::volterra_bin())

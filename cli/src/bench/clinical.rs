@@ -13,7 +13,7 @@
 //! in a table and a plot with the Pareto front marked (issue 45: bench honesty).
 
 use super::median;
-use super::shear_warp::{mark_pareto, Row, VTK_CONFIGS};
+use super::shear_warp::{mark_pareto, print_dominance, Row, VTK_CONFIGS};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -275,26 +275,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
             let name = format!("{}{}", if r.pareto { "* " } else { "  " }, r.config);
             println!("{name:<44} {:>10.0} {:>9.2}% {:>9.2}", r.median_ms, 100.0 * r.rel_rmse, r.psnr_db);
         }
-        for r in rows.iter().filter(|r| r.config.contains("vtk")) {
-            let by = r.dominated_by.as_ref().and_then(|by| rows.iter().find(|o| &o.config == by));
-            match by {
-                Some(o) => println!(
-                    "{} ({:.0} ms, {:.2} %): faster and closer: {} ({:.0} ms, {:.2} %)",
-                    r.config,
-                    r.median_ms,
-                    100.0 * r.rel_rmse,
-                    o.config,
-                    o.median_ms,
-                    100.0 * o.rel_rmse
-                ),
-                None => println!(
-                    "{} ({:.0} ms, {:.2} %): no volterra configuration is both faster and closer",
-                    r.config,
-                    r.median_ms,
-                    100.0 * r.rel_rmse
-                ),
-            }
-        }
+        print_dominance(rows, 0);
     }
     Ok(())
 }

@@ -327,30 +327,21 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
         }
         // Each VTK configuration against ours: is some volterra configuration of its family
         // both faster and closer to the reference?
-        for r in rows.iter().filter(|r| r.config.contains("vtk")) {
-            match &r.dominated_by {
-                Some(by) => {
-                    let o = rows.iter().find(|o| &o.config == by).expect("a row");
-                    println!(
-                        "{} ({:.1} ms, {:.2} %): faster and closer: {} ({:.1} ms, {:.2} %)",
-                        r.config,
-                        r.median_ms,
-                        100.0 * r.rel_rmse,
-                        o.config,
-                        o.median_ms,
-                        100.0 * o.rel_rmse
-                    )
-                }
-                None => println!(
-                    "{} ({:.1} ms, {:.2} %): no volterra configuration is both faster and closer",
-                    r.config,
-                    r.median_ms,
-                    100.0 * r.rel_rmse
-                ),
-            }
-        }
+        print_dominance(&rows, 1);
     }
     Ok(())
+}
+
+/// For each VTK row, the volterra row of its family both faster and closer to the
+/// reference (`Row::dominated_by`), or that there is none; times to `decimals` places.
+pub(super) fn print_dominance(rows: &[Row], decimals: usize) {
+    for r in rows.iter().filter(|r| r.config.contains("vtk")) {
+        let figures = |o: &Row| format!("{} ({:.*} ms, {:.2} %)", o.config, decimals, o.median_ms, 100.0 * o.rel_rmse);
+        match r.dominated_by.as_ref().and_then(|by| rows.iter().find(|o| &o.config == by)) {
+            Some(o) => println!("{}: faster and closer: {}", figures(r), figures(o)),
+            None => println!("{}: no volterra configuration is both faster and closer", figures(r)),
+        }
+    }
 }
 
 /// Intermediate image pixels of a frame, from its statistics.
