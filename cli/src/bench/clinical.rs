@@ -13,7 +13,7 @@
 //! in a table and a plot with the Pareto front marked (issue 45: bench honesty).
 
 use super::median;
-use super::shear_warp::{mark_pareto, print_dominance, Row, VTK_CONFIGS};
+use super::shear_warp::{mark_pareto, print_dominance, vtk_config_image, Row, VTK_CONFIGS};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -154,7 +154,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     // VTK in its own process.
     // With --curve, VTK's further configurations follow in the same process (after its
     // peak is taken), each reading the file again.
-    let configs: Vec<[f64; 2]> = if b.curve.is_some() { VTK_CONFIGS.iter().map(|&(sd, isd)| [sd, isd]).collect() } else { Vec::new() };
+    let configs: &[[f64; 2]] = if b.curve.is_some() { &VTK_CONFIGS } else { &[] };
     let spec = serde_json::json!({
         "scene": std::fs::canonicalize(&scene_path)?,
         "views": (0..=b.frames).map(|k| serde_json::json!({"position": view(k, dist).position,
@@ -307,9 +307,9 @@ fn our_curve(b: &ClinicalBench, scene_path: &Path, dist: f64, reference: &[[f32;
 /// first view's image of each configuration.
 fn vtk_curve(b: &ClinicalBench, v: &serde_json::Value, reference: &[[f32; 4]]) -> Result<Vec<Row>> {
     let mut rows = Vec::new();
-    for (c, &(sd, isd)) in v["curve"].as_array().context("VTK's script gave no curve")?.iter().zip(&VTK_CONFIGS) {
+    for (c, &config @ [sd, isd]) in v["curve"].as_array().context("VTK's script gave no curve")?.iter().zip(&VTK_CONFIGS) {
         let mut ms: Vec<f64> = c["further_ms"].as_array().context("no timings")?.iter().filter_map(|x| x.as_f64()).collect();
-        let image = b.env.work_dir.join(format!("vtk_clinical_0_sd{sd}_isd{isd}.exr"));
+        let image = vtk_config_image(&b.env.work_dir.join("vtk_clinical_0.exr"), config);
         let img = rgba_pixels(&volterra_formats::exr_io::read_exr(&image, &b.env.limits)?);
         let config = format!("vtk fixed-point {} sd {sd} isd {isd}", v["vtk"].as_str().unwrap_or(""));
         rows.push(Row::new(config, FAMILY.into(), &mut ms, vec![rgba_rel_rmse(&img, reference)], &[rgba_psnr(&img, reference)], None));

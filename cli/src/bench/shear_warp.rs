@@ -8,7 +8,7 @@
 use super::{fxhash, median};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 use volterra::compare::{rgba_pixels as rgba_of, rgba_psnr, rgba_rel_rmse as rel_rmse};
 use volterra::render::{reference_volume, shear_warp, Frame};
@@ -358,7 +358,15 @@ fn family(set: &ViewSet, blend: BlendMode, shade: bool) -> String {
 
 /// VTK's configurations on the table: sample distance (voxels of the finest axis) and
 /// ImageSampleDistance (pixels between rays), so its whole speed/error curve is there.
-pub(super) const VTK_CONFIGS: [(f64, f64); 6] = [(0.5, 1.0), (1.0, 1.0), (2.0, 1.0), (0.5, 2.0), (1.0, 2.0), (2.0, 2.0)];
+pub(super) const VTK_CONFIGS: [[f64; 2]; 6] = [[0.5, 1.0], [1.0, 1.0], [2.0, 1.0], [0.5, 2.0], [1.0, 2.0], [2.0, 2.0]];
+
+/// Where vtk_volume.py writes a configuration's image of the view whose image is `view`
+/// (its `config_path`): the stem followed by `_sd{sd}_isd{isd}`.
+pub(super) fn vtk_config_image(view: &Path, [sd, isd]: [f64; 2]) -> PathBuf {
+    let stem = view.file_stem().unwrap_or_default().to_string_lossy();
+    let ext = view.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
+    view.with_file_name(format!("{stem}_sd{sd}_isd{isd}{ext}"))
+}
 
 /// Marks each family's Pareto front, and for each VTK row the fastest volterra row of its
 /// family that is both faster and closer to the reference.
@@ -387,9 +395,6 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
     let tag = format!("{}{}", if set.prefix.is_empty() { "" } else { "_perspective" }, if shading.is_some() { "_shaded" } else { "" });
     let image = |v: usize| b.env.work_dir.join(format!("vtk_{v}{tag}.exr"));
     let family = family(set, BlendMode::Composite, shading.is_some());
-    // The script writes each configuration's image beside the view's (vtk_volume.py's
-    // config_path).
-    let config_image = |v: usize, (sd, isd): (f64, f64)| b.env.work_dir.join(format!("vtk_{v}{tag}_sd{sd}_isd{isd}.exr"));
     let spec_views: Vec<serde_json::Value> = set
         .cams
         .iter()
@@ -400,9 +405,8 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
         })
         .collect();
     let shading = serde_json::to_value(shading.copied().unwrap_or_default())?;
-    let configs: Vec<[f64; 2]> = VTK_CONFIGS.iter().map(|&(sd, isd)| [sd, isd]).collect();
     let spec = serde_json::json!({"scene": std::fs::canonicalize(&b.scene)?, "views": spec_views, "runs": b.runs, "shading": shading,
-                                  "configs": configs});
+                                  "configs": VTK_CONFIGS});
     let spec_path = b.env.work_dir.join("vtk_spec.json");
     std::fs::write(&spec_path, spec.to_string())?;
     let out = std::process::Command::new(&b.env.python)
@@ -426,7 +430,7 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
             .collect();
         let (mut err, mut psnr) = (Vec::new(), Vec::new());
         for (i, r) in refs.iter().enumerate() {
-            let img = volterra_formats::exr_io::read_exr(&config_image(i, config), &b.env.limits)?;
+            let img = volterra_formats::exr_io::read_exr(&vtk_config_image(&image(i), config), &b.env.limits)?;
             err.push(rel_rmse(&rgba_of(&img), r));
             psnr.push(rgba_psnr(&rgba_of(&img), r));
         }
@@ -435,8 +439,8 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
             set.prefix,
             if tag.ends_with("_shaded") { "shaded " } else { "" },
             v["vtk"].as_str().unwrap_or(""),
-            config.0,
-            config.1
+            config[0],
+            config[1]
         );
         rows.push(Row::new(config, family.clone(), &mut ms, err, &psnr, None));
     }

@@ -195,8 +195,9 @@ impl Prepared {
     /// the memory limit the first time). The copy is kept beside those of the other axes
     /// a view has used while the memory limit leaves room (`room_for_another_copy`), as
     /// VTK keeps its volume whatever the view: a clinical CT then costs itself, three u16
-    /// copies and their maps — 512 × 512 × 400 int16: about 1.0 GiB at the peak, where
-    /// VTK's fixed-point mapper with nibabel peaks at 1.41–1.48 GiB — and a turn across
+    /// copies and their maps — 512 × 512 × 400 int16: a peak of 827–830 MiB measured
+    /// (`bench clinical`), where VTK's fixed-point mapper with nibabel peaks at 1.41–1.48
+    /// GiB — and a turn across
     /// 45° costs a further frame, not a new copy (0.07–0.12 s) and map (0.09–0.10 s). Where
     /// it does not fit, the new copy replaces the others (the lean path: the volume, one
     /// copy and its map), written into the memory of one no frame holds, and the frame says
@@ -250,9 +251,7 @@ impl Prepared {
         axes[perm[2]] = Some(axis.clone());
         Ok(axis)
     }
-}
 
-impl Prepared {
     /// The note of a turn that took the lean path since the last call, if any.
     pub(super) fn take_lean_note(&self) -> Option<String> {
         self.lean_note.lock().unwrap().take()
