@@ -334,8 +334,14 @@ impl<S: Source> Walk<'_, S> {
             let (vr, len) = match self.enc {
                 Encoding::ImplicitLe => {
                     let len = self.read_u32("an element header")?;
-                    let sq = matches!(StandardDataDictionary.by_tag(tag).map(|d| d.vr()), Some(VirtualVr::Exact(VR::SQ)));
-                    (if sq { VR::SQ } else { VR::UN }, len)
+                    // The VR dicom-rs decodes the value as: the dictionary's (UN for
+                    // unknown tags; US for the US-or-SS ones, the same width).
+                    let vr = match StandardDataDictionary.by_tag(tag).map(|d| d.vr()) {
+                        Some(VirtualVr::Exact(vr)) => vr,
+                        Some(VirtualVr::Xs) => VR::US,
+                        _ => VR::UN,
+                    };
+                    (vr, len)
                 }
                 _ => {
                     let vr = VR::from_binary(self.read::<2>("an element header")?).unwrap_or(VR::UN);
@@ -356,6 +362,18 @@ impl<S: Source> Walk<'_, S> {
             }
             let len = len as u64;
             self.fits(tag, len, end)?;
+            if let Some(size) = binary_value_size(vr).filter(|size| len % size != 0) {
+                // dicom-rs reads len / size whole values and goes on from there, short of
+                // the value's end: every later header is read out of step, and a fuzzed
+                // 7.5 KB file then made it reserve 3.5 GB for a garbage length.
+                return Err(FormatError::invalid(
+                    self.path,
+                    format!(
+                        "element {} ({vr:?}) declares {len} bytes, not a whole number of its {size}-byte values (corrupt length)",
+                        show(tag)
+                    ),
+                ));
+            }
             if vr == VR::SQ {
                 let seq_end = self.pos + len;
                 self.defined_items(tag, seq_end, depth)?;
@@ -426,6 +444,17 @@ impl<S: Source> Walk<'_, S> {
     }
 }
 
+/// The byte width of each value of a binary VR, which dicom-rs decodes value by value.
+fn binary_value_size(vr: VR) -> Option<u64> {
+    use VR::*;
+    match vr {
+        US | SS | OW => Some(2),
+        UL | SL | FL | OF | OL | AT => Some(4),
+        FD | OD | SV | UV | OV => Some(8),
+        _ => None,
+    }
+}
+
 fn show(tag: Tag) -> String {
     format!("({:04X},{:04X})", tag.0, tag.1)
 }
@@ -441,5 +470,16 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/dicom_file/meta_foreign_group_deflated.dcm");
         let err = super::check_lengths(&path, &Default::default()).expect_err("the lying length must be refused").to_string();
         assert!(err.contains("element (7FE0,0010) declares 4294967280 bytes but only 84 remain"), "{err}");
+    }
+
+    /// An implicit VR data set holding (0000,0000), a UL, with 50 bytes (as a fuzzer made
+    /// it): refused, as dicom-rs would read 12 values, go on 2 bytes short of the next
+    /// header, and reserve gigabytes for the garbage lengths it then reads.
+    #[test]
+    fn a_binary_value_that_is_not_whole_values_is_refused() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../fuzz/regressions/dicom_file/group_length_not_whole_values_implicit.dcm");
+        let err = super::check_lengths(&path, &Default::default()).expect_err("the odd length must be refused").to_string();
+        assert!(err.contains("element (0000,0000) (UL) declares 50 bytes, not a whole number of its 4-byte values"), "{err}");
     }
 }
