@@ -362,7 +362,7 @@ impl<S: Source> Walk<'_, S> {
             }
             let len = len as u64;
             self.fits(tag, len, end)?;
-            if let Some(size) = binary_value_size(vr).filter(|size| len % size != 0) {
+            if let Some(size) = binary_value_size(vr).filter(|size| !len.is_multiple_of(*size)) {
                 // dicom-rs reads len / size whole values and goes on from there, short of
                 // the value's end: every later header is read out of step, and a fuzzed
                 // 7.5 KB file then made it reserve 3.5 GB for a garbage length.
