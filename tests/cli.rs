@@ -336,3 +336,118 @@ focal_point = [30000.0, 7000.0, 300.0]
     let err = String::from_utf8_lossy(&wide.stderr);
     assert!(!wide.status.success() && err.contains("dem.tif") && err.contains("memory limit"), "{err}");
 }
+
+/// `--version` names the commit the binary was built from, as `git rev-parse` does for this
+/// checkout (or says it is unknown outside one).
+#[test]
+fn version_names_the_commit_it_was_built_from() {
+    let out = volterra(&["--version"]);
+    assert!(out.status.success());
+    let line = String::from_utf8(out.stdout).unwrap();
+    assert!(line.starts_with(&format!("volterra {} (", env!("CARGO_PKG_VERSION"))), "{line}");
+    let head = Command::new("git").args(["rev-parse", "--short=12", "HEAD"]).current_dir(repo_path(".")).output().ok();
+    match head.filter(|o| o.status.success()) {
+        Some(o) => {
+            let commit = String::from_utf8(o.stdout).unwrap();
+            assert!(
+                line.contains(&format!("commit {}", commit.trim())),
+                "{line} should name HEAD {commit} (rebuild the binary after committing)"
+            );
+        }
+        None => assert!(line.contains("unknown commit"), "{line}"),
+    }
+}
+
+/// Shell completions and manual pages, generated from the same command definitions as
+/// `--help`: every command is in them.
+#[test]
+fn completions_and_manual_pages_cover_every_command() {
+    let commands = ["info", "convert", "render", "view", "slurm", "movie", "demo", "bench", "dem", "compare", "completions", "man"];
+    let bash = volterra(&["completions", "bash"]);
+    assert!(bash.status.success());
+    let bash = String::from_utf8(bash.stdout).unwrap();
+    assert!(bash.contains("_volterra()") && bash.contains("complete -F _volterra"), "not a bash completion script");
+    for c in commands {
+        assert!(bash.contains(&format!("volterra,{c})")), "bash completion lacks {c}");
+    }
+    let zsh = String::from_utf8(volterra(&["completions", "zsh"]).stdout).unwrap();
+    assert!(zsh.starts_with("#compdef volterra"), "{}", &zsh[..zsh.len().min(80)]);
+    let fish = String::from_utf8(volterra(&["completions", "fish"]).stdout).unwrap();
+    assert!(fish.contains("complete -c volterra") && fish.contains("-l max-memory"));
+    let bad = volterra(&["completions", "tcsh"]);
+    assert_eq!(bad.status.code(), Some(2), "an unknown shell is a usage error");
+
+    let dir = tempfile::tempdir().unwrap();
+    let out = volterra(&["man", dir.path().to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let page = |name: &str| std::fs::read_to_string(dir.path().join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let main = page("volterra.1");
+    assert!(main.starts_with(".ie") || main.contains(".TH volterra 1"), "not a roff page");
+    for c in commands {
+        let sub = page(&format!("volterra-{c}.1"));
+        assert!(sub.contains(&format!(".TH volterra-{c} 1")), "volterra-{c}.1 has no title");
+        assert!(main.contains(&format!("volterra\\-{c}(1)")), "volterra.1 does not list {c}");
+    }
+    assert!(page("volterra-render.1").contains("\\-\\-output"), "the render page lacks its options");
+    assert!(page("volterra-bench-clinical.1").contains("\\-\\-slices"), "nested commands get their own pages");
+    let tmp: Vec<_> =
+        std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).filter(|n| !n.to_string_lossy().ends_with(".1")).collect();
+    assert!(tmp.is_empty(), "left behind: {tmp:?}");
+}
+
+/// -q leaves warnings and errors only on stderr, -v adds every frame's statistics and a
+/// closing line; stdout (the command's output) is the same at every level; a usage error
+/// exits 2.
+#[test]
+fn quiet_and_verbose_change_only_what_is_said_on_stderr() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let samples = d.join("samples");
+    let quiet = volterra(&["-q", "samples", samples.to_str().unwrap()]);
+    assert!(quiet.status.success());
+    assert!(quiet.stderr.is_empty(), "-q samples said: {}", String::from_utf8_lossy(&quiet.stderr));
+    let scene = samples.join("angio.toml");
+    let render = |level: Option<&str>, out: &str| {
+        let out = d.join(out);
+        let mut args: Vec<&str> = level.into_iter().collect();
+        args.extend([
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--set",
+            "image.width=48",
+            "--set",
+            "image.height=48",
+        ]);
+        let o = volterra(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(out.is_file());
+        (String::from_utf8(o.stdout).unwrap(), String::from_utf8(o.stderr).unwrap(), std::fs::read(&out).unwrap())
+    };
+    let (out_n, err_n, exr_n) = render(None, "n.exr");
+    let (out_q, err_q, exr_q) = render(Some("-q"), "q.exr");
+    let (out_v, err_v, exr_v) = render(Some("--verbose"), "v.exr");
+    assert!(err_n.contains("load") && err_n.contains("render"), "by default a render reports its node's times: {err_n}");
+    assert_eq!(err_q, "", "-q render said something");
+    // The same lines but for their timings, and the closing one.
+    let words = |s: &str| s.lines().map(|l| l.chars().filter(|c| !c.is_ascii_digit()).collect::<String>()).collect::<Vec<_>>();
+    let (said_n, said_v) = (words(&err_n), words(&err_v));
+    assert!(
+        said_v.len() == said_n.len() + 1 && said_v[..said_n.len()] == said_n[..],
+        "-v says what the default says first:\n{err_v}\n---\n{err_n}"
+    );
+    let closing = err_v.lines().last().unwrap();
+    assert!(closing.starts_with("volterra: done in ") && closing.contains("peak memory"), "{closing}");
+    assert!(out_n == out_q && out_q == out_v, "stdout changed with the level");
+    assert!(exr_n == exr_q && exr_q == exr_v, "the image changed with the level");
+
+    let both = volterra(&["-q", "-v", "info", scene.to_str().unwrap()]);
+    assert_eq!(both.status.code(), Some(2), "-q with -v is a usage error");
+    let unknown = volterra(&["render", "--no-such-flag"]);
+    assert_eq!(unknown.status.code(), Some(2));
+    let missing = volterra(&["-q", "info", d.join("missing.nii").to_str().unwrap()]);
+    assert_eq!(missing.status.code(), Some(1));
+    let err = String::from_utf8(missing.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "errors are said under -q too, in one line: {err}");
+}

@@ -123,7 +123,7 @@ pub fn run(job: &SlurmJob) -> Result<()> {
         use std::os::unix::fs::PermissionsExt;
         std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).with_context(|| script.display().to_string())?;
     }
-    eprintln!("wrote {} ({} frames over {tasks} array tasks)", script.display(), frames.len());
+    say!("wrote {} ({} frames over {tasks} array tasks)", script.display(), frames.len());
     if !job.submit {
         println!("{}", script.display());
         return Ok(());
@@ -149,6 +149,6 @@ pub fn run(job: &SlurmJob) -> Result<()> {
         bail!("sbatch {} failed: {why}", script.display());
     }
     println!("{id}");
-    eprintln!("submitted job {id}{}", if job.wait { ", finished" } else { "" });
+    say!("submitted job {id}{}", if job.wait { ", finished" } else { "" });
     Ok(())
 }

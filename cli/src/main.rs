@@ -4,6 +4,8 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+#[macro_use]
+mod verbosity;
 mod bench;
 mod child;
 mod cluster;
@@ -16,8 +18,20 @@ use volterra::{compare, info, render};
 use volterra_formats::{self as formats, dicom, Dataset, Limits, LoadOptions};
 
 #[derive(Parser)]
-#[command(name = "volterra", version, about = "Medical and scientific visualization: volumes, terrain, particles")]
+#[command(
+    name = "volterra",
+    version = VERSION,
+    about = "Medical and scientific visualization: volumes, terrain, particles",
+    after_help = EXIT_CODES
+)]
 struct Cli {
+    /// Say only warnings and errors on stderr: no progress, no "wrote …", no statistics.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    quiet: bool,
+    /// Say more on stderr: every animation frame's statistics, and a closing line with the
+    /// command's time and peak memory.
+    #[arg(short, long, global = true)]
+    verbose: bool,
     /// The memory the whole command may hold (e.g. 4G, 512M): reading, preparation,
     /// rendering and outputs; work that would need more is refused before it starts, naming
     /// what it needs. Default: the memory available.
@@ -26,6 +40,14 @@ struct Cli {
     #[command(subcommand)]
     command: Command,
 }
+
+/// The version and the commit it was built from (cli/build.rs).
+const VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), " (", env!("VOLTERRA_COMMIT"), ")");
+
+/// What the exit status means, as `--help` ends.
+const EXIT_CODES: &str = "Exit status: 0 success; 1 an error (one line on stderr naming the file and the problem); \
+2 a usage error (unknown flag, bad value); 130 interrupted by SIGINT (Ctrl-C), 143 by SIGTERM \
+(no output is left written partially).";
 
 /// What a render draws and writes: `render` and `slurm` (whose tasks render) alike.
 #[derive(Args)]
@@ -240,6 +262,18 @@ enum Command {
     Cache {
         #[arg(long)]
         clear: bool,
+    },
+    /// Shell completions for bash, zsh, fish, elvish or PowerShell on stdout: e.g.
+    /// `volterra completions bash > ~/.local/share/bash-completion/completions/volterra`.
+    Completions {
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Manual pages (roff): volterra.1 and one for each command (volterra-render.1, …)
+    /// written into DIR, for `man -l DIR/volterra.1` or a MANPATH.
+    Man {
+        #[arg(default_value = "man")]
+        dir: PathBuf,
     },
     /// Compare two EXR images: RMSE, PSNR, max error, relative RMSE per channel.
     Compare {
@@ -657,11 +691,18 @@ fn main() -> ExitCode {
     default_sigpipe();
     exit_cleanly_on_signals();
     let cli = Cli::parse_from(gdal_style_args(std::env::args_os()));
-    // The renderers' progress, as bars on the terminal.
-    let outcome = volterra::render::driver::observed(std::sync::Arc::new(crate::progress::TerminalProgress::default()), || {
+    verbosity::set(cli.quiet, cli.verbose);
+    let started = std::time::Instant::now();
+    // The renderers' progress, as bars on the terminal (none under -q).
+    let work = || {
         let limits = cli.limits()?;
         run(cli, limits).map(|()| limits)
-    });
+    };
+    let outcome = if verbosity::quiet() {
+        work()
+    } else {
+        volterra::render::driver::observed(std::sync::Arc::new(crate::progress::TerminalProgress::default()), work)
+    };
     if let Ok(Limits { max_bytes: Some(limit) }) = outcome {
         // What the command held at most, against the limit it was given.
         let peak = formats::memory::peak();
@@ -670,7 +711,15 @@ fn main() -> ExitCode {
         let gpu = formats::memory::host_gpu()
             .map(|g| format!(" (with the GPU '{g}''s textures and buffers, which live in host memory)"))
             .unwrap_or_default();
-        eprintln!("memory: peak {} of the {} limit{gpu}{over}", formats::memory::human_bytes(peak), formats::memory::human_bytes(limit));
+        say!("memory: peak {} of the {} limit{gpu}{over}", formats::memory::human_bytes(peak), formats::memory::human_bytes(limit));
+    }
+    if verbosity::verbose() {
+        let status = if outcome.is_ok() { "done" } else { "failed" };
+        eprintln!(
+            "volterra: {status} in {:.3} s, peak memory {} (heap)",
+            started.elapsed().as_secs_f64(),
+            formats::memory::human_bytes(formats::memory::peak())
+        );
     }
     match outcome {
         Ok(_) => ExitCode::SUCCESS,
@@ -846,9 +895,14 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
         Command::Movie { frames, output, fps } => movie::run(&frames, &output, fps),
         Command::Samples { dir } => {
             volterra::samples::write_samples(&dir)?;
-            eprintln!("wrote samples and scenes into {}", dir.display());
+            say!("wrote samples and scenes into {}", dir.display());
             Ok(())
         }
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut <Cli as clap::CommandFactory>::command(), "volterra", &mut std::io::stdout());
+            Ok(())
+        }
+        Command::Man { dir } => cmd_man(&dir),
         Command::Demo { out } => cmd_demo(&out, limits),
         Command::View { path, screenshot, read } => volterra_view::run(path, read.options(limits)?, screenshot),
         Command::Bench { bench } => cmd_bench(bench, limits),
@@ -1013,7 +1067,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
             spin.finish_and_clear();
             let all = all?;
             formats::nifti::write_nifti_volumes(output, &all.volumes, &all.extra_dims, all.time_step, all.time_unit)?;
-            eprintln!("wrote {} ({} volumes)", output.display(), all.volumes.len());
+            say!("wrote {} ({} volumes)", output.display(), all.volumes.len());
             return Ok(());
         }
     }
@@ -1043,7 +1097,7 @@ fn cmd_convert(input: &Path, output: &Path, read: &ReadArgs, opts: &LoadOptions)
             bail!("{}: {} converts to {allowed}", output.display(), kind);
         }
     }
-    eprintln!("wrote {}", output.display());
+    say!("wrote {}", output.display());
     Ok(())
 }
 
@@ -1080,7 +1134,7 @@ fn convert_geotiff(input: &Path, output: &Path, opts: &LoadOptions) -> Result<()
     });
     progress.end();
     written?;
-    eprintln!("wrote {} ({}×{})", output.display(), grid.width, grid.height);
+    say!("wrote {} ({}×{})", output.display(), grid.width, grid.height);
     Ok(())
 }
 
@@ -1166,7 +1220,7 @@ fn cmd_dem(
         };
         eprintln!("warning: {}: no valid samples (every one NoData): {what}", input.display());
     }
-    eprintln!("wrote {} ({}×{})", output.display(), grid.width, grid.height);
+    say!("wrote {} ({}×{})", output.display(), grid.width, grid.height);
     Ok(())
 }
 
@@ -1282,14 +1336,14 @@ fn contours_to(
                 })
                 .map_err(|e| named_input(e, input))
             })?;
-            eprintln!("wrote {} ({count} lines, {vertices} vertices)", output.display());
+            say!("wrote {} ({count} lines, {vertices} vertices)", output.display());
         }
         ContourOutput::Polygons { min, max } => {
             let bands = volterra::dem::contours::contour_polygons(src, grid, levels).map_err(|e| named_input(e, input))?;
             let features = bands.iter().map(|b| formats::geojson::PolygonFeature { polygons: &b.polygons, min: b.min, max: b.max });
             formats::geojson::write_polygons(output, "contour", &grid.crs, (min, max), features)?;
             let polygons: usize = bands.iter().map(|b| b.polygons.len()).sum();
-            eprintln!("wrote {} ({} bands, {polygons} polygons)", output.display(), bands.len());
+            say!("wrote {} ({} bands, {polygons} polygons)", output.display(), bands.len());
         }
     }
     Ok(())
@@ -1326,12 +1380,12 @@ fn write_frame(scene: &Scene, camera: &Camera, report: bool, output: &Path, png:
     let image = render::render_view(scene, camera, (scene.file.image.width, scene.file.image.height), cache)?;
     if report {
         let counters: Vec<String> = image.stats.counters.iter().map(|(k, v)| format!("{k} {}", short(*v))).collect();
-        eprintln!("{}: {}", image.stats.renderer, counters.join(", "));
+        say!("{}: {}", image.stats.renderer, counters.join(", "));
         for n in &image.stats.notes {
-            eprintln!("  {n}");
+            say!("  {n}");
         }
         for t in &image.stats.nodes {
-            eprintln!("node '{}' ({}): load {:.3} s, preparation {:.3} s, render {:.3} s", t.node, t.renderer, t.load, t.prepare, t.render);
+            say!("node '{}' ({}): load {:.3} s, preparation {:.3} s, render {:.3} s", t.node, t.renderer, t.load, t.prepare, t.render);
         }
     }
     let (bg, exposure) = (scene.file.image.background, scene.file.image.exposure);
@@ -1418,7 +1472,7 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         scene
     };
     let shard = if job.shard == Shard::ALL { String::new() } else { format!("task {} of {}: ", job.shard.index, job.shard.of) };
-    eprintln!(
+    say!(
         "{shard}{} of the animation's {} frames to render{}",
         todo.len(),
         frames.len(),
@@ -1439,20 +1493,20 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
         }
         let camera = current.camera_at(Some(*f))?;
         let (o, p) = outputs(f.index);
-        write_frame(&current, &camera, false, &o, p.as_deref(), &cache)?;
+        write_frame(&current, &camera, verbosity::verbose(), &o, p.as_deref(), &cache)?;
         seconds.push(t.elapsed().as_secs_f64());
         bar.inc(1);
-        if !crate::progress::on_terminal() {
+        if !crate::progress::on_terminal() || verbosity::verbose() {
             // A log (a Slurm task's): a line per frame.
             let time = f.time.map(|t| format!(" (time {})", info::num(t))).unwrap_or_default();
-            eprintln!("frame {}{time}: {} in {:.2} s", f.index, o.display(), seconds[seconds.len() - 1]);
+            say!("frame {}{time}: {} in {:.2} s", f.index, o.display(), seconds[seconds.len() - 1]);
         }
     }
     bar.finish_and_clear();
     if let (Some(first), Some(last)) = (todo.first(), todo.last()) {
         let first_s = seconds[0];
         seconds.sort_by(f64::total_cmp);
-        eprintln!(
+        say!(
             "wrote {} frame{}: {} … {} (first {:.3} s, median {:.3} s per frame)",
             todo.len(),
             if todo.len() == 1 { "" } else { "s" },
@@ -1465,10 +1519,34 @@ fn cmd_render_frames(scene_path: &Path, output: &Path, png: Option<&Path>, sets:
     Ok(())
 }
 
+/// Writes volterra.1 and a page per command and subcommand (volterra-render.1,
+/// volterra-bench-clinical.1, …) into `dir`, each written whole or not at all.
+fn cmd_man(dir: &Path) -> Result<()> {
+    fn pages(cmd: clap::Command, dir: &Path, written: &mut usize) -> Result<()> {
+        for sub in cmd.get_subcommands().filter(|s| !s.is_hide_set()).cloned() {
+            pages(sub, dir, written)?;
+        }
+        let man = clap_mangen::Man::new(cmd);
+        let mut roff = Vec::new();
+        man.render(&mut roff)?;
+        formats::atomic::write_bytes_atomically(&dir.join(man.get_filename()), &roff)?;
+        *written += 1;
+        Ok(())
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+    let mut cmd = <Cli as clap::CommandFactory>::command().disable_help_subcommand(true);
+    // Built, the subcommands carry their full names (volterra-render) for their pages.
+    cmd.build();
+    let mut written = 0;
+    pages(cmd, dir, &mut written)?;
+    say!("wrote {written} manual pages into {} (man -l {}/volterra.1)", dir.display(), dir.display());
+    Ok(())
+}
+
 fn cmd_demo(out: &Path, limits: Limits) -> Result<()> {
     let samples = out.join("samples");
     volterra::samples::write_samples(&samples)?;
-    eprintln!("wrote built-in samples into {}", samples.display());
+    say!("wrote built-in samples into {}", samples.display());
     println!("{:<18} {:<12} {:>9} {:>9}  result", "scene", "renderer", "size", "seconds");
     for (name, _) in volterra::samples::SCENES {
         let stem = name.trim_end_matches(".toml");

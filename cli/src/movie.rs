@@ -155,7 +155,7 @@ pub fn run(pattern: &Path, output: &Path, fps: f64) -> Result<()> {
         fed
     })?;
     bar.finish_and_clear();
-    eprintln!("wrote {} ({} frames, {}×{}, {fps} fps)", output.display(), frames.len(), size.0, size.1);
+    say!("wrote {} ({} frames, {}×{}, {fps} fps)", output.display(), frames.len(), size.0, size.1);
     Ok(())
 }
 

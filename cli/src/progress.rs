@@ -8,16 +8,22 @@ use std::io::IsTerminal;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-/// A bar counting `len` units of work.
+/// A bar counting `len` units of work (hidden under `-q`).
 pub fn bar(len: u64, what: &str) -> ProgressBar {
+    if crate::verbosity::quiet() {
+        return ProgressBar::hidden();
+    }
     let pb = ProgressBar::new(len);
     pb.set_style(ProgressStyle::with_template("{msg:>24} [{bar:40}] {pos}/{len} ({eta})").unwrap().progress_chars("=> "));
     pb.set_message(what.to_string());
     pb
 }
 
-/// A spinner for work of unknown length (reading a file).
+/// A spinner for work of unknown length (reading a file; hidden under `-q`).
 pub fn spinner(what: &str) -> ProgressBar {
+    if crate::verbosity::quiet() {
+        return ProgressBar::hidden();
+    }
     let pb = ProgressBar::new_spinner();
     pb.set_message(what.to_string());
     pb.enable_steady_tick(std::time::Duration::from_millis(120));

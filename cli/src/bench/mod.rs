@@ -55,8 +55,8 @@ pub fn scripts_dir(given: Option<&Path>) -> Result<PathBuf> {
 pub fn plot(python: &Path, scripts: &Path, script: &str, data: &Path, out: &Path, what: &str) {
     let status = std::process::Command::new(python).arg(scripts.join(script)).arg(data).arg(out).status();
     match status {
-        Ok(s) if s.success() => eprintln!("{what} written to {}", out.display()),
-        _ => eprintln!("{what} skipped (needs matplotlib in {})", python.display()),
+        Ok(s) if s.success() => say!("{what} written to {}", out.display()),
+        _ => say!("{what} skipped (needs matplotlib in {})", python.display()),
     }
 }
 
