@@ -9,6 +9,7 @@ mod verbosity;
 mod bench;
 mod child;
 mod cluster;
+mod gallery;
 mod movie;
 mod progress;
 
@@ -248,6 +249,10 @@ enum Command {
     Demo {
         #[arg(long, default_value = "out")]
         out: PathBuf,
+        /// Write only the README's gallery pictures into DIR (docs/images): small PNGs of
+        /// the samples, and the sample DEM's hillshade.
+        #[arg(long, value_name = "DIR", conflicts_with = "out")]
+        gallery: Option<PathBuf>,
     },
     /// Benchmarks: speed against error, side by side with the peers in one run.
     Bench {
@@ -903,7 +908,8 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             Ok(())
         }
         Command::Man { dir } => cmd_man(&dir),
-        Command::Demo { out } => cmd_demo(&out, limits),
+        Command::Demo { gallery: Some(dir), .. } => gallery::write(&dir, limits),
+        Command::Demo { out, gallery: None } => cmd_demo(&out, limits),
         Command::View { path, screenshot, read } => volterra_view::run(path, read.options(limits)?, screenshot),
         Command::Bench { bench } => cmd_bench(bench, limits),
     }
