@@ -79,3 +79,71 @@ pub fn median(v: &mut [f64]) -> f64 {
         0.5 * (v[m - 1] + v[m])
     }
 }
+
+/// Runs the benchmark `bench` names.
+pub fn dispatch(bench: crate::args::BenchCommand, limits: volterra_formats::Limits) -> Result<()> {
+    use crate::args::BenchCommand;
+    use crate::bench as b;
+    use std::path::Path;
+    // The directory a plot goes into exists before the benchmark runs.
+    let plot_dir = |plot: &Path| -> Result<()> {
+        match plot.parent().filter(|d| !d.as_os_str().is_empty()) {
+            Some(dir) => Ok(std::fs::create_dir_all(dir)?),
+            None => Ok(()),
+        }
+    };
+    match bench {
+        BenchCommand::Formats { runs, common } => {
+            b::formats::run(&b::formats::FormatsBench { env: common.resolve(limits)?, runs: runs.runs as usize })
+        }
+        BenchCommand::ShearWarp { scene, only, json, plot, runs, common } => {
+            plot_dir(&plot)?;
+            b::shear_warp::run(&b::shear_warp::ShearWarpBench {
+                env: common.resolve(limits)?,
+                scene,
+                runs: runs.runs as usize,
+                json,
+                plot,
+                only,
+            })
+        }
+        BenchCommand::Terrain { sizes, image: (width, height), large, json, plot, runs, common } => {
+            plot_dir(&plot)?;
+            b::terrain::run(&b::terrain::TerrainBench {
+                env: common.resolve(limits)?,
+                sizes: sizes.into_iter().map(|s| s as usize).collect(),
+                large,
+                width,
+                height,
+                runs: runs.runs as usize,
+                json,
+                plot,
+            })
+        }
+        BenchCommand::Clinical { slices, frames, json, sets, error, curve, plot, common } => {
+            if curve {
+                plot_dir(&plot)?;
+            }
+            b::clinical::run(&b::clinical::ClinicalBench {
+                env: common.resolve(limits)?,
+                slices,
+                frames,
+                json,
+                sets,
+                error: error || curve,
+                curve: curve.then_some(plot),
+            })
+        }
+        BenchCommand::Points { count, style, image: (width, height), runs, json, common } => {
+            b::points::run(&b::points::PointsBench { env: common.resolve(limits)?, count, style, width, height, runs, json })
+        }
+        BenchCommand::Frames { steps, particles, image: (width, height), renderers, json, common } => {
+            std::fs::create_dir_all(&common.work_dir)?;
+            b::frames::run(&b::frames::FramesBench { env: common.resolve(limits)?, steps, particles, width, height, renderers, json })
+        }
+        BenchCommand::Smoke { scene, photons, image: (width, height), json, race_only, common } => {
+            std::fs::create_dir_all(&common.work_dir)?;
+            b::smoke::run(&b::smoke::SmokeBench { env: common.resolve(limits)?, scene, width, height, photons, json, race_only })
+        }
+    }
+}

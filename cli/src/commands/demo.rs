@@ -1,4 +1,5 @@
-//! The README's gallery: small pictures of the built-in samples, made by
+//! `demo`: the main job on the built-in samples (every scene rendered into one folder, with a
+//! summary), and the README's gallery: small pictures of the built-in samples, made by
 //! `volterra demo --gallery docs/images` (tests/gallery.rs makes them again and compares
 //! them with the committed ones, so a picture cannot drift from the code).
 
@@ -21,7 +22,7 @@ pub const PICTURES: &[(&str, Option<&str>)] = &[
 ];
 
 /// Writes every picture into `dir` (the samples into a temporary directory beside it).
-pub fn write(dir: &Path, limits: Limits) -> Result<()> {
+pub fn gallery(dir: &Path, limits: Limits) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
     let samples = tempfile::Builder::new()
         .prefix(".volterra-gallery-")
@@ -37,7 +38,7 @@ pub fn write(dir: &Path, limits: Limits) -> Result<()> {
                 let file = volterra::scene::Scene::load(&path, &[])?.file;
                 let height = (WIDTH * file.image.height).div_ceil(file.image.width);
                 let sets = [format!("image.width={WIDTH}"), format!("image.height={height}")];
-                crate::cmd_render(&path, &out, None, &sets, limits)?;
+                super::render::cmd_render(&path, &out, None, &sets, limits)?;
             }
             None => hillshade(&samples.path().join("fractal_dem.tif"), &out, &limits)?,
         }
@@ -64,4 +65,23 @@ fn hillshade(dem: &Path, out: &Path, limits: &Limits) -> Result<()> {
         })
         .collect();
     Ok(formats::image::write_png_rgba8(out, w, h, &rgba)?)
+}
+
+pub fn run(out: &Path, limits: Limits) -> Result<()> {
+    let samples = out.join("samples");
+    volterra::samples::write_samples(&samples)?;
+    say!("wrote built-in samples into {}", samples.display());
+    println!("{:<18} {:<12} {:>9} {:>9}  result", "scene", "renderer", "size", "seconds");
+    for (name, _) in volterra::samples::SCENES {
+        let stem = name.trim_end_matches(".toml");
+        let scene = volterra::scene::Scene::load(&samples.join(name), &[])?.with_limits(limits);
+        let renderer = (0..scene.nodes().len()).filter_map(|i| scene.renderer(i)).map(|r| r.name).collect::<Vec<_>>().join("+");
+        let size = format!("{}×{}", scene.file.image.width, scene.file.image.height);
+        let exr = out.join(format!("{stem}.exr"));
+        let png = out.join(format!("{stem}.png"));
+        let t = std::time::Instant::now();
+        super::render::cmd_render(&samples.join(name), &exr, Some(&png), &[], limits)?;
+        println!("{stem:<18} {renderer:<12} {size:>9} {:>9.2}  {} + {}", t.elapsed().as_secs_f64(), exr.display(), png.display());
+    }
+    Ok(())
 }
