@@ -1,6 +1,6 @@
 //! `volterra view`: the interactive viewer (eframe/egui on wgpu).
 //!
-//! - `app`: the viewer's state and panels; progressive rendering;
+//! - `app`: the viewer's state, and its panels one module each (`app/`); progressive rendering;
 //! - `worker`: the render thread (renderers never run on the UI thread);
 //! - `navigate`: orbit / pan / zoom / fly / walk on the scene's camera;
 //! - `transfer_editor`: opacity and colour over the histogram, presets;
