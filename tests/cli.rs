@@ -451,3 +451,22 @@ fn quiet_and_verbose_change_only_what_is_said_on_stderr() {
     let err = String::from_utf8(missing.stderr).unwrap();
     assert_eq!(err.lines().count(), 1, "errors are said under -q too, in one line: {err}");
 }
+
+/// The README's main job: `demo` renders every built-in scene into OUT and says so, as a
+/// table or (`--json`) one object per scene whose files exist and have the scene's size.
+#[test]
+fn demo_renders_every_built_in_scene_and_reports_each() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = volterra(&["-q", "demo", "--out", dir.path().to_str().unwrap(), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&out.stdout).unwrap();
+    let scenes: Vec<&str> = volterra::samples::SCENES.iter().map(|(name, _)| name.trim_end_matches(".toml")).collect();
+    assert_eq!(rows.iter().map(|r| r["scene"].as_str().unwrap()).collect::<Vec<_>>(), scenes);
+    for r in &rows {
+        let (w, h) = (r["width"].as_u64().unwrap() as usize, r["height"].as_u64().unwrap() as usize);
+        let png = volterra_formats::image::png_size(std::path::Path::new(r["png"].as_str().unwrap())).unwrap();
+        assert_eq!(png, (w, h), "{}", r["scene"]);
+        assert!(std::path::Path::new(r["exr"].as_str().unwrap()).is_file());
+        assert!(r["seconds"].as_f64().unwrap() > 0.0 && !r["renderer"].as_str().unwrap().is_empty());
+    }
+}

@@ -241,6 +241,9 @@ pub(crate) enum Command {
         /// the samples, and the sample DEM's hillshade.
         #[arg(long, value_name = "DIR", conflicts_with = "out")]
         gallery: Option<PathBuf>,
+        /// Print the summary as JSON (one object per scene) instead of a table.
+        #[arg(long, conflicts_with = "gallery")]
+        json: bool,
     },
     /// Benchmarks: speed against error, side by side with the peers in one run.
     Bench {

@@ -201,7 +201,7 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
         }
         Command::Man { dir } => commands::manual::cmd_man(&dir),
         Command::Demo { gallery: Some(dir), .. } => commands::demo::gallery(&dir, limits),
-        Command::Demo { out, gallery: None } => commands::demo::run(&out, limits),
+        Command::Demo { out, gallery: None, json } => commands::demo::run(&out, json, limits),
         Command::View { path, screenshot, read } => volterra_view::run(path, read.options(limits)?, screenshot),
         Command::Bench { bench } => bench::dispatch(bench, limits),
     }

@@ -67,21 +67,36 @@ fn hillshade(dem: &Path, out: &Path, limits: &Limits) -> Result<()> {
     Ok(formats::image::write_png_rgba8(out, w, h, &rgba)?)
 }
 
-pub fn run(out: &Path, limits: Limits) -> Result<()> {
+/// `json`: the summary as one JSON array (scene, renderer, width, height, seconds, the
+/// EXR and PNG written) instead of a table.
+pub fn run(out: &Path, json: bool, limits: Limits) -> Result<()> {
     let samples = out.join("samples");
     volterra::samples::write_samples(&samples)?;
     say!("wrote built-in samples into {}", samples.display());
-    println!("{:<18} {:<12} {:>9} {:>9}  result", "scene", "renderer", "size", "seconds");
+    if !json {
+        println!("{:<18} {:<12} {:>9} {:>9}  result", "scene", "renderer", "size", "seconds");
+    }
+    let mut rows = Vec::new();
     for (name, _) in volterra::samples::SCENES {
         let stem = name.trim_end_matches(".toml");
         let scene = volterra::scene::Scene::load(&samples.join(name), &[])?.with_limits(limits);
         let renderer = (0..scene.nodes().len()).filter_map(|i| scene.renderer(i)).map(|r| r.name).collect::<Vec<_>>().join("+");
-        let size = format!("{}×{}", scene.file.image.width, scene.file.image.height);
+        let (width, height) = (scene.file.image.width, scene.file.image.height);
         let exr = out.join(format!("{stem}.exr"));
         let png = out.join(format!("{stem}.png"));
         let t = std::time::Instant::now();
         super::render::cmd_render(&samples.join(name), &exr, Some(&png), &[], limits)?;
-        println!("{stem:<18} {renderer:<12} {size:>9} {:>9.2}  {} + {}", t.elapsed().as_secs_f64(), exr.display(), png.display());
+        let seconds = t.elapsed().as_secs_f64();
+        if json {
+            rows.push(serde_json::json!({"scene": stem, "renderer": renderer, "width": width, "height": height,
+                "seconds": seconds, "exr": exr.display().to_string(), "png": png.display().to_string()}));
+        } else {
+            let size = format!("{width}×{height}");
+            println!("{stem:<18} {renderer:<12} {size:>9} {seconds:>9.2}  {} + {}", exr.display(), png.display());
+        }
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
     }
     Ok(())
 }
