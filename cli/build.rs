@@ -1,6 +1,6 @@
 //! Puts the commit the binary was built from into `volterra --version` (VOLTERRA_COMMIT):
-//! `git describe`'s abbreviated hash, or "unknown commit" outside a git checkout (a source
-//! tarball, a vendored copy).
+//! the abbreviated hash of HEAD and its date, or "unknown commit" outside a git checkout
+//! (a source tarball, a vendored copy).
 
 use std::path::Path;
 use std::process::Command;
