@@ -196,7 +196,7 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
             Ok(())
         }
         Command::Completions { shell } => {
-            clap_complete::generate(shell, &mut <Cli as clap::CommandFactory>::command(), "volterra", &mut std::io::stdout());
+            commands::manual::completions(shell);
             Ok(())
         }
         Command::Man { dir } => commands::manual::cmd_man(&dir),

@@ -81,10 +81,8 @@ pub fn median(v: &mut [f64]) -> f64 {
 }
 
 /// Runs the benchmark `bench` names.
-pub fn dispatch(bench: crate::args::BenchCommand, limits: volterra_formats::Limits) -> Result<()> {
+pub fn dispatch(bench: crate::args::BenchCommand, limits: Limits) -> Result<()> {
     use crate::args::BenchCommand;
-    use crate::bench as b;
-    use std::path::Path;
     // The directory a plot goes into exists before the benchmark runs.
     let plot_dir = |plot: &Path| -> Result<()> {
         match plot.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -94,22 +92,15 @@ pub fn dispatch(bench: crate::args::BenchCommand, limits: volterra_formats::Limi
     };
     match bench {
         BenchCommand::Formats { runs, common } => {
-            b::formats::run(&b::formats::FormatsBench { env: common.resolve(limits)?, runs: runs.runs as usize })
+            formats::run(&formats::FormatsBench { env: common.resolve(limits)?, runs: runs.runs as usize })
         }
         BenchCommand::ShearWarp { scene, only, json, plot, runs, common } => {
             plot_dir(&plot)?;
-            b::shear_warp::run(&b::shear_warp::ShearWarpBench {
-                env: common.resolve(limits)?,
-                scene,
-                runs: runs.runs as usize,
-                json,
-                plot,
-                only,
-            })
+            shear_warp::run(&shear_warp::ShearWarpBench { env: common.resolve(limits)?, scene, runs: runs.runs as usize, json, plot, only })
         }
         BenchCommand::Terrain { sizes, image: (width, height), large, json, plot, runs, common } => {
             plot_dir(&plot)?;
-            b::terrain::run(&b::terrain::TerrainBench {
+            terrain::run(&terrain::TerrainBench {
                 env: common.resolve(limits)?,
                 sizes: sizes.into_iter().map(|s| s as usize).collect(),
                 large,
@@ -124,7 +115,7 @@ pub fn dispatch(bench: crate::args::BenchCommand, limits: volterra_formats::Limi
             if curve {
                 plot_dir(&plot)?;
             }
-            b::clinical::run(&b::clinical::ClinicalBench {
+            clinical::run(&clinical::ClinicalBench {
                 env: common.resolve(limits)?,
                 slices,
                 frames,
@@ -135,15 +126,15 @@ pub fn dispatch(bench: crate::args::BenchCommand, limits: volterra_formats::Limi
             })
         }
         BenchCommand::Points { count, style, image: (width, height), runs, json, common } => {
-            b::points::run(&b::points::PointsBench { env: common.resolve(limits)?, count, style, width, height, runs, json })
+            points::run(&points::PointsBench { env: common.resolve(limits)?, count, style, width, height, runs, json })
         }
         BenchCommand::Frames { steps, particles, image: (width, height), renderers, json, common } => {
             std::fs::create_dir_all(&common.work_dir)?;
-            b::frames::run(&b::frames::FramesBench { env: common.resolve(limits)?, steps, particles, width, height, renderers, json })
+            frames::run(&frames::FramesBench { env: common.resolve(limits)?, steps, particles, width, height, renderers, json })
         }
         BenchCommand::Smoke { scene, photons, image: (width, height), json, race_only, common } => {
             std::fs::create_dir_all(&common.work_dir)?;
-            b::smoke::run(&b::smoke::SmokeBench { env: common.resolve(limits)?, scene, width, height, photons, json, race_only })
+            smoke::run(&smoke::SmokeBench { env: common.resolve(limits)?, scene, width, height, photons, json, race_only })
         }
     }
 }

@@ -1,4 +1,5 @@
-//! `man`: the manual pages, made from the same command definitions as `--help`.
+//! `man` and `completions`: the manual pages and shell completions, made from the same
+//! command definitions as `--help`.
 
 use crate::args::Cli;
 use anyhow::{Context, Result};
@@ -27,4 +28,9 @@ pub(crate) fn cmd_man(dir: &Path) -> Result<()> {
     pages(cmd, dir, &mut written)?;
     say!("wrote {written} manual pages into {} (man -l {}/volterra.1)", dir.display(), dir.display());
     Ok(())
+}
+
+/// The completion script for `shell` on stdout.
+pub(crate) fn completions(shell: clap_complete::Shell) {
+    clap_complete::generate(shell, &mut <Cli as clap::CommandFactory>::command(), "volterra", &mut std::io::stdout());
 }
