@@ -7,12 +7,17 @@
 // Matrix and grid code indexes several arrays by the same loop variable; iterators would hide that.
 #![allow(clippy::needless_range_loop)]
 
+pub mod catalog;
+pub mod colormap;
 pub mod compare;
 pub mod dem;
+pub mod geometry;
+pub mod gpu;
 pub mod info;
 
 pub use volterra_formats as formats;
 pub mod render;
 pub mod samples;
 pub mod scene;
+pub mod settings;
 pub mod shared_error;

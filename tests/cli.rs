@@ -470,3 +470,34 @@ fn demo_renders_every_built_in_scene_and_reports_each() {
         assert!(r["seconds"].as_f64().unwrap() > 0.0 && !r["renderer"].as_str().unwrap().is_empty());
     }
 }
+
+#[test]
+fn renderers_json_lists_what_the_markdown_tables_show() {
+    let out = volterra(&["renderers", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&out.stdout).unwrap();
+    let markdown = String::from_utf8(volterra(&["renderers"]).stdout).unwrap();
+    assert_eq!(rows.len(), volterra::catalog::RENDERERS.len());
+    for (row, decl) in rows.iter().zip(volterra::catalog::RENDERERS) {
+        assert_eq!(row["name"], decl.name);
+        assert!(markdown.contains(&format!("### `{}`: draws `{}` nodes", decl.name, row["kind"].as_str().unwrap())));
+        let settings = row["settings"].as_array().unwrap();
+        assert_eq!(settings.len(), decl.settings.len(), "{}", decl.name);
+        for (s, d) in settings.iter().zip(decl.settings) {
+            assert_eq!(s["key"], d.key);
+            // Every default is a value the declaration accepts for the key.
+            let toml_value = match &s["default"] {
+                serde_json::Value::Bool(b) => toml::Value::Boolean(*b),
+                serde_json::Value::String(c) => toml::Value::String(c.clone()),
+                serde_json::Value::Number(n) if n.is_i64() || n.is_u64() => toml::Value::Integer(n.as_i64().unwrap()),
+                serde_json::Value::Number(n) => toml::Value::Float(n.as_f64().unwrap()),
+                other => panic!("{}.{}: default {other}", decl.name, d.key),
+            };
+            assert_eq!(d.check(&toml_value), Ok((d.default)()), "{}.{} = {}", decl.name, d.key, s["default"]);
+            assert!(markdown.contains(&format!("| `{}` |", d.key)));
+        }
+    }
+    // One default renderer per node kind that is drawn.
+    let defaults: Vec<&str> = rows.iter().filter(|r| r["default_for_kind"] == true).map(|r| r["kind"].as_str().unwrap()).collect();
+    assert_eq!(defaults, ["volume", "heightfield", "particles"]);
+}

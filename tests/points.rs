@@ -6,7 +6,7 @@
 mod common;
 
 use glam::DMat4;
-use volterra::render::colormap::ColourScale;
+use volterra::colormap::ColourScale;
 use volterra::render::points::{self, Colormap, PointsInput, Settings};
 use volterra::scene::camera::Camera;
 use volterra_formats::rng::SplitMix64;
@@ -281,7 +281,7 @@ fn splats_drawn_after_other_frames_are_the_same() {
 /// `opacity` belongs to splats: a spheres node that gives it is refused before any drawing.
 #[test]
 fn opacity_is_refused_for_spheres() {
-    let decl = volterra::render::registry::find("points").unwrap();
+    let decl = volterra::catalog::find("points").unwrap();
     let table = |s: &str| s.parse::<toml::Table>().unwrap();
     let e = (decl.parse)(&table("opacity = 0.5")).err().unwrap();
     assert!(e.to_string().contains("opacity") && e.to_string().contains("splats"), "{e}");

@@ -3,7 +3,7 @@
 //! that stands out from the background, nothing drawn into pictures too small for one or
 //! into the EXR's channels, and one bar per distinct scale when frames are composited.
 
-use volterra::render::colormap::{Colormap, ColourScale};
+use volterra::colormap::{Colormap, ColourScale};
 use volterra::render::{scalar_bar, Frame};
 
 fn frame(w: usize, h: usize) -> Frame {

@@ -507,7 +507,7 @@ fn spaced_blob() -> (Volume, [usize; 3], [usize; 3]) {
 }
 
 fn node_point(v: &Volume, i: [usize; 3]) -> [f64; 3] {
-    let p = volterra::render::geometry::affine_matrix(&v.affine).transform_point3(glam::DVec3::from(i.map(|c| c as f64)));
+    let p = volterra::geometry::affine_matrix(&v.affine).transform_point3(glam::DVec3::from(i.map(|c| c as f64)));
     p.into()
 }
 
@@ -626,7 +626,7 @@ fn previews_draw_a_coarser_copy_where_pixels_span_several_voxels() {
     let tf = tf_ramp(20.0, 255.0, 0.3);
     let prepared = shear_warp::Prepared::new(&v, &Default::default()).unwrap();
     let mut table = toml::Table::new();
-    volterra::render::settings::apply_preview(shear_warp::Settings::DECLS, &mut table);
+    volterra::settings::apply_preview(shear_warp::Settings::DECLS, &mut table);
     let preview = shear_warp::Settings::from_table(&table).unwrap();
     assert_eq!(preview.coarsening, 0, "previews pick their coarsening");
     let full = shear_warp::Settings { coarsening: 1, ..preview.clone() };

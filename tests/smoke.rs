@@ -419,7 +419,7 @@ fn densities_gathered_along_a_ray_equal_point_queries() {
                 1 => DVec3::new(1.0, 0.3 * (rng.uniform() - 0.5), 0.2 * (rng.uniform() - 0.5)).normalize(),
                 _ => DVec3::new(1.0, 1e-3, -1e-3).normalize(),
             };
-            let Some((t0, t1)) = volterra::render::geometry::clip_box(o, d, lo, hi) else { continue };
+            let Some((t0, t1)) = volterra::geometry::clip_box(o, d, lo, hi) else { continue };
             let mut t = t0;
             while t < t1 {
                 let mut ts = Vec::new();
@@ -561,7 +561,7 @@ fn majorant_walks_cover_the_ray_and_bound_the_density() {
             0 => DVec3::Z,
             _ => DVec3::new(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5).normalize(),
         };
-        let Some((t0, t1)) = volterra::render::geometry::clip_box(o, d, lo, hi) else { continue };
+        let Some((t0, t1)) = volterra::geometry::clip_box(o, d, lo, hi) else { continue };
         for coarse in [0.0, grid.thin_below(10.0), f64::INFINITY] {
             let mut reached = t0;
             grid.walk(o, d, 0.0, 1e9, coarse, |ta, tb, maj| {

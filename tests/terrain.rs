@@ -60,7 +60,7 @@ fn sun_shading(to_sun: Option<[f64; 3]>) -> volterra::render::terrain::shading::
         shadows: to_sun.is_some(),
         smooth: true,
         rays_per_side: 1,
-        colormap: volterra::render::colormap::Colormap::Hypsometric,
+        colormap: volterra::colormap::Colormap::Hypsometric,
         colour_range: None,
     }
 }
@@ -559,7 +559,7 @@ fn elevation_colour_maps_colour_by_elevation_with_a_legend() {
     let rays = cam.rays(64, 64);
     let cosine = 1.0 / (1.0f64 + 0.1 * 0.1).sqrt();
     let (lo, hi) = (200.0, 200.0 + 0.1 * ext);
-    for colormap in [volterra::render::colormap::Colormap::Viridis, volterra::render::colormap::Colormap::Hypsometric] {
+    for colormap in [volterra::colormap::Colormap::Viridis, volterra::colormap::Colormap::Hypsometric] {
         let s = Settings { colormap, ambient: 0.0, rays_per_pixel: 1, ..Default::default() };
         let mut frames = vec![("reference", terrain::render_reference(&input, &rays, &s).unwrap())];
         if common::gpu().is_some() {

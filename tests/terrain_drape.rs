@@ -182,7 +182,7 @@ fn a_single_band_drape_is_colour_mapped_with_nodata_transparent_and_a_legend() {
     grid.nodata_value = Some(-9999.0);
     let path = dir.path().join("band.tif");
     volterra_formats::geotiff::write_geotiff(&path, &grid).unwrap();
-    let colours = BandColours { colormap: volterra::render::colormap::Colormap::Viridis, range: Some([0.0, 330.0]) };
+    let colours = BandColours { colormap: volterra::colormap::Colormap::Viridis, range: Some([0.0, 330.0]) };
     let drape = Drape::load(&path, Some(colours), &Default::default()).unwrap();
     assert_eq!(drape.scale, Some((colours.colormap, [0.0, 330.0])), "the legend's map and range");
     let Some((gpu, reference, rays)) = top_down(&hf, Some(&drape)) else { return };
@@ -248,7 +248,7 @@ fn a_drape_in_another_crs_or_off_the_dem_is_refused() {
     let e = terrain::drape_placement(&hf.georef(), &drape).unwrap_err().to_string();
     assert!(e.contains("outside the heightfield"), "{e}");
     // A colour map for an RGB drape is a mistake, said so.
-    let colours = BandColours { colormap: volterra::render::colormap::Colormap::Grey, range: None };
+    let colours = BandColours { colormap: volterra::colormap::Colormap::Grey, range: None };
     let e = Drape::load(&path, Some(colours), &Default::default()).unwrap_err().to_string();
     assert!(e.contains("single-band"), "{e}");
 }

@@ -45,7 +45,7 @@ fn puget_sound_depth_matches_vtk_triangle_mesh() {
             shadows: false,
             smooth: true,
             rays_per_side: 1,
-            colormap: volterra::render::colormap::Colormap::Hypsometric,
+            colormap: volterra::colormap::Colormap::Hypsometric,
             colour_range: None,
         };
         let triangles = render_surface(&grid, None, &rays, &shading, Surface::Triangles).unwrap();

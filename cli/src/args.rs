@@ -252,7 +252,12 @@ pub(crate) enum Command {
     },
     /// The renderers, the node kinds they draw and every setting they take (type, default,
     /// allowed values, meaning), as the tables in docs/scene-format.md.
-    Renderers,
+    Renderers {
+        /// Print them as JSON (one object per renderer, each setting with its type, default,
+        /// unit, range and doc) instead of Markdown tables.
+        #[arg(long)]
+        json: bool,
+    },
     /// The photon cache of the smoke renderer: where it is and how large (`cache`), or empty
     /// it (`cache --clear`). Its limit is VOLTERRA_CACHE_MAX (default 1G; 0 turns it off).
     Cache {

@@ -125,8 +125,12 @@ fn run(cli: Cli, limits: Limits) -> Result<()> {
         Command::Convert { input, output, read } => commands::files::cmd_convert(&input, &output, &read, &read.options(limits)?),
         Command::Compare { a, b, json } => commands::files::cmd_compare(&a, &b, json, &limits),
         Command::Dem(args) => commands::dem::run(args, limits),
-        Command::Renderers => {
-            print!("{}", volterra::render::registry::markdown());
+        Command::Renderers { json } => {
+            if json {
+                println!("{}", serde_json::to_string_pretty(&volterra::catalog::json())?);
+            } else {
+                print!("{}", volterra::catalog::markdown());
+            }
             Ok(())
         }
         Command::Cache { clear } => {

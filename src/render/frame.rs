@@ -1,8 +1,8 @@
 //! What every renderer returns: premultiplied linear RGBA, a depth, optional extra
 //! channels, and statistics.
 
-use super::colormap::ColourScale;
 use super::scalar_bar;
+use crate::colormap::ColourScale;
 use volterra_formats::FloatImage;
 
 #[derive(Debug, Clone, Default)]

@@ -2,17 +2,12 @@
 //! none reaches into another. `render_scene` draws every visible node with the renderer it
 //! names and composites the results by depth.
 
-pub mod colormap;
 pub mod driver;
 pub mod frame;
-pub mod geometry;
-pub mod gpu;
 pub mod points;
 pub mod reference_volume;
-pub mod registry;
 pub mod scalar_bar;
 pub mod series_scale;
-pub mod settings;
 pub mod shear_warp;
 pub mod smoke;
 pub mod terrain;
@@ -21,9 +16,9 @@ pub mod volume_shading;
 
 pub use frame::{Frame, FrameStats, NodeTime};
 
+use crate::catalog::NodeSettings;
 use crate::scene::{Camera, NodeData, Scene, TerrainData};
 use anyhow::{anyhow, Context, Result};
-use registry::NodeSettings;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -332,7 +327,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             // A colour-mapped drape gets its scalar bar in the PNG preview.
             if let (Some((colormap, range)), Some(path)) = (texture.as_ref().and_then(|t| t.scale), &desc.texture) {
                 let title = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-                frame.scales.push(colormap::ColourScale { title, colormap, range });
+                frame.scales.push(crate::colormap::ColourScale { title, colormap, range });
             }
             frame
         }
@@ -391,7 +386,7 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 points::PointStyle::Spheres => particles.len() as u64 * 64,
                 points::PointStyle::Splats => (particles.len() as u64 * 160).min(128 << 20),
             } + (size.0 * size.1) as u64 * 48
-                + gpu::driver_working_memory();
+                + crate::gpu::driver_working_memory();
             scene
                 .limits()
                 .check(&scene.source, "the points' GPU buffers", &[gpu_bytes])
@@ -531,9 +526,9 @@ pub fn shear_warp_pair(scene: &Scene, nodes: &[usize]) -> Result<(usize, usize),
     let inside = |first: usize, second: usize| -> Result<bool, String> {
         let volume = |i: usize| scene.volume(i).map_err(|e| format!("{e:#}"));
         let (v1, v2) = (volume(first)?, volume(second)?);
-        let to1 = (scene.world_transform(first) * geometry::affine_matrix(&v1.affine)).inverse()
+        let to1 = (scene.world_transform(first) * crate::geometry::affine_matrix(&v1.affine)).inverse()
             * scene.world_transform(second)
-            * geometry::affine_matrix(&v2.affine);
+            * crate::geometry::affine_matrix(&v2.affine);
         Ok((0..8).all(|c| {
             let ijk = glam::DVec3::from(std::array::from_fn::<f64, 3, _>(|k| if c >> k & 1 == 0 { 0.0 } else { (v2.dims[k] - 1) as f64 }));
             let q = to1.transform_point3(ijk);

@@ -13,36 +13,12 @@
 //! present at once (as VTK's multi-volume mapper adds its volumes' samples).
 
 use super::frame::{Frame, FrameStats};
-use super::registry::{NodeSettings, RendererDecl};
-use super::settings::{Bounds, Control, Preview, Widget};
-use crate::scene::NodeKind;
+pub use crate::catalog::reference_volume::{Settings, RENDERER};
 use crate::scene::{BlendMode, HalfSpace, Light, RayGenerator, TransferFunction, VolumeShading};
 use anyhow::{anyhow, Result};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
 use volterra_formats::Volume;
-
-crate::declare_settings! {
-    pub struct Settings {
-        /// Sample step as a fraction of the smallest voxel spacing.
-        pub step: f64 = 0.05, unit = "voxel", range = Bounds::open_closed(0.0, 1.0), quality = true,
-            viewer = Control { label: "Step (voxels)", widget: Widget::Drag { lo: 0.01, hi: 1.0, speed: 0.005 } },
-            preview = Preview::AtLeast(0.25);
-        /// Stop a ray once its accumulated opacity exceeds this (1 = never stop early).
-        pub termination: f64 = 1.0 - 1e-9, range = Bounds::open_closed(0.0, 1.0), quality = true;
-    }
-}
-
-pub const RENDERER: RendererDecl = RendererDecl {
-    name: "reference",
-    kind: NodeKind::Volume,
-    doc: "The brute-force ray caster, on the CPU in f64: trilinear samples at a fine step, \
-          no pre-integration, no empty-space skipping. Slow; the truth `shear-warp` and VTK \
-          are measured against. Draws parallel and perspective cameras.",
-    reference: true,
-    settings: Settings::DECLS,
-    parse: |t| Settings::from_table(t).map(NodeSettings::Reference),
-};
 
 /// The scalar field as real-world f32 values for fast trilinear lookups.
 pub struct Field {
@@ -59,7 +35,7 @@ impl Field {
     /// Trilinear interpolation at continuous index coordinates inside [0, dims−1].
     #[inline]
     pub fn sample(&self, p: DVec3) -> f64 {
-        super::geometry::trilinear(self.dims, p, |i| self.values[i] as f64)
+        crate::geometry::trilinear(self.dims, p, |i| self.values[i] as f64)
     }
 }
 
@@ -99,8 +75,8 @@ struct Placed<'a> {
 impl<'a> Placed<'a> {
     fn new(input: &'a VolumeInput<'a>, settings: &Settings) -> Result<Placed<'a>> {
         let VolumeInput { volume, node_to_world, tf, shading, lights, crop, .. } = *input;
-        let index_to_world = super::geometry::index_to_world(node_to_world, super::geometry::affine_matrix(&volume.affine))?;
-        let index_to_node = super::geometry::affine_matrix(&volume.affine);
+        let index_to_world = crate::geometry::index_to_world(node_to_world, crate::geometry::affine_matrix(&volume.affine))?;
+        let index_to_node = crate::geometry::affine_matrix(&volume.affine);
         let min_spacing = (0..3).map(|c| index_to_world.col(c).truncate().length()).fold(f64::INFINITY, f64::min);
         let hi = DVec3::new((volume.dims[0] - 1) as f64, (volume.dims[1] - 1) as f64, (volume.dims[2] - 1) as f64);
         // A single-slice axis has zero thickness: give it half a voxel either side.
@@ -131,7 +107,7 @@ impl<'a> Placed<'a> {
 
     /// The index-space ray's parameter interval inside this volume's drawn region.
     fn interval(&self, (o, d): (DVec3, DVec3)) -> Option<(f64, f64)> {
-        crate::render::geometry::clip_box(o, d, self.lo, self.hi)
+        crate::geometry::clip_box(o, d, self.lo, self.hi)
             .and_then(|t| crate::scene::crop::clip_interval(o, d, t, &self.crop))
             .filter(|(a, b)| a < b)
     }

@@ -6,8 +6,8 @@
 //! Pictures smaller than [`MIN_WIDTH`] × [`MIN_HEIGHT`] get none (the bar would cover
 //! the picture).
 
-use super::colormap::ColourScale;
 use super::text;
+use crate::colormap::ColourScale;
 
 pub const MIN_WIDTH: usize = 200;
 pub const MIN_HEIGHT: usize = 150;

@@ -64,7 +64,7 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
     };
     // The fast renderer for the kind (shear-warp, the GPU terrain ray-caster, points;
     // smoke is a click away: the node keeps a medium and a light for it).
-    node.renderer = crate::render::registry::fast_for(kind).map(|r| r.name.to_string());
+    node.renderer = crate::catalog::fast_for(kind).map(|r| r.name.to_string());
     let mut image = ImageSettings::default();
     let mut lights = Vec::new();
     match kind {
@@ -135,7 +135,7 @@ pub fn data_bounds(data: &NodeData, node_to_world: DMat4) -> Option<(DVec3, DVec
     let mut pts: Vec<DVec3> = Vec::new();
     match data {
         NodeData::Volume(v) => {
-            let a = node_to_world * crate::render::geometry::affine_matrix(&v.affine);
+            let a = node_to_world * crate::geometry::affine_matrix(&v.affine);
             for c in 0..8 {
                 let ijk = DVec3::new(
                     if c & 1 == 0 { -0.5 } else { v.dims[0] as f64 - 0.5 },

@@ -182,13 +182,15 @@ impl Scene {
             bail!("node '{}' is not a heightfield", n.name);
         }
         let (path, opts) = self.load_plan(node)?;
-        let gpu = matches!(self.node_settings(node), Some(NodeSettings::Terrain(_)));
-        if !gpu || volterra_formats::detect(&path)? != volterra_formats::FileKind::GeoTiff {
+        let Some(held_by_renderer) = self.renderer(node).and_then(|r| r.heights_held) else {
+            return self.heightfield(node).map(TerrainData::Held);
+        };
+        if volterra_formats::detect(&path)? != volterra_formats::FileKind::GeoTiff {
             return self.heightfield(node).map(TerrainData::Held);
         }
         let rows = self.height_rows[node]
             .get_or_init(|| {
-                GeoTiffRows::open_holding(&path, &opts.geotiff, &self.limits, &gpu_held_bytes())
+                GeoTiffRows::open_holding(&path, &opts.geotiff, &self.limits, &held_by_renderer)
                     .map(Arc::new)
                     .map_err(|e| SharedError::new(e.into()))
             })
@@ -227,8 +229,8 @@ impl Scene {
             colormap: desc
                 .texture_colormap
                 .as_deref()
-                .and_then(crate::render::colormap::Colormap::from_name)
-                .unwrap_or(crate::render::colormap::Colormap::Grey),
+                .and_then(crate::colormap::Colormap::from_name)
+                .unwrap_or(crate::colormap::Colormap::Grey),
             range: desc.texture_range,
         });
         let r = self.textures[node]

@@ -5,7 +5,7 @@
 //! (GDAL_NODATA, NaN) are transparent: the terrain's elevation colours show there, as they
 //! do beyond the drape's edges.
 
-use crate::render::colormap::Colormap;
+use crate::colormap::Colormap;
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 use volterra_formats::geotiff::{read_geotiff_image, GeoPixels};

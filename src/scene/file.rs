@@ -28,14 +28,7 @@ impl Default for ImageSettings {
     }
 }
 
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "lowercase")]
-pub enum NodeKind {
-    Group,
-    Volume,
-    Heightfield,
-    Particles,
-}
+pub use crate::catalog::NodeKind;
 
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "lowercase")]

@@ -149,8 +149,8 @@ impl SliceViews {
             if !(0.0..=1.0).contains(&o.opacity) {
                 return Err(format!("overlay: opacity {} must be between 0 and 1", o.opacity));
             }
-            if crate::render::colormap::Colormap::from_name(&o.colormap).is_none() {
-                let names: Vec<&str> = crate::render::colormap::Colormap::ALL.iter().map(|c| c.name()).collect();
+            if crate::colormap::Colormap::from_name(&o.colormap).is_none() {
+                let names: Vec<&str> = crate::colormap::Colormap::ALL.iter().map(|c| c.name()).collect();
                 return Err(format!("overlay: unknown colormap '{}' (known: {})", o.colormap, names.join(", ")));
             }
         }

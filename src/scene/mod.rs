@@ -30,7 +30,7 @@ pub use parse::apply_overrides;
 use parse::*;
 pub use transfer::{TransferFunction, VolumeShading};
 
-use crate::render::registry::{self, NodeSettings, RendererDecl};
+use crate::catalog::{self, NodeSettings, RendererDecl};
 use crate::shared_error::SharedError;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{DMat4, DVec3};
@@ -70,15 +70,6 @@ pub struct Scene {
     limits: Limits,
     /// Heightfield nodes read only where the renders' cameras see them (`with_views`).
     view_windows: Vec<Option<Arc<view_window::ViewWindow>>>,
-}
-
-/// What the GPU ray-caster holds for a GeoTIFF level's samples
-/// (`render::terrain::gpu_held_bytes`), with the GPU opened first: where its memory is the
-/// host's, what its driver holds from then on (its compiled pipelines) is in use when a
-/// level is chosen. Without a GPU the renderer says so when it draws.
-fn gpu_held_bytes() -> impl Fn(u64) -> u64 {
-    let _ = crate::render::terrain::gpu::gpu();
-    crate::render::terrain::gpu_held_bytes
 }
 
 impl Scene {
@@ -185,8 +176,8 @@ impl Scene {
                 bail!("{src}: node '{}': texture_colormap and texture_range colour a texture, and the node has none", n.name);
             }
             if let Some(c) = &n.texture_colormap {
-                if crate::render::colormap::Colormap::from_name(c).is_none() {
-                    let names: Vec<&str> = crate::render::colormap::Colormap::ALL.iter().map(|c| c.name()).collect();
+                if crate::colormap::Colormap::from_name(c).is_none() {
+                    let names: Vec<&str> = crate::colormap::Colormap::ALL.iter().map(|c| c.name()).collect();
                     bail!("{src}: node '{}': unknown texture_colormap '{c}' (known: {})", n.name, names.join(", "));
                 }
             }
@@ -227,7 +218,8 @@ impl Scene {
         // Each node's renderer and settings, checked before any data file is read.
         let mut renderers = Vec::with_capacity(file.nodes.len());
         for n in &file.nodes {
-            let decl = registry::resolve(n).map_err(|m| anyhow!("{src}:{}: node '{}': {m}", lines.at(&n.name, None), n.name))?;
+            let decl = catalog::resolve(n.kind, n.renderer.as_deref(), &n.settings)
+                .map_err(|m| anyhow!("{src}:{}: node '{}': {m}", lines.at(&n.name, None), n.name))?;
             renderers.push(match decl {
                 None => None,
                 Some(d) => Some((
@@ -553,9 +545,8 @@ impl Scene {
         if n.texture.as_deref().is_some_and(drape::is_stretched) {
             return Ok(None);
         }
-        let gpu = matches!(self.node_settings(node), Some(NodeSettings::Terrain(_)));
-        let gpu_held = gpu.then(gpu_held_bytes);
-        let held = gpu_held.as_ref().map(|h| h as HeldBytes);
+        let held_by_renderer = self.renderer(node).and_then(|r| r.heights_held);
+        let held = held_by_renderer.as_ref().map(|h| h as HeldBytes);
         let whole = GeoTiffOptions::default();
         let read_whole = elevation_plan(&path, &whole, &self.limits, held).ok();
         if read_whole.as_ref().is_some_and(|p| p.level == 0) {

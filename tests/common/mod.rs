@@ -69,8 +69,8 @@ pub fn under_ci() -> bool {
 
 /// The shared GPU device (lavapipe where there is no hardware). Under CI a missing adapter
 /// is a failure; locally the test is skipped with a printed reason.
-pub fn gpu() -> Option<&'static volterra::render::gpu::Device> {
-    match volterra::render::gpu::device() {
+pub fn gpu() -> Option<&'static volterra::gpu::Device> {
+    match volterra::gpu::device() {
         Ok(g) => Some(g),
         Err(e) if under_ci() => panic!("CI=true and no GPU adapter: {e}"),
         Err(e) => {

@@ -4,7 +4,7 @@
 
 use egui::{Color32, Pos2, Vec2};
 use glam::{DMat4, DVec3};
-use volterra::render::geometry::affine_matrix;
+use volterra::geometry::affine_matrix;
 use volterra::scene::{ClipPlane, CropBox};
 use volterra_formats::Volume;
 

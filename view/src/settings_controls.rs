@@ -1,8 +1,8 @@
 //! The viewer's controls for renderer settings, built from the renderers' declarations:
 //! every setting declared with a `viewer` control gets its widget, in declaration order.
 
-use volterra::render::registry::RendererDecl;
-use volterra::render::settings::{self, SettingDecl, SettingType, Value, Widget};
+use volterra::catalog::RendererDecl;
+use volterra::settings::{self, SettingDecl, SettingType, Value, Widget};
 
 /// A setting the user changed: its key, the new value, and whether a drag is still going
 /// on (the viewer then draws a quick preview).

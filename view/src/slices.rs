@@ -92,7 +92,7 @@ pub struct SliceSource {
 
 impl SliceSource {
     pub fn new(volume: Arc<Volume>, node_to_world: DMat4) -> SliceSource {
-        let index_to_world = node_to_world * volterra::render::geometry::affine_matrix(&volume.affine);
+        let index_to_world = node_to_world * volterra::geometry::affine_matrix(&volume.affine);
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for c in 0..8 {
             let ijk = DVec3::new(
@@ -122,7 +122,7 @@ impl SliceSource {
         let q = self.world_to_index.transform_point3(p);
         let d = self.volume.dims;
         // Inside the box of voxel centres (within rounding), else nothing is drawn there.
-        volterra::render::geometry::trilinear_within(d, q, |i| self.volume.value(i))
+        volterra::geometry::trilinear_within(d, q, |i| self.volume.value(i))
     }
 
     /// The slice through `cross` in `plane`, grey = (value − (level − window/2)) / window.
@@ -168,7 +168,7 @@ pub struct Overlay<'a> {
     pub source: &'a SliceSource,
     pub window: f64,
     pub level: f64,
-    pub colormap: volterra::render::colormap::Colormap,
+    pub colormap: volterra::colormap::Colormap,
     pub opacity: f64,
 }
 
@@ -230,7 +230,7 @@ mod tests {
     /// at the opacity; the grey alone where the secondary volume does not reach.
     #[test]
     fn overlay_blends_the_colour_map_over_the_grey() {
-        use volterra::render::colormap::Colormap;
+        use volterra::colormap::Colormap;
         let primary = SliceSource::new(ramp(), DMat4::IDENTITY);
         let img = primary.slice(Plane::Axial, DVec3::new(0.0, 0.0, 0.0), 256.0, 128.0);
         // A secondary covering x ≤ 2 only, values 0 (x = 0), 50, 100 along x.

@@ -217,7 +217,7 @@ fn preview_of(scene: &Scene) -> anyhow::Result<Scene> {
     let mut file = scene.file.clone();
     for (i, n) in file.nodes.iter_mut().enumerate() {
         if let Some(r) = scene.renderer(i) {
-            volterra::render::settings::apply_preview(r.settings, &mut n.settings);
+            volterra::settings::apply_preview(r.settings, &mut n.settings);
         }
     }
     scene.edited(file)
@@ -231,12 +231,12 @@ pub const EYE_INSIDE_NOTE: &str =
 /// The scene with its shear-warp volume nodes drawn by the reference ray caster (their
 /// settings carried over), everything else as it is.
 fn volume_references(scene: &Scene) -> anyhow::Result<Scene> {
-    use volterra::render::registry;
+    use volterra::catalog;
     let mut file = scene.file.clone();
     for (i, n) in file.nodes.iter_mut().enumerate() {
-        let (Some(from), Some(to)) = (scene.renderer(i), registry::reference_for(n.kind)) else { continue };
+        let (Some(from), Some(to)) = (scene.renderer(i), catalog::reference_for(n.kind)) else { continue };
         if n.kind == volterra::scene::NodeKind::Volume && from.name == shear_warp::RENDERER.name {
-            n.settings = registry::carry_over(from, to, &n.settings);
+            n.settings = catalog::carry_over(from, to, &n.settings);
             n.renderer = Some(to.name.into());
         }
     }
@@ -248,13 +248,13 @@ fn volume_references(scene: &Scene) -> anyhow::Result<Scene> {
 /// Smoke has no reference renderer in-process (Mitsuba is the reference), so a scene with
 /// particles has no error figure.
 fn render_reference(scene: &Scene, camera: &Camera, size: (usize, usize)) -> Result<Frame, String> {
-    use volterra::render::registry;
+    use volterra::catalog;
     let mut file = scene.file.clone();
     for (i, n) in file.nodes.iter_mut().enumerate() {
         let Some(from) = scene.renderer(i) else { continue };
-        match registry::reference_for(n.kind) {
+        match catalog::reference_for(n.kind) {
             Some(to) => {
-                n.settings = registry::carry_over(from, to, &n.settings);
+                n.settings = catalog::carry_over(from, to, &n.settings);
                 n.renderer = Some(to.name.into());
             }
             None if n.visible => return Err(format!("no in-process reference for {} (Mitsuba is its reference)", from.name)),

@@ -130,7 +130,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     let mut file = scene.file.clone();
     for (i, n) in file.nodes.iter_mut().enumerate() {
         if let Some(r) = scene.renderer(i) {
-            volterra::render::settings::apply_preview(r.settings, &mut n.settings);
+            volterra::settings::apply_preview(r.settings, &mut n.settings);
         }
     }
     let preview_scene = scene.edited(file)?;

@@ -148,7 +148,7 @@ pub fn run(b: &TerrainBench) -> Result<()> {
         shadows: false,
         smooth: true,
         rays_per_side: 1,
-        colormap: volterra::render::colormap::Colormap::Hypsometric,
+        colormap: volterra::colormap::Colormap::Hypsometric,
         colour_range: None,
     };
     // The reference is f64 and cell by cell: its image is kept small.

@@ -21,7 +21,7 @@
 //! centres it takes its lowest value, which its transfer function must make transparent).
 
 use super::prepare::Prepared;
-use crate::render::geometry;
+use crate::geometry;
 use crate::scene::{TransferFunction, VolumeShading};
 use anyhow::Result;
 use glam::{DMat4, DVec3};

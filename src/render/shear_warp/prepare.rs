@@ -98,7 +98,7 @@ impl Prepared {
             dims: volume.dims,
             lo,
             hi,
-            affine: crate::render::geometry::affine_matrix(&volume.affine),
+            affine: crate::geometry::affine_matrix(&volume.affine),
             volume,
             axes: Mutex::new([None, None, None]),
             clear_masks: Mutex::default(),

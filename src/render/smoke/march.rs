@@ -153,7 +153,7 @@ impl MarchView<'_> {
         middles.clear();
         lengths.clear();
         let (lo, hi) = self.medium.bounds();
-        let Some((t0, t1)) = crate::render::geometry::clip_box(o, d, lo, hi) else { return };
+        let Some((t0, t1)) = crate::geometry::clip_box(o, d, lo, hi) else { return };
         let base = t0 + jitter * self.step;
         self.medium.majorants().walk(o, d, t0, t1, 0.0, |ca, cb, maj| {
             if maj <= 0.0 {
@@ -301,7 +301,7 @@ pub fn render(view: &MarchView, rays_of: &RayGenerator) -> Result<Frame, crate::
             }
             row[x] = acc.map(|v| (v / spp as f64) as f32);
             let centre = rays_of.ray(x as f64 + 0.5, y as f64 + 0.5);
-            if let Some((t0, _)) = crate::render::geometry::clip_box(centre.origin, centre.dir, lo, hi) {
+            if let Some((t0, _)) = crate::geometry::clip_box(centre.origin, centre.dir, lo, hi) {
                 if row[x][3] > 0.0 {
                     depth[x] = t0 as f32;
                 }

@@ -8,19 +8,10 @@
 //! density, for the closed-form checks.
 
 use super::point_grid::PointGrid;
-use crate::render::geometry::clip_box;
+pub use crate::catalog::smoke::Kernel;
+use crate::geometry::clip_box;
 use glam::DVec3;
 use volterra_formats::sph::cubic_spline;
-
-crate::setting_choice! {
-    /// The SPH smoothing kernel. Both have support 2h and integrate to 1 over space.
-    pub enum Kernel {
-        /// The normalised cubic spline (M4, "spline Gaussian").
-        CubicSpline = "cubic-spline",
-        /// Müller et al.'s poly6, 315/(64π H⁹)·(H² − r²)³ with H = 2h.
-        Poly6 = "poly6",
-    }
-}
 
 /// What a density query reads of a particle once its support holds the point: the
 /// kernel's constants precomputed (no division per query) and the particle's index.

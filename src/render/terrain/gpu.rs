@@ -14,15 +14,15 @@ use anyhow::{anyhow, bail, Result};
 use std::sync::OnceLock;
 use std::time::Instant;
 
-/// The shared device (`render::gpu`; its fields and methods through `Deref`) with the
+/// The shared device (`gpu`; its fields and methods through `Deref`) with the
 /// terrain's pipelines.
 pub struct Gpu {
-    shared: &'static crate::render::gpu::Device,
+    shared: &'static crate::gpu::Device,
     pipelines: Pipelines,
 }
 
 impl std::ops::Deref for Gpu {
-    type Target = crate::render::gpu::Device;
+    type Target = crate::gpu::Device;
     fn deref(&self) -> &Self::Target {
         self.shared
     }
@@ -47,7 +47,7 @@ pub fn gpu() -> Result<&'static Gpu> {
 }
 
 fn open() -> Result<Gpu> {
-    let shared = crate::render::gpu::device()?;
+    let shared = crate::gpu::device()?;
     Ok(Gpu { shared, pipelines: Pipelines::new(&shared.device) })
 }
 

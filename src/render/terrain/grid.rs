@@ -7,7 +7,7 @@
 //! range is what lets the GPU work in f32: a UTM eye at 5·10⁶ m, or a peak at 4000 m,
 //! would lose centimetres to f32 rounding if used directly.
 
-use crate::render::geometry::clip_box;
+use crate::geometry::clip_box;
 use crate::scene::camera::Ray;
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3};

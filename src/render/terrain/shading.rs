@@ -5,7 +5,7 @@
 //! in a 256-entry table on both paths);
 //! Lambert lighting from directional lights, an ambient term, optional hard shadows.
 
-use crate::render::colormap::Colormap;
+use crate::colormap::Colormap;
 use crate::scene::drape::Drape;
 use crate::scene::{Light, LightKind};
 use anyhow::{bail, Result};

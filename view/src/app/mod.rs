@@ -40,7 +40,7 @@ use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
-use volterra::render::registry;
+use volterra::catalog;
 use volterra::render::Frame;
 use volterra::scene::auto::{fit_camera, relative_path, scene_for_file};
 use volterra::scene::presets::ValueStats;
@@ -129,7 +129,7 @@ struct OverlayState {
     source: SliceSource,
     window: f64,
     level: f64,
-    colormap: volterra::render::colormap::Colormap,
+    colormap: volterra::colormap::Colormap,
     opacity: f64,
 }
 

@@ -4,7 +4,7 @@
 use super::*;
 
 impl Viewer {
-    pub(super) fn volume_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
+    pub(super) fn volume_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &catalog::RendererDecl) {
         let Some(doc) = &self.doc else { return };
         let n = doc.scene.nodes()[i].clone();
         let stats = doc.stats.get(i).cloned().flatten();
@@ -128,7 +128,7 @@ impl Viewer {
         });
     }
 
-    pub(super) fn terrain_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
+    pub(super) fn terrain_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &catalog::RendererDecl) {
         let Some(doc) = &self.doc else { return };
         let n = doc.scene.nodes()[i].clone();
         let lights = doc.scene.file.lights.clone();
@@ -187,7 +187,7 @@ impl Viewer {
         }
     }
 
-    pub(super) fn smoke_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
+    pub(super) fn smoke_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &catalog::RendererDecl) {
         let Some(doc) = &self.doc else { return };
         let n = doc.scene.nodes()[i].clone();
         let lights = doc.scene.file.lights.clone();
@@ -233,7 +233,7 @@ impl Viewer {
 
     /// The points renderer's controls: what colours the particles (any of their point
     /// arrays), then the declared settings; opacity only for splats (spheres refuse it).
-    pub(super) fn points_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl) {
+    pub(super) fn points_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &catalog::RendererDecl) {
         let Some(doc) = &self.doc else { return };
         let n = doc.scene.nodes()[i].clone();
         if let Ok(NodeData::Particles(p)) = doc.scene.data(i) {

@@ -36,8 +36,8 @@ impl Viewer {
         let Some(current) = scene.renderer(i) else { return };
         let mut chosen = None;
         egui::ComboBox::from_label("Renderer").selected_text(current.name).show_ui(ui, |ui| {
-            for r in registry::for_kind(n.kind) {
-                if ui.selectable_label(current.name == r.name, r.name).on_hover_text(volterra::render::settings::summary(r.doc)).clicked() {
+            for r in catalog::for_kind(n.kind) {
+                if ui.selectable_label(current.name == r.name, r.name).on_hover_text(volterra::settings::summary(r.doc)).clicked() {
                     chosen = Some(r.name);
                 }
             }
@@ -59,7 +59,7 @@ impl Viewer {
     }
 
     /// The controls the node's renderer declares for its settings.
-    pub(super) fn setting_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &registry::RendererDecl, settings: &toml::Table) {
+    pub(super) fn setting_controls(&mut self, ui: &mut egui::Ui, i: usize, renderer: &catalog::RendererDecl, settings: &toml::Table) {
         if let Some(c) = crate::settings_controls::show(ui, renderer, settings) {
             self.edit(c.moving, |f| {
                 f.nodes[i].settings.insert(c.key.to_string(), c.value);

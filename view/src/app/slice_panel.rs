@@ -61,7 +61,7 @@ impl Viewer {
                     source: SliceSource::new(doc.scene.volume(j).ok()?, doc.scene.world_transform(j)),
                     window: o.window,
                     level: o.level,
-                    colormap: volterra::render::colormap::Colormap::from_name(&o.colormap)?,
+                    colormap: volterra::colormap::Colormap::from_name(&o.colormap)?,
                     opacity: o.opacity,
                 })
             });
@@ -140,7 +140,7 @@ impl Viewer {
                             source: SliceSource::new(v, doc.scene.world_transform(j)),
                             window: hi - lo,
                             level: 0.5 * (lo + hi),
-                            colormap: volterra::render::colormap::Colormap::Hot,
+                            colormap: volterra::colormap::Colormap::Hot,
                             opacity: 0.5,
                         });
                         s.dirty = true;
@@ -150,7 +150,7 @@ impl Viewer {
             }
         }
         if let Some(o) = s.overlay.as_mut() {
-            use volterra::render::colormap::Colormap;
+            use volterra::colormap::Colormap;
             egui::ComboBox::from_label("Overlay colours").selected_text(o.colormap.name()).show_ui(ui, |ui| {
                 for &c in Colormap::ALL {
                     if ui.selectable_label(o.colormap == c, c.name()).clicked() && o.colormap != c {

@@ -318,14 +318,14 @@ macro_rules! declare_settings {
 
         impl $name {
             /// Every setting, in declaration order.
-            pub const DECLS: &'static [$crate::render::settings::SettingDecl] = &[
-                $( $crate::render::settings::SettingDecl {
+            pub const DECLS: &'static [$crate::settings::SettingDecl] = &[
+                $( $crate::settings::SettingDecl {
                     key: stringify!($field),
-                    ty: <$ty as $crate::render::settings::SettingValue>::TYPE,
-                    default: || <$ty as $crate::render::settings::SettingValue>::to_value(&$default),
+                    ty: <$ty as $crate::settings::SettingValue>::TYPE,
+                    default: || <$ty as $crate::settings::SettingValue>::to_value(&$default),
                     unit: $crate::declare_settings!(@or "" $($unit)?),
                     range: $crate::declare_settings!(@some $($range)?),
-                    natural: <$ty as $crate::render::settings::SettingValue>::NATURAL,
+                    natural: <$ty as $crate::settings::SettingValue>::NATURAL,
                     zero: $crate::declare_settings!(@some $($zero)?),
                     doc: concat!($($doc, "\n"),+),
                     quality: $crate::declare_settings!(@or false $($quality)?),
@@ -336,13 +336,13 @@ macro_rules! declare_settings {
 
             /// The settings a node's table gives; unknown keys, wrong types and values
             /// out of range are errors.
-            pub fn from_table(table: &toml::Table) -> Result<Self, $crate::render::settings::SettingError> {
+            pub fn from_table(table: &toml::Table) -> Result<Self, $crate::settings::SettingError> {
                 let mut s = Self::default();
                 for (key, raw) in table {
-                    let decl = $crate::render::settings::find(Self::DECLS, key)?;
-                    let v = decl.check(raw).map_err(|message| $crate::render::settings::SettingError { key: key.clone(), message })?;
+                    let decl = $crate::settings::find(Self::DECLS, key)?;
+                    let v = decl.check(raw).map_err(|message| $crate::settings::SettingError { key: key.clone(), message })?;
                     match key.as_str() {
-                        $( stringify!($field) => s.$field = <$ty as $crate::render::settings::SettingValue>::from_value(v), )*
+                        $( stringify!($field) => s.$field = <$ty as $crate::settings::SettingValue>::from_value(v), )*
                         _ => unreachable!("found above"),
                     }
                 }
@@ -350,13 +350,13 @@ macro_rules! declare_settings {
             }
 
             /// Checks every field against its declaration (for settings built in code).
-            pub fn validate(&self) -> Result<(), $crate::render::settings::SettingError> {
+            pub fn validate(&self) -> Result<(), $crate::settings::SettingError> {
                 $( {
                     let key = stringify!($field);
-                    let v = <$ty as $crate::render::settings::SettingValue>::to_value(&self.$field);
-                    $crate::render::settings::find(Self::DECLS, key)?
+                    let v = <$ty as $crate::settings::SettingValue>::to_value(&self.$field);
+                    $crate::settings::find(Self::DECLS, key)?
                         .check(&v.to_toml())
-                        .map_err(|message| $crate::render::settings::SettingError { key: key.into(), message })?;
+                        .map_err(|message| $crate::settings::SettingError { key: key.into(), message })?;
                 } )*
                 Ok(())
             }
@@ -385,8 +385,8 @@ macro_rules! setting_choice {
         }
 
         impl $name {
-            pub const CHOICES: &'static [$crate::render::settings::Choice] =
-                &[ $( $crate::render::settings::Choice { name: $text, doc: concat!($($doc, "\n"),+) }, )* ];
+            pub const CHOICES: &'static [$crate::settings::Choice] =
+                &[ $( $crate::settings::Choice { name: $text, doc: concat!($($doc, "\n"),+) }, )* ];
             pub const ALL: &'static [$name] = &[ $( $name::$variant, )* ];
             /// The name scene files use.
             pub fn name(self) -> &'static str {
@@ -399,14 +399,14 @@ macro_rules! setting_choice {
             }
         }
 
-        impl $crate::render::settings::SettingValue for $name {
-            const TYPE: $crate::render::settings::SettingType = $crate::render::settings::SettingType::Choice(Self::CHOICES);
-            fn to_value(&self) -> $crate::render::settings::Value {
-                $crate::render::settings::Value::Choice(self.name())
+        impl $crate::settings::SettingValue for $name {
+            const TYPE: $crate::settings::SettingType = $crate::settings::SettingType::Choice(Self::CHOICES);
+            fn to_value(&self) -> $crate::settings::Value {
+                $crate::settings::Value::Choice(self.name())
             }
-            fn from_value(v: $crate::render::settings::Value) -> Self {
+            fn from_value(v: $crate::settings::Value) -> Self {
                 match v {
-                    $( $crate::render::settings::Value::Choice($text) => $name::$variant, )*
+                    $( $crate::settings::Value::Choice($text) => $name::$variant, )*
                     _ => unreachable!("checked"),
                 }
             }
