@@ -440,6 +440,11 @@ pub(crate) struct BenchCommon {
     /// executable or under the working directory).
     #[arg(long, value_name = "DIR")]
     pub(crate) scripts: Option<PathBuf>,
+    /// Also write the results as Markdown into FILE's section for this benchmark (made or
+    /// replaced; the rest of FILE kept), with the command, machine, date and commit: how
+    /// docs/benchmarks.md is made.
+    #[arg(long, value_name = "FILE")]
+    pub(crate) markdown: Option<PathBuf>,
 }
 
 impl BenchCommon {
@@ -447,7 +452,7 @@ impl BenchCommon {
     pub(crate) fn resolve(self, limits: Limits) -> Result<crate::bench::BenchEnv> {
         let scripts = crate::bench::scripts_dir(self.scripts.as_deref())?;
         let python = self.python.unwrap_or_else(|| scripts.join(".venv/bin/python"));
-        Ok(crate::bench::BenchEnv { work_dir: self.work_dir, python, scripts, limits })
+        Ok(crate::bench::BenchEnv { work_dir: self.work_dir, python, scripts, limits, markdown: self.markdown })
     }
 }
 

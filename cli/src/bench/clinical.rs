@@ -13,7 +13,8 @@
 //! in a table and a plot with the Pareto front marked (issue 45: bench honesty).
 
 use super::median;
-use super::shear_warp::{mark_pareto, print_dominance, vtk_config_image, Row, VTK_CONFIGS};
+use super::report::{Report, Table};
+use super::shear_warp::{dominance, mark_pareto, vtk_config_image, Row, VTK_CONFIGS};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -211,74 +212,88 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     });
     if b.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
     }
-    println!(
-        "{}×{}×{} int16 CT phantom ({stored_mib:.0} MiB), CT-AAA shaded, perspective 30°, 512², {} threads",
+    let mut report = Report::new("clinical", TABLES);
+    report.line(format!(
+        "{}×{}×{} int16 CT phantom ({stored_mib:.0} MiB), CT-AAA shaded, perspective 30°, 512², {} threads; \
+         the first frame from the file (read, prepare, render), further frames each from another direction.",
         dims[0],
         dims[1],
         dims[2],
         rayon::current_num_threads()
-    );
-    println!("{:<44} {:>12} {:>14} {:>10}", "", "first frame", "further (med.)", "peak");
-    println!(
-        "{:<44} {:>9.0} ms {:>11.0} ms {:>10}",
-        "volterra shear-warp (read + prepare + render)",
-        first_ms,
-        ours_further,
-        mib(ours_peak)
-    );
-    let frames_where = |turning: bool| -> Vec<f64> { further.iter().zip(&turns).filter(|x| *x.1 == turning).map(|x| *x.0).collect() };
-    let (mut turned_ms, mut kept_ms) = (frames_where(true), frames_where(false));
-    println!(
-        "{:<44} further frames turning to a new principal axis: {} of {} (median {:.0} ms); keeping theirs: median {:.0} ms",
-        "",
-        turned_ms.len(),
-        further.len(),
-        if turned_ms.is_empty() { f64::NAN } else { median(&mut turned_ms) },
-        if kept_ms.is_empty() { f64::NAN } else { median(&mut kept_ms) }
-    );
-    // The first preview makes the coarse copy previews draw (`coarsening`); the slowest
-    // of the rest is a turn to a new principal axis.
-    let mut sorted = previews.clone();
-    println!(
-        "{:<44} previews at 128² while moving (the viewer's): median {:.0} ms, first {:.0} ms, slowest of the rest {:.0} ms",
-        "",
-        median(&mut sorted),
-        previews[0],
-        previews[1..].iter().cloned().fold(0.0, f64::max)
-    );
-    match &vtk {
+    ));
+    let mut table = Table::new(COLUMNS);
+    table.row(vec![
+        "volterra shear-warp (read + prepare + render)".into(),
+        format!("{first_ms:.0}"),
+        format!("{ours_further:.0}"),
+        mib(ours_peak),
+    ]);
+    let vtk_line = match &vtk {
         Ok(v) => {
             let (vf, mut vfur) = (v["first_ms"].as_f64().unwrap_or(f64::NAN), v["further_ms"].as_array().cloned().unwrap_or_default());
             let mut vfur: Vec<f64> = vfur.drain(..).filter_map(|x| x.as_f64()).collect();
             let vmed = median(&mut vfur);
-            println!(
-                "{:<44} {:>9.0} ms {:>11.0} ms {:>10}",
+            table.row(vec![
                 format!("VTK {} fixed-point (nibabel + render)", v["vtk"].as_str().unwrap_or("")),
-                vf,
-                vmed,
-                mib(v["peak_bytes"].as_u64())
-            );
-            println!("ratios: first frame {:.2}× faster, further frames {:.2}× faster", vf / first_ms, vmed / ours_further);
+                format!("{vf:.0}"),
+                format!("{vmed:.0}"),
+                mib(v["peak_bytes"].as_u64()),
+            ]);
+            format!("Ratios: first frame {:.2}× faster, further frames {:.2}× faster.", vf / first_ms, vmed / ours_further)
         }
-        Err(e) => println!("VTK skipped: {e:#}"),
-    }
+        Err(e) => format!("VTK skipped: {e:#}"),
+    };
+    report.table(table);
+    report.line(vtk_line);
+    let frames_where = |turning: bool| -> Vec<f64> { further.iter().zip(&turns).filter(|x| *x.1 == turning).map(|x| *x.0).collect() };
+    let (mut turned_ms, mut kept_ms) = (frames_where(true), frames_where(false));
+    report.line(format!(
+        "Further frames turning to a new principal axis: {} of {} (median {:.0} ms); keeping theirs: median {:.0} ms.",
+        turned_ms.len(),
+        further.len(),
+        if turned_ms.is_empty() { f64::NAN } else { median(&mut turned_ms) },
+        if kept_ms.is_empty() { f64::NAN } else { median(&mut kept_ms) }
+    ));
+    // The first preview makes the coarse copy previews draw (`coarsening`); the slowest
+    // of the rest is a turn to a new principal axis.
+    let mut sorted = previews.clone();
+    report.line(format!(
+        "Previews at 128² while moving (the viewer's): median {:.0} ms, first {:.0} ms, slowest of the rest {:.0} ms.",
+        median(&mut sorted),
+        previews[0],
+        previews[1..].iter().cloned().fold(0.0, f64::max)
+    ));
     if let Some((ours, vtk)) = errors {
         let vtk = vtk.map(|e| format!("{:.2} %", 100.0 * e)).unwrap_or_else(|| "-".into());
-        println!("first view against the reference ray caster (relative RMSE): volterra {:.2} %, VTK {vtk}", 100.0 * ours);
+        report.line(format!("First view against the reference ray caster (relative RMSE): volterra {:.2} %, VTK {vtk}.", 100.0 * ours));
     }
     if let Some(rows) = &curve {
-        println!("speed against error: further frames' median, the first view's error (* on the Pareto front)");
-        println!("{:<44} {:>10} {:>10} {:>9}", "config", "median ms", "rel. RMSE", "PSNR dB");
+        report.line("Speed against error: further frames' median, the first view's error (* on the Pareto front).");
+        let mut table = Table::new(CURVE_COLUMNS);
         for r in rows {
-            let name = format!("{}{}", if r.pareto { "* " } else { "  " }, r.config);
-            println!("{name:<44} {:>10.0} {:>9.2}% {:>9.2}", r.median_ms, 100.0 * r.rel_rmse, r.psnr_db);
+            table.row(vec![
+                format!("{}{}", if r.pareto { "* " } else { "" }, r.config),
+                format!("{:.0}", r.median_ms),
+                format!("{:.2}", 100.0 * r.rel_rmse),
+                format!("{:.2}", r.psnr_db),
+            ]);
         }
-        print_dominance(rows, 0);
+        report.table(table);
+        for line in dominance(rows, 0) {
+            report.line(line);
+        }
     }
-    Ok(())
+    if let Some(plot) = &b.curve {
+        report.image(plot);
+    }
+    report.finish(b.json, b.env.markdown.as_deref())
 }
+
+/// The columns of the bench's tables: the main one, and the speed/error curve's.
+const COLUMNS: &[&str] = &["renderer", "first frame ms", "further frames ms (median)", "peak memory"];
+const CURVE_COLUMNS: &[&str] = &["config", "median ms", "rel. RMSE %", "PSNR dB"];
+pub const TABLES: &[&[&str]] = &[COLUMNS, CURVE_COLUMNS];
 
 /// Our rows of the curve: each configuration of `OUR_CURVE` (after the bench's own
 /// `--set`s) loaded afresh, its first view against the reference, its further frames timed

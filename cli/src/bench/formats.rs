@@ -2,6 +2,7 @@
 //! side in one run on the same files (medians of several runs; these machines are noisy).
 
 use super::median;
+use super::report::{Report, Table};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -55,8 +56,12 @@ fn time_runs(runs: usize, f: impl Fn() -> Result<()>) -> Result<Vec<f64>> {
         .collect()
 }
 
+/// The columns of the bench's one table.
+const COLUMNS: &[&str] = &["input", "volterra s", "reference s", "reference", "ratio"];
+pub const TABLES: &[&[&str]] = &[COLUMNS];
+
 /// Times volterra and the reference readers on one DICOM series and one gzipped NIfTI.
-fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path) -> Result<()> {
+fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path, table: &mut Table) -> Result<()> {
     let opts = dicom::DicomOptions::default();
     let mut ours_dicom = time_runs(b.runs, || dicom::read_dicom(series, &opts, &b.env.limits).map(|_| ()).map_err(Into::into))?;
     let mut ours_nifti = time_runs(b.runs, || nifti::read_nifti(nii, &Default::default(), &b.env.limits).map(|_| ()).map_err(Into::into))?;
@@ -88,9 +93,10 @@ fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path) -> Res
             Some(v) => {
                 let mut r: Vec<f64> = v.iter().filter_map(|x| x.as_f64()).collect();
                 let rm = median(&mut r);
-                println!("{name:<50} {m:>10.3} {rm:>9.3} {key:<8} {:>6.2}×", rm / m);
+                let version = theirs.as_ref().and_then(|t| t["versions"][key].as_str()).map(|v| format!(" {v}")).unwrap_or_default();
+                table.row(vec![name, format!("{m:.3}"), format!("{rm:.3}"), format!("{key}{version}"), format!("{:.2}×", rm / m)]);
             }
-            None => println!("{name:<50} {m:>10.3} {:>18} {:>7}", "-", "-"),
+            None => table.row(vec![name, format!("{m:.3}"), "-".into(), key.into(), "-".into()]),
         }
     }
     if let Some(v) = theirs.as_ref().map(|t| t["versions"].clone()) {
@@ -104,13 +110,19 @@ pub fn run(b: &FormatsBench) -> Result<()> {
         bail!("--runs must be at least 1");
     }
     let (series, nii) = prepare(&b.env.work_dir)?;
-    println!("load time in seconds, median of {} runs, {} threads; ratio = reference / volterra", b.runs, rayon::current_num_threads());
-    println!("{:<50} {:>10} {:>18} {:>7}", "input", "volterra", "reference", "ratio");
-    compare_pair(b, "synthetic 512×256² i16", &series, &nii)?;
+    let mut report = Report::new("formats", TABLES);
+    report.line(format!(
+        "Load time in seconds, median of {} runs, {} threads; ratio = reference / volterra.",
+        b.runs,
+        rayon::current_num_threads()
+    ));
+    let mut table = Table::new(COLUMNS);
+    compare_pair(b, "synthetic 512×256² i16", &series, &nii, &mut table)?;
     // The real aneurism scan in ../shared/data, where present.
     let shared = b.env.scripts.join("../../../shared/data/volumes/aneurism");
     if shared.join("dicom_ct").is_dir() {
-        compare_pair(b, "aneurism 256³", &shared.join("dicom_ct"), &shared.join("aneurism.nii.gz"))?;
+        compare_pair(b, "aneurism 256³", &shared.join("dicom_ct"), &shared.join("aneurism.nii.gz"), &mut table)?;
     }
-    Ok(())
+    report.table(table);
+    report.finish(false, b.env.markdown.as_deref())
 }

@@ -166,30 +166,45 @@ pub fn run(b: &FramesBench) -> Result<()> {
     }
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
-        return Ok(());
     }
-    println!(
-        "the built-in plume series, {} steps of up to {} particles, orbiting camera, {}×{}, {cores} cores",
+    let mut report = super::report::Report::new("frames", TABLES);
+    report.line(format!(
+        "The built-in plume series, {} steps of up to {} particles, orbiting camera, {}×{}, {cores} cores; \
+         the same frames serially (all cores) and as 2 shards side by side (one thread each), compared bit for bit.",
         b.steps, b.particles, b.width, b.height
-    );
-    println!("{:<10} {:>8} {:>26} {:>34} {:>10}", "renderer", "frames", "serial (all cores)", "2 shards (1 thread each)", "identical");
+    ));
+    let mut table = super::report::Table::new(COLUMNS);
+    let mut views = Vec::new();
     for r in &rows {
-        println!(
-            "{:<10} {:>8} {:>12.1} s {:>7.1} /min {:>20.1} s {:>7.1} /min {:>10}",
-            r.renderer, r.frames, r.serial_s, r.serial_frames_per_minute, r.shards_s, r.shards_frames_per_minute, r.shards_identical
-        );
+        table.row(vec![
+            r.renderer.to_string(),
+            r.frames.to_string(),
+            format!("{:.1}", r.serial_s),
+            format!("{:.1}", r.serial_frames_per_minute),
+            format!("{:.1}", r.shards_s),
+            format!("{:.1}", r.shards_frames_per_minute),
+            r.shards_identical.to_string(),
+        ]);
         if let (Some(a), Some(c), Some(k)) = (r.first_view_s, r.second_view_s, r.kept_view_s) {
-            println!(
-                "{:<10} one step: first view {a:.2} s (photons traced); a second view {c:.2} s in a new process (photons \
-                 cached on disk: {:.1}× faster), {k:.2} s in the same one (medium, photons and grids kept: {:.1}× faster)",
-                "",
+            views.push(format!(
+                "{}, one step: first view {a:.2} s (photons traced); a second view {c:.2} s in a new process (photons \
+                 cached on disk: {:.1}× faster), {k:.2} s in the same one (medium, photons and grids kept: {:.1}× faster).",
+                r.renderer,
                 a / c,
                 a / k
-            );
+            ));
         }
     }
-    Ok(())
+    report.table(table);
+    for v in views {
+        report.line(v);
+    }
+    report.finish(b.json, b.env.markdown.as_deref())
 }
+
+/// The columns of the bench's table.
+const COLUMNS: &[&str] = &["renderer", "frames", "serial s", "serial frames/min", "2 shards s", "2 shards frames/min", "identical"];
+pub const TABLES: &[&[&str]] = &[COLUMNS];
 
 /// Smoke: the middle step drawn from two camera angles, the photon cache empty before the
 /// first: the seconds of the first view, of the second in a fresh process's state (a new

@@ -5,6 +5,7 @@ pub mod clinical;
 pub mod formats;
 pub mod frames;
 pub mod points;
+pub mod report;
 pub mod shear_warp;
 pub mod smoke;
 pub mod terrain;
@@ -25,6 +26,8 @@ pub struct BenchEnv {
     pub scripts: PathBuf,
     /// The memory limits for what the benchmark reads and prepares (`--max-memory`).
     pub limits: Limits,
+    /// The page whose section for this benchmark its results go into (`--markdown`).
+    pub markdown: Option<PathBuf>,
 }
 
 /// The reference scripts the benchmarks run (tests/reference in a checkout): `given`, else

@@ -90,28 +90,33 @@ pub fn run(b: &PointsBench) -> Result<()> {
     });
     if b.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
     }
-    println!("{} particles as {} of their h, coloured by temperature, {}×{}", b.count, b.style.name(), b.width, b.height);
-    println!("{:<48} {:>12} {:>14}", "", "first frame", "frame (median)");
-    println!("{:<48} {:>9.0} ms {:>11.1} ms", format!("volterra points ({gpu_note})"), ours_first, ours_med);
-    println!("{:<48} (of which the GPU's draw, submit to done: {draw_med:.1} ms)", "");
-    match &vtk {
+    let mut report = super::report::Report::new("points", TABLES);
+    report.line(format!("{} particles as {} of their h, coloured by temperature, {}×{}.", b.count, b.style.name(), b.width, b.height));
+    let mut table = super::report::Table::new(COLUMNS);
+    table.row(vec![format!("volterra points ({gpu_note})"), format!("{ours_first:.0}"), format!("{ours_med:.1}")]);
+    let vtk_line = match &vtk {
         Ok(v) => {
             let mut ms: Vec<f64> = v["ms"].as_array().cloned().unwrap_or_default().iter().filter_map(|x| x.as_f64()).collect();
             let vmed = median(&mut ms);
-            println!(
-                "{:<48} {:>9.0} ms {:>11.1} ms",
+            table.row(vec![
                 format!("VTK {} vtkPointGaussianMapper ({})", v["vtk"].as_str().unwrap_or(""), v["renderer"].as_str().unwrap_or("")),
-                v["first_ms"].as_f64().unwrap_or(f64::NAN),
-                vmed
-            );
-            println!("ratio: frames {:.2}× faster than VTK's", vmed / ours_med);
+                format!("{:.0}", v["first_ms"].as_f64().unwrap_or(f64::NAN)),
+                format!("{vmed:.1}"),
+            ]);
+            format!("Ratio: frames {:.2}× faster than VTK's.", vmed / ours_med)
         }
-        Err(e) => println!("VTK skipped: {e:#}"),
-    }
-    Ok(())
+        Err(e) => format!("VTK skipped: {e:#}"),
+    };
+    report.table(table);
+    report.line(format!("Of volterra's frame, the GPU's draw (submit to done): {draw_med:.1} ms (median)."));
+    report.line(vtk_line);
+    report.finish(b.json, b.env.markdown.as_deref())
 }
+
+/// The columns of the bench's table.
+const COLUMNS: &[&str] = &["renderer", "first frame ms", "frame ms (median)"];
+pub const TABLES: &[&[&str]] = &[COLUMNS];
 
 fn run_vtk(python: &Path, scripts: &Path, spec: &Path) -> Result<serde_json::Value> {
     let out = std::process::Command::new(python)

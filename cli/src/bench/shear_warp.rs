@@ -308,40 +308,56 @@ pub fn run(b: &ShearWarpBench) -> Result<()> {
     }
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
-    } else {
-        println!("{w}×{h}, {} views, median of {} runs per view, {} threads", cams.len(), b.runs, rayon::current_num_threads());
-        println!("(* on its family's speed/error Pareto front: projection, blend mode and shading alike)");
-        println!("{:<48} {:>10} {:>10} {:>9} {:>12}  rel. RMSE per view", "config", "median ms", "rel. RMSE", "PSNR dB", "ms/Mpixel");
-        for r in &rows {
-            let mp = r.ms_per_mpixel.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
-            let views: Vec<String> = r.rel_rmse_views.iter().map(|e| format!("{:.2}", 100.0 * e)).collect();
-            println!(
-                "{:<48} {:>10.1} {:>9.2}% {:>9.2} {:>12}  {}",
-                format!("{}{}", if r.pareto { "* " } else { "  " }, r.config),
-                r.median_ms,
-                100.0 * r.rel_rmse,
-                r.psnr_db,
-                mp,
-                views.join(" ")
-            );
-        }
-        // Each VTK configuration against ours: is some volterra configuration of its family
-        // both faster and closer to the reference?
-        print_dominance(&rows, 1);
     }
-    Ok(())
+    let mut report = super::report::Report::new("shear-warp", TABLES);
+    report.line(format!(
+        "{w}×{h}, {} views, median of {} runs per view, {} threads; * on its family's speed/error Pareto front \
+         (projection, blend mode and shading alike).",
+        cams.len(),
+        b.runs,
+        rayon::current_num_threads()
+    ));
+    let mut table = super::report::Table::new(COLUMNS);
+    for r in &rows {
+        let mp = r.ms_per_mpixel.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
+        let views: Vec<String> = r.rel_rmse_views.iter().map(|e| format!("{:.2}", 100.0 * e)).collect();
+        table.row(vec![
+            format!("{}{}", if r.pareto { "* " } else { "" }, r.config),
+            format!("{:.1}", r.median_ms),
+            format!("{:.2}", 100.0 * r.rel_rmse),
+            format!("{:.2}", r.psnr_db),
+            mp,
+            views.join(" "),
+        ]);
+    }
+    report.table(table);
+    // Each VTK configuration against ours: is some volterra configuration of its family
+    // both faster and closer to the reference?
+    for line in dominance(&rows, 1) {
+        report.line(line);
+    }
+    if b.only.is_none() {
+        report.image(&b.plot);
+    }
+    report.finish(b.json, b.env.markdown.as_deref())
 }
+
+/// The columns of the bench's table.
+const COLUMNS: &[&str] = &["config", "median ms", "rel. RMSE %", "PSNR dB", "ms/Mpixel", "rel. RMSE % per view"];
+pub const TABLES: &[&[&str]] = &[COLUMNS];
 
 /// For each VTK row, the volterra row of its family both faster and closer to the
 /// reference (`Row::dominated_by`), or that there is none; times to `decimals` places.
-pub(super) fn print_dominance(rows: &[Row], decimals: usize) {
+pub(super) fn dominance(rows: &[Row], decimals: usize) -> Vec<String> {
+    let mut lines = Vec::new();
     for r in rows.iter().filter(|r| r.config.contains("vtk")) {
         let figures = |o: &Row| format!("{} ({:.*} ms, {:.2} %)", o.config, decimals, o.median_ms, 100.0 * o.rel_rmse);
-        match r.dominated_by.as_ref().and_then(|by| rows.iter().find(|o| &o.config == by)) {
-            Some(o) => println!("{}: faster and closer: {}", figures(r), figures(o)),
-            None => println!("{}: no volterra configuration is both faster and closer", figures(r)),
-        }
+        lines.push(match r.dominated_by.as_ref().and_then(|by| rows.iter().find(|o| &o.config == by)) {
+            Some(o) => format!("{}: faster and closer: {}", figures(r), figures(o)),
+            None => format!("{}: no volterra configuration is both faster and closer", figures(r)),
+        });
     }
+    lines
 }
 
 /// Intermediate image pixels of a frame, from its statistics.

@@ -20,6 +20,7 @@
 //! on the comparison view against the 8192 spp reference in the same run. Mitsuba's time
 //! for our error there follows from its noise falling as 1/√spp.
 
+use super::report::{Report, Table};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -92,16 +93,20 @@ pub fn run(b: &SmokeBench) -> Result<()> {
         races.push(race(b, &scene)?);
     }
     if b.json {
-        let rows = table.map(|t| t.0).unwrap_or_default();
+        let rows = table.as_ref().map(|t| t.0.clone()).unwrap_or_default();
         println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "table": rows, "races": races }))?);
-        return Ok(());
     }
+    let mut report = Report::new("smoke", TABLES);
     if let Some((rows, view)) = &table {
-        print_table(b, rows, *view);
+        report_table(b, rows, *view, &mut report);
     }
-    print_races(&races);
-    Ok(())
+    report_races(&races, &mut report);
+    report.finish(b.json, b.env.markdown.as_deref())
 }
+
+/// The columns of the bench's table.
+const COLUMNS: &[&str] = &["config", "total s", "trace s", "store s", "march s", "rel. RMSE %", "memory MB", "view s"];
+pub const TABLES: &[&[&str]] = &[COLUMNS];
 
 /// The paper's Table 1 and its two variants, then Mitsuba's rows, on the bench scene.
 fn table(b: &SmokeBench) -> Result<(Vec<Row>, (usize, usize))> {
@@ -165,9 +170,9 @@ fn table(b: &SmokeBench) -> Result<(Vec<Row>, (usize, usize))> {
     Ok((rows, ref_size))
 }
 
-fn print_table(b: &SmokeBench, rows: &[Row], ref_size: (usize, usize)) {
-    println!(
-        "{}: {}×{} timing image, 4 rays/pixel, {} photons; error on the {}×{} view against Mitsuba 8192 spp; {} threads",
+fn report_table(b: &SmokeBench, rows: &[Row], ref_size: (usize, usize), report: &mut Report) {
+    report.line(format!(
+        "{}: {}×{} timing image, 4 rays/pixel, {} photons; error on the {}×{} view against Mitsuba 8192 spp; {} threads.",
         b.scene.display(),
         b.width,
         b.height,
@@ -175,24 +180,21 @@ fn print_table(b: &SmokeBench, rows: &[Row], ref_size: (usize, usize)) {
         ref_size.0,
         ref_size.1,
         rayon::current_num_threads()
-    );
-    println!(
-        "{:<50} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10} {:>8}",
-        "config", "total s", "trace s", "store s", "march s", "rel. RMSE", "memory MB", "view s"
-    );
+    ));
+    let mut table = Table::new(COLUMNS);
     for r in rows {
-        println!(
-            "{:<50} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2}% {:>10.1} {:>8.2}",
-            r.config,
-            r.total_s,
-            r.trace_s,
-            r.store_s,
-            r.march_s,
-            100.0 * r.rel_rmse,
-            r.memory_mb,
-            r.view_s
-        );
+        table.row(vec![
+            r.config.clone(),
+            format!("{:.2}", r.total_s),
+            format!("{:.2}", r.trace_s),
+            format!("{:.2}", r.store_s),
+            format!("{:.2}", r.march_s),
+            format!("{:.2}", 100.0 * r.rel_rmse),
+            format!("{:.1}", r.memory_mb),
+            format!("{:.2}", r.view_s),
+        ]);
     }
+    report.table(table);
 }
 
 /// One plume's first view at the renderer's defaults (photons traced, no cache) against
@@ -303,11 +305,10 @@ fn reference_of(b: &SmokeBench, scene: &Path) -> Result<Vec<[f32; 4]>> {
     Ok(rgb_only(&rgba_pixels(&img)))
 }
 
-fn print_races(races: &[Race]) {
-    println!();
-    println!("first view at the defaults (photons traced, no cache; load included) against Mitsuba volpath (its render alone)");
+fn report_races(races: &[Race], report: &mut Report) {
+    report.line("First view at the defaults (photons traced, no cache; load included) against Mitsuba volpath (its render alone):");
     for r in races {
-        println!(
+        report.line(format!(
             "{} ({} particles), {}×{}: ours {:.2} s at {:.2}%; Mitsuba {}",
             r.plume,
             r.particles,
@@ -316,26 +317,26 @@ fn print_races(races: &[Race]) {
             r.ours_s,
             100.0 * r.ours_rel_rmse,
             r.mitsuba.iter().map(|m| format!("{} spp {:.2} s {:.2}%", m.0, m.1, 100.0 * m.2)).collect::<Vec<_>>().join(", ")
-        );
+        ));
         match r.mitsuba_s_at_our_error {
-            Some((s, extrapolated)) => println!(
+            Some((s, extrapolated)) => report.line(format!(
                 "  Mitsuba at our error: {:.2} s ({}) — ours {:.1}× faster",
                 s,
                 if extrapolated { "extrapolated past its last row" } else { "interpolated between its rows" },
                 s / r.ours_s
-            ),
-            None => println!("  Mitsuba at our error: not found from its rows"),
+            )),
+            None => report.line("  Mitsuba at our error: not found from its rows"),
         }
         let (e, m) = r.view_two_render;
-        println!(
+        report.line(format!(
             "  the two-render estimate on this view (Mitsuba {} spp, seeds 1 and 2, no reference): ours {:.2}% (against the reference {:.2}%), Mitsuba {:.2}% (against the reference {:.2}%)",
             r.mitsuba.last().map_or(0, |m| m.0),
             100.0 * e,
             100.0 * r.ours_rel_rmse,
             100.0 * m,
             100.0 * r.mitsuba.last().map_or(f64::NAN, |m| m.2)
-        );
-        println!(
+        ));
+        report.line(format!(
             "  {}×{}: ours {:.2} s at {:.2}% (two Mitsuba renders of {LARGE_SPP} spp: {:.2}% each, {:.3} s per spp); Mitsuba at our error: {:.0} spp, {:.0} s — ours {:.1}× faster",
             r.large.0,
             r.large.1,
@@ -346,7 +347,7 @@ fn print_races(races: &[Race]) {
             r.large_mitsuba_spp_at_our_error,
             r.large_mitsuba_s_at_our_error,
             r.large_mitsuba_s_at_our_error / r.ours_large_s
-        );
+        ));
     }
 }
 

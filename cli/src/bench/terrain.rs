@@ -260,26 +260,22 @@ pub fn run(b: &TerrainBench) -> Result<()> {
     super::plot(&b.env.python, &b.env.scripts, "plot_terrain_steps.py", &steps_path, &b.plot, "step histogram");
     if b.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
-        return Ok(());
     }
-    println!(
-        "{}×{} image, median of {} frames; depth error on a {rw}×{rh} image against the f64 reference, colour error \
-         (anti-aliasing rows) against 256 rays per pixel; GPU: {}",
+    let mut report = super::report::Report::new("terrain", TABLES);
+    report.line(format!(
+        "{}×{} image, median of {} frames; steps per ray; depth error on a {rw}×{rh} image against the f64 reference \
+         (miss: hits that disagree off the silhouette); colour error (anti-aliasing rows) against 256 rays per pixel; GPU: {}.",
         b.width, b.height, b.runs, gpu.info.name
-    );
-    println!(
-        "{:>5} {:<5} {:<22} {:>9} {:>10} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>9} {:>8}",
-        "size", "cam", "config", "build ms", "ms/frame", "mean", "p95", "max", "capped", "med. err", "p99.9 err", "miss", "col. err", "MiB"
-    );
+    ));
+    let mut table = super::report::Table::new(COLUMNS);
     let opt = |v: Option<String>| v.unwrap_or_else(|| "-".into());
     for r in &rows {
-        println!(
-            "{:>5} {:<5} {:<22} {:>9.2} {:>10.2} {:>7} {:>5} {:>6} {:>6} {:>10} {:>10} {:>5} {:>9} {:>8.0}",
-            r.size,
-            r.camera,
-            r.config,
-            r.build_ms,
-            r.median_ms,
+        table.row(vec![
+            r.size.to_string(),
+            r.camera.to_string(),
+            r.config.to_string(),
+            format!("{:.2}", r.build_ms),
+            format!("{:.2}", r.median_ms),
             opt(r.mean_steps.map(|v| format!("{v:.1}"))),
             opt(r.p95_steps.map(|v| v.to_string())),
             opt(r.max_steps.map(|v| v.to_string())),
@@ -288,11 +284,32 @@ pub fn run(b: &TerrainBench) -> Result<()> {
             opt(r.p999_rel_depth_error.map(|v| format!("{v:.1e}"))),
             opt(r.hit_mismatches_off_silhouette.map(|v| v.to_string())),
             opt(r.colour_rel_rmse_vs_256.map(|v| format!("{:.2} %", 100.0 * v))),
-            r.memory_mib
-        );
+            format!("{:.0}", r.memory_mib),
+        ]);
     }
-    Ok(())
+    report.table(table);
+    report.image(&b.plot);
+    report.finish(b.json, b.env.markdown.as_deref())
 }
+
+/// The columns of the bench's table.
+const COLUMNS: &[&str] = &[
+    "size",
+    "camera",
+    "config",
+    "build ms",
+    "ms/frame",
+    "mean steps",
+    "p95 steps",
+    "max steps",
+    "capped",
+    "med. depth err",
+    "p99.9 depth err",
+    "miss",
+    "colour err",
+    "MiB",
+];
+pub const TABLES: &[&[&str]] = &[COLUMNS];
 
 /// A w × h DEM of 30 m cells and 4000 m of relief: the 4097² fractal tile mirrored as often
 /// as needed (continuous across the mirror lines), made row by row as the GPU upload reads
