@@ -112,7 +112,7 @@ impl Report {
 
     /// The Markdown between the section's markers.
     fn section(&self, page: &Path) -> String {
-        let mut out = format!("### `{}`\n\n{}\n\n", command_line(), machine_line());
+        let mut out = format!("## bench {}\n\n`{}`\n\n{}\n\n", self.bench, command_line(), machine_line());
         for p in &self.parts {
             match p {
                 Part::Line(l) => out += &format!("{}\n\n", l.trim()),
