@@ -469,6 +469,9 @@ pub(crate) enum BenchCommand {
     Formats {
         #[command(flatten)]
         runs: Runs,
+        /// Print the rows as JSON.
+        #[arg(long)]
+        json: bool,
         #[command(flatten)]
         common: BenchCommon,
     },

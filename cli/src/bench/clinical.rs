@@ -240,7 +240,11 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
                 format!("{vmed:.0}"),
                 mib(v["peak_bytes"].as_u64()),
             ]);
-            format!("Ratios: first frame {:.2}× faster, further frames {:.2}× faster.", vf / first_ms, vmed / ours_further)
+            format!(
+                "VTK's time over ours (above 1: volterra faster): first frame {:.2}, further frames {:.2}.",
+                vf / first_ms,
+                vmed / ours_further
+            )
         }
         Err(e) => format!("VTK skipped: {e:#}"),
     };

@@ -11,6 +11,7 @@ use volterra_formats::{dicom, nifti, Volume, VoxelData};
 pub struct FormatsBench {
     pub env: super::BenchEnv,
     pub runs: usize,
+    pub json: bool,
 }
 
 /// A 512-slice CT-like series (256×256, i16) and a 256³ i16 gzipped NIfTI, made from the
@@ -61,7 +62,14 @@ const COLUMNS: &[&str] = &["input", "volterra s", "reference s", "reference", "r
 pub const TABLES: &[&[&str]] = &[COLUMNS];
 
 /// Times volterra and the reference readers on one DICOM series and one gzipped NIfTI.
-fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path, table: &mut Table) -> Result<()> {
+fn compare_pair(
+    b: &FormatsBench,
+    label: &str,
+    series: &Path,
+    nii: &Path,
+    table: &mut Table,
+    json: &mut Vec<serde_json::Value>,
+) -> Result<()> {
     let opts = dicom::DicomOptions::default();
     let mut ours_dicom = time_runs(b.runs, || dicom::read_dicom(series, &opts, &b.env.limits).map(|_| ()).map_err(Into::into))?;
     let mut ours_nifti = time_runs(b.runs, || nifti::read_nifti(nii, &Default::default(), &b.env.limits).map(|_| ()).map_err(Into::into))?;
@@ -89,6 +97,12 @@ fn compare_pair(b: &FormatsBench, label: &str, series: &Path, nii: &Path, table:
     ];
     for (name, ours, key) in rows {
         let m = median(ours);
+        let theirs_s = theirs.as_ref().and_then(|t| t[key].as_array()).map(|v| {
+            let mut r: Vec<f64> = v.iter().filter_map(|x| x.as_f64()).collect();
+            median(&mut r)
+        });
+        json.push(serde_json::json!({"input": name, "volterra_s": m, "reference": key, "reference_s": theirs_s,
+            "reference_version": theirs.as_ref().and_then(|t| t["versions"][key].as_str())}));
         match theirs.as_ref().and_then(|t| t[key].as_array()) {
             Some(v) => {
                 let mut r: Vec<f64> = v.iter().filter_map(|x| x.as_f64()).collect();
@@ -116,13 +130,16 @@ pub fn run(b: &FormatsBench) -> Result<()> {
         b.runs,
         rayon::current_num_threads()
     ));
-    let mut table = Table::new(COLUMNS);
-    compare_pair(b, "synthetic 512×256² i16", &series, &nii, &mut table)?;
+    let (mut table, mut json) = (Table::new(COLUMNS), Vec::new());
+    compare_pair(b, "synthetic 512×256² i16", &series, &nii, &mut table, &mut json)?;
     // The real aneurism scan in ../shared/data, where present.
     let shared = b.env.scripts.join("../../../shared/data/volumes/aneurism");
     if shared.join("dicom_ct").is_dir() {
-        compare_pair(b, "aneurism 256³", &shared.join("dicom_ct"), &shared.join("aneurism.nii.gz"), &mut table)?;
+        compare_pair(b, "aneurism 256³", &shared.join("dicom_ct"), &shared.join("aneurism.nii.gz"), &mut table, &mut json)?;
     }
     report.table(table);
-    report.finish(false, b.env.markdown.as_deref())
+    if b.json {
+        println!("{}", serde_json::to_string_pretty(&json)?);
+    }
+    report.finish(b.json, b.env.markdown.as_deref())
 }

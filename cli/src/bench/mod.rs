@@ -94,8 +94,8 @@ pub fn dispatch(bench: crate::args::BenchCommand, limits: Limits) -> Result<()> 
         }
     };
     match bench {
-        BenchCommand::Formats { runs, common } => {
-            formats::run(&formats::FormatsBench { env: common.resolve(limits)?, runs: runs.runs as usize })
+        BenchCommand::Formats { runs, json, common } => {
+            formats::run(&formats::FormatsBench { env: common.resolve(limits)?, runs: runs.runs as usize, json })
         }
         BenchCommand::ShearWarp { scene, only, json, plot, runs, common } => {
             plot_dir(&plot)?;
