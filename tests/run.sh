@@ -19,8 +19,13 @@ set +e
 # The integration tests run the `volterra` binary, which lives in its own package
 # (volterra-cli): `cargo test` builds only its test harness, so build the binary first.
 cargo build --workspace --bins 2>&1 | tail -3
-cargo test --workspace --all-targets --no-fail-fast 2>&1 | tee target/test-output.log
+# The Python package's crate is a cdylib that only maturin links (tests/python.sh).
+cargo test --workspace --all-targets --exclude volterra-python --no-fail-fast 2>&1 | tee target/test-output.log
 status=${PIPESTATUS[0]}
+# The Python package, built into the venv and tested by pytest; its counts join the summary.
+bash tests/python.sh 2>&1 | tee target/python-output.log
+[ "${PIPESTATUS[0]}" -eq 0 ] || status=1
+grep '^test result:' target/python-output.log >> target/test-output.log || status=1
 # The Mitsuba reference of the built-in plume, from the particles the built binary writes.
 if [ -x "$TARGET_DIR/debug/volterra" ]; then
     "$VENV_PY" tests/reference/check_references.py --builtin "$TARGET_DIR/debug/volterra" target/reference-regen || status=1
