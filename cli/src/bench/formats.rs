@@ -101,13 +101,12 @@ fn compare_pair(
             let mut r: Vec<f64> = v.iter().filter_map(|x| x.as_f64()).collect();
             median(&mut r)
         });
+        let version = theirs.as_ref().and_then(|t| t["versions"][key].as_str());
         json.push(serde_json::json!({"input": name, "volterra_s": m, "reference": key, "reference_s": theirs_s,
-            "reference_version": theirs.as_ref().and_then(|t| t["versions"][key].as_str())}));
-        match theirs.as_ref().and_then(|t| t[key].as_array()) {
-            Some(v) => {
-                let mut r: Vec<f64> = v.iter().filter_map(|x| x.as_f64()).collect();
-                let rm = median(&mut r);
-                let version = theirs.as_ref().and_then(|t| t["versions"][key].as_str()).map(|v| format!(" {v}")).unwrap_or_default();
+            "reference_version": version}));
+        match theirs_s {
+            Some(rm) => {
+                let version = version.map(|v| format!(" {v}")).unwrap_or_default();
                 table.row(vec![name, format!("{m:.3}"), format!("{rm:.3}"), format!("{key}{version}"), format!("{:.2}×", rm / m)]);
             }
             None => table.row(vec![name, format!("{m:.3}"), "-".into(), key.into(), "-".into()]),
