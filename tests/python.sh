@@ -9,6 +9,9 @@ VENV=tests/reference/.venv
 export VIRTUAL_ENV="$PWD/$VENV"
 "$VENV/bin/maturin" develop --quiet --manifest-path python/Cargo.toml 2>&1 | tail -3
 mkdir -p target
+# The command the scene tests compare against (CARGO_TARGET_DIR or a config may move it).
+TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | "$VENV/bin/python" -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+export VOLTERRA_BIN="${VOLTERRA_BIN:-$TARGET_DIR/debug/volterra}"
 set +e
 "$VENV/bin/python" -m pytest python/tests -q -p no:cacheprovider --disable-warnings --junitxml=target/pytest.xml
 status=$?

@@ -90,27 +90,39 @@ pub fn linear_to_srgb(v: f32) -> f32 {
 /// Writes an 8-bit RGBA PNG preview from linear RGBA floats (sRGB-encoded colour, values
 /// clamped to [0, 1], NaN shown as 0). Written atomically.
 pub fn write_png_preview(path: &Path, width: usize, height: usize, rgba: &[f32]) -> Result<()> {
+    let bytes = png_preview_bytes(width, height, rgba).map_err(|m| FormatError::invalid(path, m))?;
+    write_bytes_atomically(path, &bytes)
+}
+
+/// The PNG file `write_png_preview` writes, in memory (a notebook shows it inline).
+pub fn png_preview_bytes(width: usize, height: usize, rgba: &[f32]) -> std::result::Result<Vec<u8>, String> {
     if rgba.len() != width * height * 4 {
-        return Err(FormatError::invalid(path, "preview buffer size does not match the image size"));
+        return Err("preview buffer size does not match the image size".into());
     }
     let q = |v: f32| (if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) } * 255.0 + 0.5) as u8;
     let bytes: Vec<u8> =
         rgba.chunks_exact(4).flat_map(|p| [q(linear_to_srgb(p[0])), q(linear_to_srgb(p[1])), q(linear_to_srgb(p[2])), q(p[3])]).collect();
-    write_png_rgba8(path, width, height, &bytes)
+    png_rgba8_bytes(width, height, &bytes)
 }
 
 /// Writes 8-bit RGBA bytes as a PNG, atomically.
 pub fn write_png_rgba8(path: &Path, width: usize, height: usize, bytes: &[u8]) -> Result<()> {
+    let out = png_rgba8_bytes(width, height, bytes).map_err(|m| FormatError::invalid(path, m))?;
+    write_bytes_atomically(path, &out)
+}
+
+/// 8-bit RGBA bytes encoded as a PNG file in memory.
+fn png_rgba8_bytes(width: usize, height: usize, bytes: &[u8]) -> std::result::Result<Vec<u8>, String> {
     let mut out = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
-        let mut w = enc.write_header().map_err(|e| FormatError::invalid(path, format!("cannot write PNG: {e}")))?;
-        w.write_image_data(bytes).map_err(|e| FormatError::invalid(path, format!("cannot write PNG: {e}")))?;
+        let mut w = enc.write_header().map_err(|e| format!("cannot write PNG: {e}"))?;
+        w.write_image_data(bytes).map_err(|e| format!("cannot write PNG: {e}"))?;
     }
-    write_bytes_atomically(path, &out)
+    Ok(out)
 }
 
 /// Writes a 16-bit greyscale PNG (used for heightmap samples), atomically.

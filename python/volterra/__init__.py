@@ -1,28 +1,42 @@
-"""volterra: read clinical volumes, DEMs and particle files into numpy.
+"""volterra: read clinical volumes, DEMs and particle files into numpy, build scenes
+from them and render them.
 
     >>> import volterra
     >>> ct = volterra.read("ct.nii.gz")
     >>> ct.array.shape, ct.affine          # as nibabel's get_fdata() and affine
     >>> dem = volterra.read("dem.tif")
     >>> dem.array, dem.transform, dem.crs  # as GDAL's ReadAsArray and geotransform
+    >>> scene = volterra.Scene(width=512, height=512)
+    >>> scene.add_volume(ct, preset="CT-AAA", shading=True)
+    >>> scene.camera.azimuth(30)
+    >>> frame = scene.render()             # shows inline in Jupyter
+    >>> frame.save("ct.exr"); scene.to_toml("ct.toml")  # `volterra render ct.toml` draws the same
 
 Every reader of the `volterra` command line, with its checks: a malformed file raises
 FormatError (a ValueError), an unreadable one ReadError (an OSError), one larger than
-`max_memory` MemoryLimitError (a MemoryError), each with the command's one-line message.
+`max_memory` MemoryLimitError (a MemoryError), a scene that does not check SceneError (a
+ValueError), each with the command's one-line message.
 """
 
 from ._volterra import (  # noqa: F401
     AmbiguousError,
+    Camera,
     FormatError,
+    Frame,
+    Frames,
     Heightfield,
     MemoryLimitError,
     Particles,
     ReadError,
+    Scene,
+    SceneError,
     UnsupportedError,
     Volume,
+    compare,
     list_series,
     read,
 )
+from . import dem  # noqa: F401,E402
 
 __all__ = [
     "read",
@@ -30,12 +44,20 @@ __all__ = [
     "Volume",
     "Heightfield",
     "Particles",
+    "Scene",
+    "Camera",
+    "Frame",
+    "Frames",
     "FormatError",
     "UnsupportedError",
     "AmbiguousError",
     "ReadError",
     "MemoryLimitError",
+    "SceneError",
     "to_nibabel",
+    "from_nibabel",
+    "compare",
+    "dem",
     "to_pyvista",
 ]
 
@@ -45,6 +67,28 @@ def to_nibabel(volume):
     import nibabel
 
     return nibabel.Nifti1Image(volume.array, volume.affine)
+
+
+def from_nibabel(img):
+    """A Volume from a nibabel image: its stored values (not scaled, in their own type)
+    with the header's slope and intercept, and its affine."""
+    import nibabel
+    import numpy as np
+
+    dataobj = img.dataobj
+    if nibabel.is_proxy(dataobj):
+        raw = dataobj.get_unscaled()
+        slope, inter = dataobj.slope, dataobj.inter
+    else:
+        raw, slope, inter = np.asanyarray(dataobj), 1.0, 0.0
+    # nibabel reads a slope of 0 or NaN as none (NIfTI's rule).
+    if slope is None or not np.isfinite(slope) or slope == 0:
+        slope, inter = 1.0, 0.0
+    if inter is None or not np.isfinite(inter):
+        inter = 0.0
+    if raw.ndim != 3:
+        raise ValueError(f"from_nibabel: a {raw.ndim}-D image; a Volume is 3-D (choose one with img.slicer[..., k])")
+    return Volume(raw, img.affine, slope=float(slope), intercept=float(inter))
 
 
 def to_pyvista(data):

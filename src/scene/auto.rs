@@ -2,7 +2,7 @@
 //! kind draws best, a camera that frames it, a light, and for volumes the transfer-function
 //! preset that suits the modality.
 
-use super::{Camera, ImageSettings, Light, LightKind, Medium, NodeData, NodeDesc, NodeKind, Scene, SceneFile, TerrainData, Transform};
+use super::{Camera, ImageSettings, Light, LightKind, Medium, NodeData, NodeDesc, NodeKind, Scene, SceneFile, TerrainData};
 use anyhow::{anyhow, Result};
 use glam::{DMat4, DVec3};
 use std::path::{Component, Path, PathBuf};
@@ -30,37 +30,12 @@ pub fn scene_for_file(path: &Path, opts: &LoadOptions) -> Result<Scene> {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
     let file_name = PathBuf::from(path.file_name().ok_or_else(|| anyhow!("{}: not a file name", path.display()))?);
     let mut node = NodeDesc {
-        name,
-        kind,
         file: Some(file_name),
-        parent: None,
-        transform: Transform::default(),
-        renderer: None,
-        visible: true,
-        settings: toml::Table::new(),
         series: opts.dicom.series.clone(),
         volume_index: opts.nifti.volume_index,
         resample: opts.dicom.resample,
-        transfer_function: None,
-        preset: None,
-        preset_shift: 0.0,
-        modality: None,
-        shading: None,
-        crop: None,
-        clip: Vec::new(),
-        blend: Default::default(),
-        opacity_scale: 1.0,
-        png: None,
-        texture: None,
-        texture_colormap: None,
-        texture_range: None,
-        elevation_range: None,
         extent: opts.geotiff.extent,
-        arrays: None,
-        medium: None,
-        color_by: None,
-        color_range: None,
-        scale_over: Default::default(),
+        ..NodeDesc::new(&name, kind)
     };
     // The fast renderer for the kind (shear-warp, the GPU terrain ray-caster, points;
     // smoke is a click away: the node keeps a medium and a light for it).
@@ -224,6 +199,19 @@ pub fn fit_camera(kind: NodeKind, (lo, hi): (DVec3, DVec3)) -> Camera {
                 parallel_projection: false,
                 parallel_scale: 1.0,
             }
+        }
+    }
+}
+
+/// Rewrites the data and texture paths of `file`, relative to directory `from`, to be
+/// relative to directory `to` (a scene saved elsewhere still finds its data).
+pub fn relocate(file: &mut SceneFile, from: &Path, to: &Path) {
+    for n in &mut file.nodes {
+        if let Some(f) = &n.file {
+            n.file = Some(relative_path(&from.join(f), to));
+        }
+        if let Some(t) = &n.texture {
+            n.texture = Some(relative_path(&from.join(t), to));
         }
     }
 }

@@ -186,6 +186,46 @@ pub struct NodeDesc {
     pub scale_over: ScaleOver,
 }
 
+impl NodeDesc {
+    /// A node of `kind` with every key at its default: no file, the kind's default
+    /// renderer, visible.
+    pub fn new(name: &str, kind: NodeKind) -> NodeDesc {
+        NodeDesc {
+            name: name.to_string(),
+            kind,
+            file: None,
+            parent: None,
+            transform: Transform::default(),
+            renderer: None,
+            visible: true,
+            settings: toml::Table::new(),
+            series: None,
+            volume_index: 0,
+            resample: false,
+            transfer_function: None,
+            preset: None,
+            preset_shift: 0.0,
+            modality: None,
+            shading: None,
+            crop: None,
+            clip: Vec::new(),
+            blend: BlendMode::default(),
+            opacity_scale: 1.0,
+            png: None,
+            extent: None,
+            texture: None,
+            texture_colormap: None,
+            texture_range: None,
+            elevation_range: None,
+            arrays: None,
+            medium: None,
+            color_by: None,
+            color_range: None,
+            scale_over: ScaleOver::default(),
+        }
+    }
+}
+
 pub(super) fn yes() -> bool {
     true
 }

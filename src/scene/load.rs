@@ -19,12 +19,18 @@ impl Scene {
             doc.try_into().map_err(|e: toml::de::Error| anyhow!("{}: after --set: {}", path.display(), one_line(e.message())))?
         };
         let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Scene::from_file_with_lines(file, base_dir, path.to_path_buf(), &lines, None)
+        Scene::from_file_with_lines(file, base_dir, path.to_path_buf(), &lines, None, Vec::new())
     }
 
     /// A scene from parsed objects (errors name no lines).
     pub fn from_file(file: SceneFile, base_dir: PathBuf, source: PathBuf) -> Result<Scene> {
-        Scene::from_file_with_lines(file, base_dir, source, &SettingLines::default(), None)
+        Scene::from_file_with_lines(file, base_dir, source, &SettingLines::default(), None, Vec::new())
+    }
+
+    /// A scene whose nodes without a file hold data given in memory (`given`, by node
+    /// name: arrays handed over from Python), checked as a scene file is.
+    pub fn from_memory(file: SceneFile, base_dir: PathBuf, source: PathBuf, given: Vec<(String, NodeData)>) -> Result<Scene> {
+        Scene::from_file_with_lines(file, base_dir, source, &SettingLines::default(), None, given)
     }
 
     fn from_file_with_lines(
@@ -33,8 +39,20 @@ impl Scene {
         source: PathBuf,
         lines: &SettingLines,
         known_series: Option<&HashMap<PathBuf, Option<Arc<TimeSeries>>>>,
+        given: Vec<(String, NodeData)>,
     ) -> Result<Scene> {
         let src = source.display().to_string();
+        for (name, data) in &given {
+            let Some(n) = file.nodes.iter().find(|n| &n.name == name) else {
+                bail!("{src}: data given for '{name}', a node the scene lacks")
+            };
+            if n.file.is_some() {
+                bail!("{src}: node '{name}' names a file and is given data too");
+            }
+            if data.kind() != n.kind {
+                bail!("{src}: node '{name}' is a {:?} node and is given {:?} data", n.kind, data.kind());
+            }
+        }
         file.camera.validate().map_err(|m| anyhow!("{src}: {m}"))?;
         if !(file.image.exposure.is_finite() && file.image.exposure.abs() <= 30.0) {
             bail!("{src}: image exposure {} must be a number of stops in -30..30", file.image.exposure);
@@ -47,7 +65,7 @@ impl Scene {
             if index.insert(n.name.as_str(), i).is_some() {
                 bail!("{src}: two nodes are named '{}'", n.name);
             }
-            if n.kind != NodeKind::Group && n.file.is_none() {
+            if n.kind != NodeKind::Group && n.file.is_none() && !given.iter().any(|g| g.0 == n.name) {
                 bail!("{src}: node '{}' ({:?}) needs a file", n.name, n.kind);
             }
             if let Some(f) = &n.file {
@@ -231,7 +249,7 @@ impl Scene {
             found.push(s);
         }
         let n = file.nodes.len();
-        Ok(Scene {
+        let scene = Scene {
             file,
             base_dir,
             source,
@@ -245,18 +263,37 @@ impl Scene {
             time: None,
             limits: Limits::default(),
             view_windows: vec![None; n],
-        })
+        };
+        for (name, data) in given {
+            let node = scene.node_index(&name).expect("checked above");
+            scene.provide_data(node, data);
+        }
+        Ok(scene)
     }
 
     /// A scene from an edited copy of this one's description (same base directory and
     /// source), keeping the data already read for every node whose data-reading keys
     /// did not change: editing a transfer function or the camera reads nothing again.
     pub fn edited(&self, file: SceneFile) -> Result<Scene> {
+        self.edited_with_data(file, Vec::new())
+    }
+
+    /// `edited`, with data `given` in memory for new nodes without a file (see
+    /// `from_memory`); the nodes already holding data in memory keep it.
+    pub fn edited_with_data(&self, file: SceneFile, mut given: Vec<(String, NodeData)>) -> Result<Scene> {
         // Series already found are not looked for again (the viewer edits often).
         let known: HashMap<PathBuf, Option<Arc<TimeSeries>>> =
             self.file.nodes.iter().zip(&self.series).filter_map(|(n, s)| Some((n.file.clone()?, s.clone()))).collect();
+        for (j, o) in self.file.nodes.iter().enumerate() {
+            let kept = file.nodes.iter().any(|n| n.name == o.name && n.kind == o.kind && n.file.is_none());
+            if let (None, true, Some(Ok(data))) = (&o.file, kept, self.data[j].get()) {
+                if !given.iter().any(|g| g.0 == o.name) {
+                    given.push((o.name.clone(), data.clone()));
+                }
+            }
+        }
         let mut next =
-            Scene::from_file_with_lines(file, self.base_dir.clone(), self.source.clone(), &SettingLines::default(), Some(&known))?
+            Scene::from_file_with_lines(file, self.base_dir.clone(), self.source.clone(), &SettingLines::default(), Some(&known), given)?
                 .with_limits(self.limits);
         next.time = self.time;
         for (i, n) in next.file.nodes.iter().enumerate() {

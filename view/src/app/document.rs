@@ -204,14 +204,7 @@ impl Viewer {
             }
         }
         let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        for n in &mut file.nodes {
-            if let Some(f) = &n.file {
-                n.file = Some(relative_path(&doc.scene.base_dir.join(f), dir));
-            }
-            if let Some(t) = &n.texture {
-                n.texture = Some(relative_path(&doc.scene.base_dir.join(t), dir));
-            }
-        }
+        relocate(&mut file, &doc.scene.base_dir, dir);
         let text = toml::to_string(&file).map_err(|e| anyhow!("{}: cannot write the scene: {e}", path.display()))?;
         let text = format!("# Saved by `volterra view`; render with `volterra render {} -o OUT.exr`.\n{text}", path.display());
         volterra_formats::atomic::write_bytes_atomically(path, text.as_bytes())?;

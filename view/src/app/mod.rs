@@ -42,7 +42,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 use volterra::catalog;
 use volterra::render::Frame;
-use volterra::scene::auto::{fit_camera, relative_path, scene_for_file};
+use volterra::scene::auto::{fit_camera, relocate, scene_for_file};
 use volterra::scene::presets::ValueStats;
 use volterra::scene::{BlendMode, Camera, Measurement, MeasurementKind, NodeData, NodeKind, Scene, TerrainData, VolumeShading};
 use volterra_formats::LoadOptions;
