@@ -680,3 +680,40 @@ fn an_elevation_range_sets_the_elevation_colours_ends() {
         assert!(e.contains("elevation_range") && e.contains(why), "{e}");
     }
 }
+
+#[test]
+fn nodes_given_data_in_memory_render_keep_it_across_edits_and_are_checked() {
+    use volterra::scene::{NodeDesc, NodeKind, SceneFile};
+    let mut file: SceneFile = toml::from_str("[camera]\nposition = [0, -60, 0]\nfocal_point = [0, 0, 0]\n").unwrap();
+    file.image.width = 24;
+    file.image.height = 24;
+    file.nodes.push(NodeDesc { preset: Some("CT-AAA".into()), ..NodeDesc::new("ct", NodeKind::Volume) });
+    // Values rising along x, so the preset placed on their percentiles draws something.
+    let ramp = Volume::centred([16; 3], [2.0; 3], VoxelData::U8((0..16 * 16 * 16).map(|i| (i % 16 * 17) as u8).collect()));
+    let volume = || NodeData::Volume(std::sync::Arc::new(ramp.clone()));
+    let src = std::path::PathBuf::from("<memory>");
+    // Without data, a node without a file is refused as in a scene file.
+    let e = Scene::from_memory(file.clone(), ".".into(), src.clone(), vec![]).err().unwrap().to_string();
+    assert!(e.contains("node 'ct' (Volume) needs a file"), "{e}");
+    // Data for a node the scene lacks, or of another kind, is refused.
+    let e = Scene::from_memory(file.clone(), ".".into(), src.clone(), vec![("mr".into(), volume())]).err().unwrap().to_string();
+    assert!(e.contains("a node the scene lacks"), "{e}");
+    let hf = NodeData::Particles(std::sync::Arc::new(
+        volterra_formats::ParticleSet::from_arrays(vec![[0.0; 3]], vec![], &Default::default(), vec![]).unwrap(),
+    ));
+    let e = Scene::from_memory(file.clone(), ".".into(), src.clone(), vec![("ct".into(), hf)]).err().unwrap().to_string();
+    assert!(e.contains("is given Particles data"), "{e}");
+    let scene = Scene::from_memory(file.clone(), ".".into(), src, vec![("ct".into(), volume())]).unwrap();
+    assert!(scene.is_loaded(0));
+    let before = render::render_scene(&scene, None).unwrap();
+    assert!(before.rgba.iter().any(|p| p[3] > 0.5));
+    // An edit (the background) keeps the data given; a second node is given its own.
+    let mut edited = scene.file.clone();
+    edited.image.background = [0.5; 3];
+    edited.nodes.push(NodeDesc { visible: false, ..NodeDesc::new("copy", NodeKind::Volume) });
+    let next = scene.edited_with_data(edited, vec![("copy".into(), volume())]).unwrap();
+    assert!(next.is_loaded(0) && next.is_loaded(1));
+    assert!(std::sync::Arc::ptr_eq(&scene.volume(0).unwrap(), &next.volume(0).unwrap()));
+    // The same data drawn again (the hidden copy draws nothing).
+    assert_eq!(render::render_scene(&next, None).unwrap().rgba, before.rgba);
+}
