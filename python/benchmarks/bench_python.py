@@ -42,7 +42,8 @@ def pydicom_stack(directory):
     slices = [pydicom.dcmread(p) for p in sorted(Path(directory).iterdir()) if p.is_file()]
     normal = np.cross(*np.reshape(np.array(slices[0].ImageOrientationPatient, float), (2, 3)))
     slices.sort(key=lambda s: float(np.dot(normal, np.array(s.ImagePositionPatient, float))))
-    stack = np.stack([s.pixel_array for s in slices], axis=-1)
+    # pixel_array is [row, column]; volterra's (i, j, k) is (column, row, slice): a view.
+    stack = np.stack([s.pixel_array for s in slices], axis=-1).transpose(1, 0, 2)
     slope, inter = float(getattr(slices[0], "RescaleSlope", 1)), float(getattr(slices[0], "RescaleIntercept", 0))
     return stack * slope + inter if (slope, inter) != (1.0, 0.0) else stack
 

@@ -29,9 +29,9 @@ pub(crate) struct PyVolume {
 }
 
 fn volume_to_python(py: Python<'_>, mut v: Volume) -> PyResult<PyVolume> {
-    let meta = volterra::info::volume_json(&v);
+    // The passes over the voxels (the metadata's range, the rescaled values) without the GIL.
+    let (meta, real) = py.detach(|| (volterra::info::volume_json(&v), (!v.rescale.is_identity()).then(|| v.real_values())));
     let shape = v.dims.to_vec();
-    let real: Option<Vec<f64>> = (!v.rescale.is_identity()).then(|| (0..v.voxel_count()).map(|i| v.value(i)).collect());
     let raw = match std::mem::replace(&mut v.data, VoxelData::U8(Vec::new())) {
         VoxelData::U8(d) => shaped(py, d, shape.clone(), true)?,
         VoxelData::I8(d) => shaped(py, d, shape.clone(), true)?,
