@@ -291,12 +291,14 @@ impl Volume {
     pub fn value(&self, i: usize) -> f64 {
         self.rescale.apply(self.data.stored(i))
     }
-    /// Every voxel's real-world value in storage order: one pass per stored type, not a
-    /// match per voxel (3× faster than `value` in a loop on a 10 M-voxel CT).
+    /// Every voxel's real-world value in storage order: one pass per stored type (not a
+    /// match per voxel), on every core — numpy's multiply converts with the CPU's widest
+    /// vectors, which this build's baseline x86-64 target does not assume.
     #[allow(clippy::unnecessary_cast)]
     pub fn real_values(&self) -> Vec<f64> {
+        use rayon::prelude::*;
         let r = self.rescale;
-        each_variant!(&self.data, v => v.iter().map(|&x| r.apply(x as f64)).collect())
+        each_variant!(&self.data, v => v.par_iter().with_min_len(1 << 16).map(|&x| r.apply(x as f64)).collect())
     }
     /// (min, max) of the real-world values.
     pub fn value_range(&self) -> Option<(f64, f64)> {

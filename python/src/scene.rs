@@ -63,7 +63,9 @@ impl PyScene {
         file.nodes.push(node);
         self.edit(file, vec![(name.clone(), data)])?;
         if self.auto_camera {
-            self.frame_data()?;
+            // Data with no finite extent (all NoData) leaves the camera where it was: the
+            // node is added all the same, and `reset` says why it cannot frame it.
+            let _ = self.frame_data();
         }
         Ok(name)
     }
@@ -97,8 +99,9 @@ impl PyScene {
     fn camera_edit(&mut self, f: impl FnOnce(&mut Camera) -> PyResult<()>) -> PyResult<()> {
         let mut file = self.scene.file.clone();
         f(&mut file.camera)?;
+        self.edit(file, Vec::new())?;
         self.auto_camera = false;
-        self.edit(file, Vec::new())
+        Ok(())
     }
 
     /// Renders the scene's camera (or animation frame `frame`) at `size`, the GIL released;
