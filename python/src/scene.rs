@@ -110,25 +110,20 @@ impl PyScene {
         let camera = scene.camera_at(frame).map_err(scene_error)?;
         let cancel = Arc::new(Cancel(AtomicBool::new(false)));
         let done = AtomicBool::new(false);
+        let waiting = std::thread::current();
         let cache = &self.cache;
         let result = std::thread::scope(|s| {
             let worker = s.spawn(|| {
-                let r = driver::observed(cancel.clone(), || render::render_view(scene, &camera, size, cache));
-                done.store(true, Ordering::Release);
-                r
+                // Raised on the way out, a panic included, so the wait below always ends.
+                let _finished = Finished(&done, &waiting);
+                driver::observed(cancel.clone(), || render::render_view(scene, &camera, size, cache))
             });
-            // This thread waits without the GIL and takes it back only to see whether
-            // Ctrl-C was pressed (Python sees signals on its main thread only).
+            // This thread waits without the GIL (woken as the render ends) and takes it back
+            // every 50 ms to see whether Ctrl-C was pressed (Python sees signals on its
+            // main thread only).
             let mut interrupted = None;
             while !done.load(Ordering::Acquire) {
-                py.detach(|| {
-                    for _ in 0..10 {
-                        if done.load(Ordering::Acquire) {
-                            break;
-                        }
-                        std::thread::sleep(Duration::from_millis(5));
-                    }
-                });
+                py.detach(|| std::thread::park_timeout(Duration::from_millis(50)));
                 if interrupted.is_none() {
                     if let Err(e) = py.check_signals() {
                         cancel.0.store(true, Ordering::Relaxed);
@@ -144,6 +139,17 @@ impl PyScene {
         })?;
         let image = &scene.file.image;
         Ok(PyFrame::new(result, image.background, image.exposure))
+    }
+}
+
+/// Raises its flag and wakes the waiting thread when dropped: the render thread has
+/// ended, however it ended.
+struct Finished<'a>(&'a AtomicBool, &'a std::thread::Thread);
+
+impl Drop for Finished<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Release);
+        self.1.unpark();
     }
 }
 

@@ -4,37 +4,18 @@ contours equal its GeoJSON, and compare() equals `volterra compare --json`; a pl
 and aspect against their closed form. Run by tests/python.sh with pytest."""
 
 import json
-import os
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import volterra
 import volterra.dem
-
-ROOT = Path(__file__).resolve().parents[2]
-VOLTERRA = Path(os.environ.get("VOLTERRA_BIN", ROOT / "target" / "debug" / "volterra"))
-SHARED = Path(os.environ.get("VOLTERRA_SHARED_DATA", ROOT / ".." / "shared" / "data")).resolve()
-
-
-def cli(*args):
-    if not VOLTERRA.exists():
-        pytest.fail(f"{VOLTERRA} is missing: build it first (cargo build --workspace --bins)")
-    r = subprocess.run([str(VOLTERRA), "-q", *map(str, args)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    return r.stdout
+from _support import cli, shared
 
 
 @pytest.fixture(scope="module")
 def dem_path():
-    path = SHARED / "terrain" / "pysheds_dem.tif"
-    if not path.exists():
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"{path} is missing: the shared data must sit beside the checkout (../shared/data)")
-        pytest.skip(f"{path} not here")
-    return path
+    return shared("terrain/pysheds_dem.tif")
 
 
 def cli_raster(tmp_path, product, dem, *flags):
@@ -123,7 +104,7 @@ def test_bad_dem_inputs_raise_clear_errors(dem_path):
     with pytest.raises(ValueError, match="geotransform"):
         volterra.dem.hillshade(np.zeros((5, 5)))
     with pytest.raises(volterra.FormatError, match="not a DEM"):
-        volterra.dem.slope(SHARED / "volumes" / "aneurism" / "aneurism.nii.gz")
+        volterra.dem.slope(shared("volumes/aneurism/aneurism.nii.gz"))
     with pytest.raises(volterra.ReadError):
         volterra.dem.slope("/nonexistent/dem.tif")
 

@@ -4,24 +4,21 @@ inline as a PNG. The executed notebook and its pictures are left in target/noteb
 
 import base64
 import os
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from _support import ROOT, shared
+
+
 NOTEBOOK = ROOT / "examples" / "python_tour.ipynb"
-SHARED = Path(os.environ.get("VOLTERRA_SHARED_DATA", ROOT / ".." / "shared" / "data")).resolve()
 
 
 def test_the_example_notebook_runs_end_to_end():
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
-    if not SHARED.is_dir():
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"{SHARED} is missing: the notebook reads the shared data")
-        pytest.skip(f"{SHARED} not here")
+    data = shared()
     nb = nbformat.read(NOTEBOOK, as_version=4)
-    os.environ["VOLTERRA_SHARED_DATA"] = str(SHARED)
+    os.environ["VOLTERRA_SHARED_DATA"] = str(data)
     client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOK.parent)}})
     client.execute()
     out = ROOT / "target" / "notebook"

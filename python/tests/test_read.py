@@ -2,27 +2,14 @@
 the shared data, the zero-copy promises, the exceptions, and the GIL released while a
 file is read. Run by tests/python.sh (the README's test command) with pytest."""
 
-import os
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import volterra
-
-SHARED = Path(os.environ.get("VOLTERRA_SHARED_DATA", Path(__file__).resolve().parents[2] / ".." / "shared" / "data")).resolve()
-
-
-def shared(rel):
-    """A file of ../shared/data: under CI=true its absence fails the test, locally it skips."""
-    path = SHARED / rel
-    if not path.exists():
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"{path} is missing: the shared data must sit beside the checkout (../shared/data)")
-        pytest.skip(f"{path} not here")
-    return path
+from _support import shared
 
 
 NIFTI = [

@@ -5,38 +5,14 @@ arrays and keys raise clear errors; the camera moves as VTK's does; the GIL is r
 while rendering and Ctrl-C cancels. Run by tests/python.sh with pytest."""
 
 import _thread
-import os
-import subprocess
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import volterra
-
-ROOT = Path(__file__).resolve().parents[2]
-VOLTERRA = Path(os.environ.get("VOLTERRA_BIN", ROOT / "target" / "debug" / "volterra"))
-SHARED = Path(os.environ.get("VOLTERRA_SHARED_DATA", ROOT / ".." / "shared" / "data")).resolve()
-
-
-def cli(*args, cwd=None):
-    """Runs the volterra command; its failure fails the test with its stderr."""
-    if not VOLTERRA.exists():
-        pytest.fail(f"{VOLTERRA} is missing: build it first (cargo build --workspace --bins)")
-    r = subprocess.run([str(VOLTERRA), "-q", *map(str, args)], capture_output=True, text=True, cwd=cwd)
-    assert r.returncode == 0, r.stderr
-    return r
-
-
-def shared(rel):
-    path = SHARED / rel
-    if not path.exists():
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"{path} is missing: the shared data must sit beside the checkout (../shared/data)")
-        pytest.skip(f"{path} not here")
-    return path
+from _support import cli, shared
 
 
 def same_as_cli(scene, tmp_path, name):
