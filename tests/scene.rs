@@ -714,6 +714,10 @@ fn nodes_given_data_in_memory_render_keep_it_across_edits_and_are_checked() {
     let next = scene.edited_with_data(edited, vec![("copy".into(), volume())]).unwrap();
     assert!(next.is_loaded(0) && next.is_loaded(1));
     assert!(std::sync::Arc::ptr_eq(&scene.volume(0).unwrap(), &next.volume(0).unwrap()));
+    // A drape in memory is for heightfields only.
+    let drape = volterra::scene::drape::Drape::stretched(&volterra_formats::RgbImage { width: 1, height: 1, data: vec![0; 3] });
+    let e = next.provide_texture(0, std::sync::Arc::new(drape)).unwrap_err().to_string();
+    assert!(e.contains("for a heightfield node"), "{e}");
     // The same data drawn again (the hidden copy draws nothing).
     assert_eq!(render::render_scene(&next, None).unwrap().rgba, before.rgba);
 }

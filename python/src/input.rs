@@ -13,7 +13,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 use volterra_formats::heightfield::{GridGeoref, GridUnits, NodataMask};
 use volterra_formats::particles::PointArray;
 use volterra_formats::volume::Rescale;
-use volterra_formats::{Crs, Heightfield, ParticleArrayNames, ParticleSet, Volume, VoxelData};
+use volterra_formats::{Crs, Heightfield, ParticleArrayNames, ParticleSet, RgbImage, Volume, VoxelData};
 
 /// `obj` as a numpy array (lists and other array-likes through `numpy.asarray`).
 fn as_ndarray<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
@@ -177,6 +177,24 @@ pub fn heightfield(data: &Bound<'_, PyAny>, transform: Option<&Bound<'_, PyAny>>
         attributes: Vec::new(),
         units: georef.units,
     })
+}
+
+/// A drape: an sRGB image, uint8 (rows, columns, 3), the first row the northern one.
+pub fn drape(obj: &Bound<'_, PyAny>) -> PyResult<RgbImage> {
+    let array = as_ndarray(obj)?;
+    let shape = shape_of(&array)?;
+    let (rows, cols) = match shape[..] {
+        [r, c, 3] if r > 0 && c > 0 => (r, c),
+        _ => return Err(PyValueError::new_err(format!("drape: an RGB image is (rows, columns, 3), this one has shape {shape:?}"))),
+    };
+    let Ok(bytes) = array.cast::<PyArray3<u8>>() else {
+        return Err(PyTypeError::new_err(format!(
+            "drape: sRGB bytes (uint8) are taken, not {} (for colours in [0, 1]: (np.clip(c, 0, 1) * 255).round().astype(np.uint8))",
+            dtype_name(&array)
+        )));
+    };
+    let data: Vec<u8> = bytes.readonly().as_array().iter().copied().collect();
+    Ok(RgbImage { width: cols, height: rows, data })
 }
 
 /// The grid GDAL's geotransform `t` gives `rows` × `cols` samples: north up, metres.

@@ -20,9 +20,10 @@ use std::time::Duration;
 use volterra::render::{self, driver, RenderCache};
 use volterra::scene::animation::{self, AnimationFrame};
 use volterra::scene::auto::{fit_camera, relocate};
+use volterra::scene::drape::Drape;
 use volterra::scene::presets::Preset;
 use volterra::scene::{Camera, ImageSettings, Light, NodeData, NodeDesc, NodeKind, Scene, SceneFile, VolumeShading};
-use volterra_formats::{Dataset, ParticleArrayNames};
+use volterra_formats::{Dataset, ParticleArrayNames, RgbImage};
 
 /// What a scene built in Python is named in messages (it has no file).
 const IN_MEMORY: &str = "<scene from Python>";
@@ -273,19 +274,32 @@ impl PyScene {
 
     /// Adds a heightfield: a `Heightfield` from `read`, or a 2-D array of elevations in
     /// metres (rows from the north, NaN for NoData) with GDAL's geotransform in metres
-    /// (`epsg`: the projected CRS it is in). Other keywords are node keys:
-    /// `renderer`, `settings`, `elevation_range`, `texture` (a file), `transform`.
-    #[pyo3(signature = (data, transform=None, *, name=None, epsg=None, **options))]
+    /// (`epsg`: the projected CRS it is in). `drape`: an sRGB image, uint8 (rows, columns,
+    /// 3), stretched over the heightfield's extent (an aerial photo, a land-cover map).
+    /// Other keywords are node keys: `renderer`, `settings`, `elevation_range`, `texture`
+    /// (a file instead of `drape`), `transform`.
+    #[pyo3(signature = (data, transform=None, *, name=None, epsg=None, drape=None, **options))]
     fn add_heightfield(
         &mut self,
         data: &Bound<'_, PyAny>,
         transform: Option<&Bound<'_, PyAny>>,
         name: Option<String>,
         epsg: Option<u32>,
+        drape: Option<&Bound<'_, PyAny>>,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<String> {
         let hf = input::heightfield(data, transform, epsg)?;
-        self.add(NodeKind::Heightfield, name, options_of(options)?, NodeData::from(Dataset::Heightfield(hf)))
+        let options = options_of(options)?;
+        let image = drape.map(input::drape).transpose()?;
+        if image.is_some() && options.get("texture").is_some() {
+            return Err(PyValueError::new_err("add_heightfield: give a drape or a texture file, not both"));
+        }
+        let name = self.add(NodeKind::Heightfield, name, options, NodeData::from(Dataset::Heightfield(hf)))?;
+        if let Some(image) = image {
+            let node = self.scene.node_index(&name).expect("just added");
+            self.scene.provide_texture(node, Arc::new(Drape::stretched(&image))).map_err(scene_error)?;
+        }
+        Ok(name)
     }
 
     /// Adds particles: `Particles` from `read`, or positions (N × 3) and a dict of point
@@ -511,6 +525,21 @@ impl PyScene {
             })
             .map_err(crate::py_error)?;
             file.nodes[i].file = Some(name);
+        }
+        // Drapes held in memory, written as the PNGs a scene file stretches over its node.
+        for i in 0..file.nodes.len() {
+            if file.nodes[i].texture.is_some() {
+                continue;
+            }
+            let Some(drape) = self.scene.texture(i).map_err(scene_error)? else { continue };
+            let name = data_file_name(&path, &file.nodes[i]).with_extension("drape.png");
+            let image = RgbImage {
+                width: drape.width,
+                height: drape.height,
+                data: drape.rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+            };
+            volterra_formats::image::write_png_rgb8(&dir.join(&name), &image).map_err(crate::py_error)?;
+            file.nodes[i].texture = Some(name);
         }
         let text = toml::to_string(&file).map_err(|e| PyValueError::new_err(format!("to_toml: {e}")))?;
         let text = format!("# Written by volterra's Python package; render with `volterra render {} -o OUT.exr`.\n{text}", path.display());

@@ -300,3 +300,41 @@ def test_ctrl_c_cancels_a_render():
     assert cancelled < 0.6 * full, (cancelled, full)
     # The scene renders again afterwards.
     assert s.render().width == 512
+
+
+def test_terrain_draped_with_an_array_renders_as_the_cli_from_its_png(tmp_path):
+    y, x = np.mgrid[0:60, 0:80]
+    z = (100 + 30 * np.sin(x / 9.0) * np.cos(y / 7.0)).astype(np.float32)
+    rgb = np.zeros((30, 40, 3), np.uint8)
+    rgb[..., 0] = np.linspace(0, 255, 40).astype(np.uint8)[None, :]
+    rgb[..., 2] = np.linspace(255, 0, 30).astype(np.uint8)[:, None]
+    transform = (500000.0, 10.0, 0.0, 4100000.0, 0.0, -10.0)
+    scene = volterra.Scene(width=120, height=90, background=(0.55, 0.7, 0.9))
+    scene.add_heightfield(z, transform, epsg=32633, drape=rgb)
+    scene.add_light("directional", direction=(1, 1, -1))
+    draped, ours, theirs = same_as_cli(scene, tmp_path, "draped")
+    assert ours == theirs
+    # The drape is what colours the terrain: without it the picture is another.
+    plain = volterra.Scene(width=120, height=90, background=(0.55, 0.7, 0.9))
+    plain.add_heightfield(z, transform, epsg=32633)
+    plain.add_light("directional", direction=(1, 1, -1))
+    assert np.abs(plain.render().rgba - draped.rgba).max() > 0.2
+    with pytest.raises(TypeError, match="uint8"):
+        plain.add_heightfield(z, transform, drape=rgb / 255.0)
+    with pytest.raises(ValueError, match=r"\(rows, columns, 3\)"):
+        plain.add_heightfield(z, transform, drape=rgb[..., 0])
+    with pytest.raises(ValueError, match="not both"):
+        plain.add_heightfield(z, transform, drape=rgb, texture="photo.png")
+
+
+def test_render_frames_of_a_time_series_are_the_cli_frames(tmp_path):
+    cli("samples", tmp_path)
+    size = ["image.width=48", "image.height=40"]
+    scene = volterra.Scene.load(tmp_path / "smoke_series.toml", set=size)
+    frames = list(scene.render_frames(3))
+    cli("render", tmp_path / "smoke_series.toml", "-o", tmp_path / "s.exr", "--frames", "3", *(f"--set={s}" for s in size))
+    for k, f in enumerate(frames):
+        f.save(tmp_path / f"p_{k}.exr")
+        assert (tmp_path / f"p_{k}.exr").read_bytes() == (tmp_path / f"s_{k:04}.exr").read_bytes()
+    # The steps differ: the plume moves.
+    assert not np.array_equal(frames[0].rgba, frames[2].rgba)

@@ -141,6 +141,7 @@ class Scene:
         *,
         name: Optional[str] = None,
         epsg: Optional[int] = None,
+        drape: Optional[np.ndarray] = None,
         **options: Any,
     ) -> str: ...
     def add_particles(

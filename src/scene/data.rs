@@ -220,10 +220,12 @@ impl Scene {
         }
     }
 
-    /// The node's draped image, if it names one.
+    /// The node's draped image, if it names one or was given one (`provide_texture`).
     pub fn texture(&self, node: usize) -> Result<Option<Arc<drape::Drape>>> {
         let desc = &self.file.nodes[node];
-        let Some(t) = &desc.texture else { return Ok(None) };
+        let Some(t) = &desc.texture else {
+            return Ok(self.textures[node].get().and_then(|r| r.as_ref().ok()).cloned());
+        };
         let path = self.base_dir.join(t);
         let band = (desc.texture_colormap.is_some() || desc.texture_range.is_some()).then(|| drape::BandColours {
             colormap: desc
@@ -252,6 +254,16 @@ impl Scene {
     /// the scene). Does nothing if the node's data is already there.
     pub fn provide_data(&self, node: usize, data: NodeData) {
         let _ = self.data[node].set(Ok(data));
+    }
+
+    /// Gives a heightfield node that names no texture a drape held in memory (an image
+    /// from Python); it is kept across edits as a texture read from a file is.
+    pub fn provide_texture(&self, node: usize, drape: Arc<drape::Drape>) -> Result<()> {
+        let desc = &self.file.nodes[node];
+        if desc.kind != NodeKind::Heightfield || desc.texture.is_some() {
+            bail!("node '{}': a drape in memory is for a heightfield node that names no texture", desc.name);
+        }
+        self.textures[node].set(Ok(drape)).map_err(|_| anyhow!("node '{}' has a drape already", desc.name))
     }
 
     /// The data read so far, node by node (for caches that keep work per data set).
