@@ -9,7 +9,7 @@ use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyList;
 use std::path::PathBuf;
-use volterra::dem::{self, ColorMode, GradientAlg, Options, Product, Raster, Shading, TriAlg};
+use volterra::dem::{self, ColorMode, Options, Product, Raster, Shading};
 use volterra_formats::{Dataset, FloatImage, Heightfield, LoadOptions};
 
 /// The DEM a function works on: a file read whole (within `max_memory`), a `Heightfield`,
@@ -80,19 +80,8 @@ pub fn dem_product(
         other => return Err(PyValueError::new_err(format!("unknown DEM product '{other}'"))),
     };
     let gradient = matches!(product, Product::Slope | Product::Aspect | Product::Hillshade);
-    // gdaldem's -alg: a gradient's for slope, aspect and hillshade, a formula for TRI.
-    let (gradient_alg, tri) = match (alg, product) {
-        (None, _) => (GradientAlg::Horn, TriAlg::Riley),
-        (Some("Horn"), _) if gradient => (GradientAlg::Horn, TriAlg::Riley),
-        (Some("ZevenbergenThorne"), _) if gradient => (GradientAlg::ZevenbergenThorne, TriAlg::Riley),
-        (Some("Riley"), Product::Tri) => (GradientAlg::Horn, TriAlg::Riley),
-        (Some("Wilson"), Product::Tri) => (GradientAlg::Horn, TriAlg::Wilson),
-        (Some(a), _) => {
-            return Err(PyValueError::new_err(format!(
-                "alg '{a}': Horn or ZevenbergenThorne for slope, aspect and hillshade; Riley or Wilson for TRI"
-            )))
-        }
-    };
+    let (gradient_alg, tri) = dem::algorithms(alg, gradient, product == Product::Tri)
+        .map_err(|m| PyValueError::new_err(format!("alg '{}': {m}", alg.unwrap_or_default())))?;
     if (multidirectional || combined) && product != Product::Hillshade {
         return Err(PyValueError::new_err("multidirectional and combined are for hillshade"));
     }

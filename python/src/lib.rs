@@ -36,16 +36,20 @@ create_exception!(
     "A scene that does not check: an unknown key, a value out of range, a node or file that is not there."
 );
 
-/// A reader's error as the exception of its kind, with the CLI's one-line message.
-fn py_error(e: ReaderError) -> PyErr {
-    let message = e.to_string();
-    match e.kind {
+/// The exception a reader's error of `kind` raises, with `message`.
+fn exception_of(kind: ErrorKind, message: String) -> PyErr {
+    match kind {
         ErrorKind::Io => ReadError::new_err(message),
         ErrorKind::Invalid => FormatError::new_err(message),
         ErrorKind::Unsupported => UnsupportedError::new_err(message),
         ErrorKind::TooLarge => MemoryLimitError::new_err(message),
         ErrorKind::Ambiguous => AmbiguousError::new_err(message),
     }
+}
+
+/// A reader's error as the exception of its kind, with the CLI's one-line message.
+fn py_error(e: ReaderError) -> PyErr {
+    exception_of(e.kind, e.to_string())
 }
 
 /// A scene's or a render's error: a reader's as the exception of its kind, a cancelled
@@ -57,13 +61,7 @@ fn scene_error(e: anyhow::Error) -> PyErr {
         return PyKeyboardInterrupt::new_err(message);
     }
     match e.chain().find_map(|c| c.downcast_ref::<ReaderError>()) {
-        Some(r) => match r.kind {
-            ErrorKind::Io => ReadError::new_err(message),
-            ErrorKind::Invalid => FormatError::new_err(message),
-            ErrorKind::Unsupported => UnsupportedError::new_err(message),
-            ErrorKind::TooLarge => MemoryLimitError::new_err(message),
-            ErrorKind::Ambiguous => AmbiguousError::new_err(message),
-        },
+        Some(r) => exception_of(r.kind, message),
         None => SceneError::new_err(message),
     }
 }

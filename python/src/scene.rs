@@ -48,6 +48,13 @@ impl PyScene {
         Ok(())
     }
 
+    /// The scene with its description changed by `f` (no new data), checked whole.
+    fn change(&mut self, f: impl FnOnce(&mut SceneFile)) -> PyResult<()> {
+        let mut file = self.scene.file.clone();
+        f(&mut file);
+        self.edit(file, Vec::new())
+    }
+
     fn unique_name(&self, base: &str) -> String {
         let taken = |n: &str| self.scene.node_index(n).is_some();
         if !taken(base) {
@@ -91,10 +98,8 @@ impl PyScene {
         }
         // A scene of one kind is framed as that kind is; a mix as volumes are.
         let kind = if kinds.iter().all(|k| *k == kinds[0]) { kinds[0] } else { NodeKind::Volume };
-        let mut file = self.scene.file.clone();
         let camera = fit_camera(kind, (lo, hi));
-        file.camera = Camera { parallel_projection: file.camera.parallel_projection, ..camera };
-        self.edit(file, Vec::new())
+        self.change(|file| file.camera = Camera { parallel_projection: file.camera.parallel_projection, ..camera })
     }
 
     fn camera_edit(&mut self, f: impl FnOnce(&mut Camera) -> PyResult<()>) -> PyResult<()> {
@@ -356,9 +361,9 @@ impl PyScene {
     /// Removes node `name`.
     fn remove(&mut self, name: &str) -> PyResult<()> {
         let i = self.scene.node_index(name).ok_or_else(|| PyKeyError::new_err(format!("no node named '{name}'")))?;
-        let mut file = self.scene.file.clone();
-        file.nodes.remove(i);
-        self.edit(file, Vec::new())
+        self.change(|file| {
+            file.nodes.remove(i);
+        })
     }
 
     /// The nodes' names, in drawing order.
@@ -399,9 +404,7 @@ impl PyScene {
             volterra::scene::LightKind::Spot => light.travel_direction().and(light.location()).map(|_| ()),
         }
         .map_err(|e| PyValueError::new_err(format!("add_light: {e}")))?;
-        let mut file = self.scene.file.clone();
-        file.lights.push(light);
-        self.edit(file, Vec::new())
+        self.change(|file| file.lights.push(light))
     }
 
     /// The lights, as the scene file writes them.
@@ -412,9 +415,7 @@ impl PyScene {
     }
 
     fn clear_lights(&mut self) -> PyResult<()> {
-        let mut file = self.scene.file.clone();
-        file.lights.clear();
-        self.edit(file, Vec::new())
+        self.change(|file| file.lights.clear())
     }
 
     /// The camera (vtkCamera's semantics): changes to it change the scene's.
@@ -430,9 +431,7 @@ impl PyScene {
     }
     #[setter]
     fn set_width(&mut self, width: usize) -> PyResult<()> {
-        let mut file = self.scene.file.clone();
-        file.image.width = width;
-        self.edit(file, Vec::new())
+        self.change(|file| file.image.width = width)
     }
     /// Image height in pixels.
     #[getter]
@@ -441,9 +440,7 @@ impl PyScene {
     }
     #[setter]
     fn set_height(&mut self, height: usize) -> PyResult<()> {
-        let mut file = self.scene.file.clone();
-        file.image.height = height;
-        self.edit(file, Vec::new())
+        self.change(|file| file.image.height = height)
     }
     /// Background colour, linear RGB.
     #[getter]
@@ -453,9 +450,7 @@ impl PyScene {
     }
     #[setter]
     fn set_background(&mut self, b: (f64, f64, f64)) -> PyResult<()> {
-        let mut file = self.scene.file.clone();
-        file.image.background = [b.0, b.1, b.2];
-        self.edit(file, Vec::new())
+        self.change(|file| file.image.background = [b.0, b.1, b.2])
     }
 
     /// Renders the scene's camera to a Frame, at the scene's image size unless `width`
@@ -479,10 +474,10 @@ impl PyScene {
         let orbit: animation::Orbit =
             serde_json::from_value(serde_json::json!({ "degrees": degrees, "frames": frames, "axis": [axis.0, axis.1, axis.2] }))
                 .map_err(|e| PyValueError::new_err(format!("set_orbit: {e}")))?;
-        let mut file = self.scene.file.clone();
-        file.orbit = Some(orbit);
-        file.keyframes.clear();
-        self.edit(file, Vec::new())
+        self.change(|file| {
+            file.orbit = Some(orbit);
+            file.keyframes.clear();
+        })
     }
 
     /// The frames of the scene's animation (its time series' steps, its keyframes or

@@ -70,6 +70,24 @@ pub enum TriAlg {
     Wilson,
 }
 
+/// The gradient and TRI's formula that gdaldem's `-alg` (by gdaldem's name) picks, for a
+/// product that takes a gradient (slope, aspect, hillshade) or is TRI; None keeps
+/// gdaldem's defaults. Other names, and a name for another kind of product, are refused
+/// (the message names the choices).
+pub fn algorithms(
+    alg: Option<&str>,
+    gradient_product: bool,
+    tri_product: bool,
+) -> std::result::Result<(GradientAlg, TriAlg), &'static str> {
+    match (alg, gradient_product, tri_product) {
+        (None, ..) | (Some("Horn"), true, _) => Ok((GradientAlg::Horn, TriAlg::Riley)),
+        (Some("ZevenbergenThorne"), true, _) => Ok((GradientAlg::ZevenbergenThorne, TriAlg::Riley)),
+        (Some("Riley"), _, true) => Ok((GradientAlg::Horn, TriAlg::Riley)),
+        (Some("Wilson"), _, true) => Ok((GradientAlg::Horn, TriAlg::Wilson)),
+        _ => Err("Horn or ZevenbergenThorne for slope, aspect and hillshade; Riley or Wilson for TRI"),
+    }
+}
+
 /// How hillshade lights the terrain.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Shading {
@@ -707,6 +725,18 @@ fn palette_colour(p: &[PaletteEntry], v: f64, mode: ColorMode) -> Option<[i32; 4
 mod tests {
     use super::*;
     use volterra_formats::heightfield::Crs;
+
+    #[test]
+    fn alg_names_pick_gdaldems_formulas_for_their_products_only() {
+        let (gradient, tri) = (true, false);
+        assert_eq!(algorithms(None, false, false), Ok((GradientAlg::Horn, TriAlg::Riley)));
+        assert_eq!(algorithms(Some("ZevenbergenThorne"), gradient, tri), Ok((GradientAlg::ZevenbergenThorne, TriAlg::Riley)));
+        assert_eq!(algorithms(Some("Wilson"), false, true), Ok((GradientAlg::Horn, TriAlg::Wilson)));
+        // A TRI formula for slope, a gradient for TRI, an unknown name: refused as gdaldem does.
+        assert!(algorithms(Some("Wilson"), gradient, tri).is_err());
+        assert!(algorithms(Some("Horn"), false, true).is_err());
+        assert!(algorithms(Some("horn"), gradient, tri).is_err());
+    }
 
     /// A plane z = a·x + b·y (x east, y north, metres) on 10 m cells.
     fn plane(a: f64, b: f64) -> Heightfield {

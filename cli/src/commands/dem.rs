@@ -1,7 +1,7 @@
 //! `dem`: gdaldem's products (hillshade, slope, aspect, TRI, TPI, roughness,
 //! color-relief) and gdal_contour's contours, a band of rows at a time.
 
-use crate::args::{DemAlg, DemArgs, DemProduct, ReliefArgs};
+use crate::args::{DemArgs, DemProduct, ReliefArgs};
 use crate::progress;
 use anyhow::{anyhow, bail, Context, Result};
 use std::path::Path;
@@ -269,16 +269,12 @@ pub(crate) fn run(args: DemArgs, limits: Limits) -> Result<()> {
         };
         return cmd_contours(&input, &output, &levels, output_kind, &read.options(limits)?);
     }
-    use volterra::dem::{GradientAlg, Shading, TriAlg};
+    use volterra::dem::Shading;
     let gradient_product = matches!(product, DemProduct::Slope | DemProduct::Aspect | DemProduct::Hillshade);
-    let (gradient, tri) = match (alg, product) {
-        (None, _) => (GradientAlg::Horn, TriAlg::Riley),
-        (Some(DemAlg::Horn), _) if gradient_product => (GradientAlg::Horn, TriAlg::Riley),
-        (Some(DemAlg::ZevenbergenThorne), _) if gradient_product => (GradientAlg::ZevenbergenThorne, TriAlg::Riley),
-        (Some(DemAlg::Riley), DemProduct::Tri) => (GradientAlg::Horn, TriAlg::Riley),
-        (Some(DemAlg::Wilson), DemProduct::Tri) => (GradientAlg::Horn, TriAlg::Wilson),
-        _ => anyhow::bail!("--alg: Horn or ZevenbergenThorne for slope, aspect and hillshade; Riley or Wilson for TRI"),
-    };
+    // The flag's value names are gdaldem's, as the library takes them.
+    let alg_name = alg.map(|a| clap::ValueEnum::to_possible_value(&a).expect("every -alg value is listed").get_name().to_string());
+    let (gradient, tri) =
+        volterra::dem::algorithms(alg_name.as_deref(), gradient_product, product == DemProduct::Tri).map_err(|m| anyhow!("--alg: {m}"))?;
     if (multidirectional || combined) && product != DemProduct::Hillshade {
         anyhow::bail!("--multidirectional and --combined are for hillshade");
     }
