@@ -78,6 +78,12 @@ fn open() -> Result<Device> {
 }
 
 impl Device {
+    /// Whether the adapter runs on the CPU (lavapipe, llvmpipe, WARP): what a renderer that
+    /// has a CPU twin asks before taking the GPU path by default.
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
     /// Runs `f` inside GPU error scopes (they are per thread), turning the GPU's
     /// out-of-memory and validation errors into errors that say `what` failed.
     pub fn guarded<T>(&self, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {

@@ -16,7 +16,7 @@ const LAYERS: &[&[&str]] = &[
 ];
 
 /// The renderers under src/render/: none may name another.
-const RENDERERS: &[&str] = &["shear_warp", "reference_volume", "terrain", "smoke", "points"];
+const RENDERERS: &[&str] = &["shear_warp", "reference_volume", "terrain", "smoke", "points", "gpu_volume"];
 
 /// The module a `crate::` path's first name belongs to.
 fn module_of(name: &str) -> &str {

@@ -414,6 +414,16 @@ fn fdopa_pet_over_the_mni_t1_is_fused_close_to_the_reference() {
         );
         assert!(pet_share > size * size / 50, "{name}: the PET shows through the faded MR ({pet_share} pixels)");
         assert!(e_drawn < 0.02, "{name}: the scene's fused picture is {:.2} % from the reference", 100.0 * e_drawn);
+        // Both nodes on the GPU: fused there, each on its own grid, as close to the truth.
+        if common::gpu().is_some() {
+            let sets = ["node.mr.renderer=gpu-raycast".to_string(), "node.pet.renderer=gpu-raycast".to_string()];
+            let on_gpu = volterra::scene::Scene::load(&dir.path().join("pair.toml"), &sets).unwrap();
+            let gpu = volterra::render::render_view(&on_gpu, &camera, (size, size), &volterra::render::RenderCache::default()).unwrap();
+            assert!(gpu.stats.notes.iter().any(|n| n.contains("fused along each ray on the GPU")), "{:?}", gpu.stats.notes);
+            let e_gpu = relative_rmse(&gpu, &truth);
+            eprintln!("{name}: gpu-raycast fused {:.2} %", 100.0 * e_gpu);
+            assert!(e_gpu < 0.02, "{name}: the GPU's fused picture is {:.2} % from the reference", 100.0 * e_gpu);
+        }
     }
 }
 

@@ -364,6 +364,35 @@ fn a_camera_inside_the_volume_is_drawn_by_the_reference() {
     assert_eq!(h.state().scene().unwrap().nodes()[0].renderer, None, "the scene keeps its renderer");
 }
 
+/// A volume node that names the GPU ray-caster is drawn by it in the viewer, still and
+/// while the camera moves (its preview: a one-voxel step), and with the eye inside the
+/// volume by itself, not switched to the reference as shear-warp is.
+#[test]
+fn the_gpu_ray_caster_draws_volumes_in_the_viewer_even_from_inside() {
+    if common::gpu().is_none() {
+        return;
+    }
+    let dir = samples();
+    let text = std::fs::read_to_string(dir.path().join("angio_preset.toml")).unwrap();
+    let inside = text
+        .replace("position = [110.0, 122.0, 36.5]", "position = [0.0, 0.0, -25.0]")
+        .replace("focal_point = [0.0, 0.0, 0.0]", "focal_point = [0.0, 0.0, 10.0]")
+        .replace("view_up = [0.0, 0.0, 1.0]", "view_up = [0.0, 1.0, 0.0]")
+        .replace("kind = \"volume\"\n", "kind = \"volume\"\nrenderer = \"gpu-raycast\"\n");
+    assert_eq!(inside.matches("gpu-raycast").count(), 1);
+    std::fs::write(dir.path().join("inside_gpu.toml"), inside).unwrap();
+    let mut viewer = Viewer::new(LoadOptions::default());
+    viewer.open(&dir.path().join("inside_gpu.toml")).unwrap();
+    let mut h = Harness::builder().with_size([900.0, 420.0]).build_ui_state(|ui, v: &mut Viewer| v.ui(ui), viewer);
+    settle(&mut h);
+    let frame = h.state().current_full_frame().unwrap();
+    assert_eq!(frame.stats.renderer, "gpu-raycast");
+    let most = frame.rgba.iter().map(|p| p[3]).fold(0.0f32, f32::max);
+    assert!(most > 0.05, "the vessels around the eye are drawn: {most}");
+    assert_ne!(h.state().message(), Some(volterra_view::worker::EYE_INSIDE_NOTE));
+    assert!(h.state().last_error().is_none());
+}
+
 #[test]
 fn opening_a_data_file_frames_it_and_measures_the_error() {
     let dir = samples();
@@ -371,7 +400,12 @@ fn opening_a_data_file_frames_it_and_measures_the_error() {
     viewer.open(&dir.path().join("angio_phantom.nii.gz")).unwrap();
     // No DICOM modality and no negative values: the percentile-based preset.
     let scene = viewer.scene().unwrap();
-    assert_eq!(scene.nodes()[0].renderer.as_deref(), Some("shear-warp"));
+    // The GPU ray-caster on a hardware GPU, shear-warp on a CPU adapter (lavapipe), said.
+    let hardware = volterra::gpu::device().is_ok_and(|d| !d.is_software());
+    let expected = if hardware { "gpu-raycast" } else { "shear-warp" };
+    assert_eq!(scene.nodes()[0].renderer.as_deref(), Some(expected));
+    let message = viewer.message().unwrap();
+    assert!(message.contains(&format!("volumes drawn by {expected}")), "{message}");
     // Volumes open in perspective, as in 3D Slicer (parallel is a toggle).
     assert!(!viewer.camera().parallel_projection);
     let mut h = harness(viewer);

@@ -30,8 +30,8 @@ fn render_with(scene: &Scene, renderer: &str) -> Frame {
 }
 
 #[test]
-fn shear_warp_is_closer_to_the_reference_than_vtk_at_every_view() {
-    if common::shared_data().is_none() {
+fn shear_warp_and_the_gpu_are_closer_to_the_reference_than_vtk_at_every_view() {
+    if common::shared_data().is_none() || common::gpu().is_none() {
         return;
     }
     for view in ["axis", "oblique", "switch45"] {
@@ -42,9 +42,17 @@ fn shear_warp_is_closer_to_the_reference_than_vtk_at_every_view() {
         );
         let reference = render_with(&scene, "reference");
         let ours = render_with(&scene, "shear-warp");
+        let gpu = render_with(&scene, "gpu-raycast");
         let e_vtk = rel_rmse(&vtk, &reference.rgba);
         let e_ours = rel_rmse(&ours.rgba, &reference.rgba);
-        eprintln!("{view}: VTK fixed-point {:.2} %, shear-warp {:.2} % from the reference", 100.0 * e_vtk, 100.0 * e_ours);
+        let e_gpu = rel_rmse(&gpu.rgba, &reference.rgba);
+        eprintln!(
+            "{view}: VTK fixed-point {:.2} %, shear-warp {:.2} %, gpu-raycast {:.2} % from the reference",
+            100.0 * e_vtk,
+            100.0 * e_ours,
+            100.0 * e_gpu
+        );
+        assert!(e_gpu < 0.5 * e_vtk, "{view}: gpu-raycast {e_gpu} vs VTK {e_vtk}");
         // VTK agrees with the reference to about its known sample-distance-1 error (the
         // issue's ~12 %): camera, transfer function and compositing conventions match. A
         // flipped axis or a wrong opacity correction gives several times that.
@@ -58,11 +66,11 @@ fn shear_warp_is_closer_to_the_reference_than_vtk_at_every_view() {
 /// VTK's error (its fixed-point mapper with ShadeOn, the same lights, property values and
 /// unit distance, one sample per voxel) from the shaded reference ray caster.
 #[test]
-fn shaded_shear_warp_has_half_vtks_error_on_clinical_volumes() {
-    if common::shared_data().is_none() {
+fn shaded_shear_warp_and_the_gpu_have_half_vtks_error_on_clinical_volumes() {
+    if common::shared_data().is_none() || common::gpu().is_none() {
         return;
     }
-    let (mut worst, mut failures): (f64, Vec<String>) = (0.0, Vec::new());
+    let (mut worst, mut worst_gpu, mut failures): (f64, f64, Vec<String>) = (0.0, 0.0, Vec::new());
     for volume in ["ctavm", "mri", "pet"] {
         for view in ["axis", "oblique", "switch45"] {
             for projection in ["parallel", "perspective"] {
@@ -74,14 +82,17 @@ fn shaded_shear_warp_has_half_vtks_error_on_clinical_volumes() {
                     let s = Scene::load(&scene.source, &[format!("node.volume.renderer={r}")]).unwrap();
                     render::render_scene(&s, None).unwrap()
                 };
-                let (reference, ours) = (load("reference"), load("shear-warp"));
+                let (reference, ours, gpu) = (load("reference"), load("shear-warp"), load("gpu-raycast"));
                 let covered = reference.rgba.iter().filter(|p| p[3] > 0.1).count();
                 assert!(covered > 2000, "{name}: the view shows the volume ({covered} pixels)");
                 let (e_vtk, e_ours) = (rel_rmse(&vtk, &reference.rgba), rel_rmse(&ours.rgba, &reference.rgba));
+                let e_gpu = rel_rmse(&gpu.rgba, &reference.rgba);
                 eprintln!(
-                    "{name}: shear-warp {:.2} % ({:.1} dB), VTK fixed-point {:.2} % ({:.1} dB) from the reference",
+                    "{name}: shear-warp {:.2} % ({:.1} dB), gpu-raycast {:.2} % ({:.1} dB), VTK fixed-point {:.2} % ({:.1} dB) from the reference",
                     100.0 * e_ours,
                     psnr(&ours.rgba, &reference.rgba),
+                    100.0 * e_gpu,
+                    psnr(&gpu.rgba, &reference.rgba),
                     100.0 * e_vtk,
                     psnr(&vtk, &reference.rgba)
                 );
@@ -89,13 +100,17 @@ fn shaded_shear_warp_has_half_vtks_error_on_clinical_volumes() {
                 // millimetres, orientation, lighting) match.
                 assert!(e_vtk < 0.25, "{name}: VTK is {e_vtk} from the reference — conventions differ?");
                 worst = worst.max(e_ours / e_vtk);
+                worst_gpu = worst_gpu.max(e_gpu / e_vtk);
                 if e_ours >= 0.5 * e_vtk {
                     failures.push(format!("{name}: shear-warp {e_ours:.4} vs VTK {e_vtk:.4}"));
+                }
+                if e_gpu >= 0.5 * e_vtk {
+                    failures.push(format!("{name}: gpu-raycast {e_gpu:.4} vs VTK {e_vtk:.4}"));
                 }
             }
         }
     }
-    eprintln!("largest ratio of shear-warp's error to VTK's: {worst:.2}");
+    eprintln!("largest ratio of shear-warp's error to VTK's: {worst:.2}; of gpu-raycast's: {worst_gpu:.2}");
     assert!(failures.is_empty(), "over half VTK's error: {failures:#?}");
 }
 

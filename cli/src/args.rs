@@ -532,6 +532,42 @@ pub(crate) enum BenchCommand {
         #[command(flatten)]
         common: BenchCommon,
     },
+    /// The GPU volume ray-caster against shear-warp, VTK's GPU ray caster (on this
+    /// machine's OpenGL: Mesa's llvmpipe without a GPU) and VTK's fixed-point mapper: the
+    /// 512 × 512 × N CT phantom (CT-AAA) and the aneurism (MR-Angio), shaded, perspective,
+    /// at each image size; first frame from the file and further frames, each first view's
+    /// error from the reference ray caster.
+    GpuVolume {
+        /// N, the CT phantom's slices.
+        #[arg(long, default_value_t = 400)]
+        slices: usize,
+        /// Frames after the first, each from another direction.
+        #[arg(long, default_value_t = 4)]
+        frames: usize,
+        /// Image sizes.
+        #[arg(long, value_delimiter = ',', default_value = "512x512,1920x1080", value_parser = parse_image_size)]
+        sizes: Vec<(usize, usize)>,
+        /// The aneurism's NIfTI (default: ../shared/data/volumes/aneurism/aneurism.nii.gz,
+        /// or under $VOLTERRA_SHARED_DATA, where it exists).
+        #[arg(long)]
+        aneurism: Option<PathBuf>,
+        /// Also measure each first view against the reference ray caster (rendered once per
+        /// volume and size, cached in the work directory: minutes at 1920×1080).
+        #[arg(long)]
+        error: bool,
+        /// Override a key of the scene our GPU side draws (node "v"), as `render --set`:
+        /// e.g. node.v.settings.step=1.
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
+        /// Leave VTK out (our own configurations only).
+        #[arg(long)]
+        no_vtk: bool,
+        /// Print the rows as JSON.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        common: BenchCommon,
+    },
     /// The GPU ray-caster's traversals on 256²..4096² DEMs, fly- and walk-through, with
     /// steps per ray and depth error against the f64 reference.
     Terrain {

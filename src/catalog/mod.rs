@@ -7,6 +7,7 @@
 //! docs/scene-format.md list what it holds. It knows nothing of either, so imports run one
 //! way: render → scene → catalog.
 
+pub mod gpu_volume;
 pub mod points;
 pub mod reference_volume;
 pub mod shear_warp;
@@ -48,6 +49,7 @@ pub struct RendererDecl {
 pub enum NodeSettings {
     Reference(reference_volume::Settings),
     ShearWarp(shear_warp::Settings),
+    GpuRaycast(gpu_volume::Settings),
     Terrain(terrain::Settings),
     TerrainReference(terrain::ReferenceSettings),
     Smoke(smoke::Settings),
@@ -56,8 +58,15 @@ pub enum NodeSettings {
 
 /// Every renderer. For each node kind the first listed is the one a node that names no
 /// renderer gets.
-pub const RENDERERS: &[RendererDecl] =
-    &[shear_warp::RENDERER, reference_volume::RENDERER, terrain::RENDERER, terrain::REFERENCE_RENDERER, points::RENDERER, smoke::RENDERER];
+pub const RENDERERS: &[RendererDecl] = &[
+    shear_warp::RENDERER,
+    reference_volume::RENDERER,
+    gpu_volume::RENDERER,
+    terrain::RENDERER,
+    terrain::REFERENCE_RENDERER,
+    points::RENDERER,
+    smoke::RENDERER,
+];
 
 pub fn find(name: &str) -> Option<&'static RendererDecl> {
     RENDERERS.iter().find(|r| r.name == name)

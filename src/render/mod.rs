@@ -4,7 +4,9 @@
 
 pub mod driver;
 pub mod frame;
+pub mod gpu_volume;
 pub mod points;
+pub mod preint;
 pub mod reference_volume;
 pub mod scalar_bar;
 pub mod series_scale;
@@ -50,7 +52,14 @@ pub struct RenderCache {
     /// Each particle set's nearest-neighbour radii (`points::spacing_radii`), keyed by the
     /// particles' address (held, so it stays taken).
     spacing: Mutex<HashMap<usize, PreparedSpacing>>,
+    /// Each volume on the GPU (`gpu_volume::Prepared`), keyed by the volume's address; one
+    /// upload each (other bricks or a longer step replace it).
+    gpu_volumes: Mutex<HashMap<usize, PreparedGpuVolume>>,
 }
+
+/// The volume (held so its address stays taken), the brick edge and reach it was uploaded
+/// for, and the upload.
+type PreparedGpuVolume = (Arc<Volume>, (usize, usize), Arc<gpu_volume::Prepared>);
 
 /// The particles (held so their address stays taken) and their nearest-neighbour radii.
 type PreparedSpacing = (Arc<volterra_formats::ParticleSet>, Arc<Vec<f32>>);
@@ -101,6 +110,7 @@ impl RenderCache {
         self.terrain.lock().unwrap().retain(|k, _| held.contains(&k.0));
         self.smoke.lock().unwrap().retain(|k, _| held.contains(k));
         self.spacing.lock().unwrap().retain(|k, _| held.contains(k));
+        self.gpu_volumes.lock().unwrap().retain(|k, _| held.contains(k));
     }
 
     /// The particles' nearest-neighbour radii, found once per particle set.
@@ -156,6 +166,29 @@ impl RenderCache {
         let s = Arc::new(series_scale::of_particles(scene, node, desc.color_by.as_deref(), node_to_world, column)?);
         self.series.lock().unwrap().insert(key, s.clone());
         Ok(Some(s))
+    }
+
+    /// The volume on the GPU in bricks of at most `edge` voxels holding what segments
+    /// reaching `reach` voxels read, kept while the volume stays.
+    fn gpu_volume(
+        &self,
+        volume: &Arc<Volume>,
+        (edge, reach): (usize, usize),
+        limits: &Limits,
+        source: &std::path::Path,
+    ) -> Result<Arc<gpu_volume::Prepared>> {
+        let key = Arc::as_ptr(volume) as usize;
+        if let Some((_, at, p)) = self.gpu_volumes.lock().unwrap().get(&key) {
+            if *at == (edge, reach) {
+                return Ok(p.clone());
+            }
+        }
+        // The old upload goes before the new one is made.
+        self.gpu_volumes.lock().unwrap().remove(&key);
+        let gpu = gpu_volume::gpu::gpu()?;
+        let p = Arc::new(gpu_volume::Prepared::new(gpu, volume, edge, reach, limits, source)?);
+        self.gpu_volumes.lock().unwrap().insert(key, (volume.clone(), (edge, reach), p.clone()));
+        Ok(p)
     }
 
     fn shear_warp(&self, volume: &Arc<Volume>, limits: &Limits) -> Result<Arc<shear_warp::Prepared>> {
@@ -291,6 +324,28 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 second: None,
             };
             shear_warp::render(&input, &rays, s)?
+        }
+        (NodeSettings::GpuRaycast(s), Loaded::Data(NodeData::Volume(vol))) => {
+            let index_to_world = crate::geometry::index_to_world(node_to_world, crate::geometry::affine_matrix(&vol.affine))?;
+            let (_, reach) = gpu_volume::step_and_reach(index_to_world, s);
+            let prepared = timed(&mut prepare, || {
+                // The device opened first: its driver's memory is then in use when the
+                // textures are checked against the memory limit.
+                gpu_volume::gpu::gpu()?;
+                cache.gpu_volume(&vol, (s.brick, reach), scene.limits(), &scene.source)
+            })
+            .with_context(|| format!("node '{}'", desc.name))?;
+            let (tf, shading, crop) = (scene.classification(node)?, scene.shading(node), scene.crop_region(node));
+            let input = gpu_volume::Input {
+                prepared: &prepared,
+                node_to_world,
+                tf: &tf,
+                blend: desc.blend,
+                shading: shading.as_ref(),
+                lights: &scene.file.lights,
+                crop: &crop,
+            };
+            gpu_volume::render(&input, &rays, s).with_context(|| format!("node '{}'", desc.name))?
         }
         (NodeSettings::Terrain(_) | NodeSettings::TerrainReference(_), Loaded::Terrain(heights)) => {
             let prepared = timed(&mut prepare, || {
@@ -470,7 +525,8 @@ pub fn render_view(scene: &Scene, camera: &Camera, size: (usize, usize), cache: 
 pub fn fusion_groups(scene: &Scene) -> Result<Vec<Vec<usize>>> {
     let mut boxes: Vec<(usize, glam::DVec3, glam::DVec3)> = Vec::new();
     for (i, n) in scene.nodes().iter().enumerate() {
-        let fusable = matches!(scene.node_settings(i), Some(NodeSettings::Reference(_) | NodeSettings::ShearWarp(_)));
+        let fusable =
+            matches!(scene.node_settings(i), Some(NodeSettings::Reference(_) | NodeSettings::ShearWarp(_) | NodeSettings::GpuRaycast(_)));
         if !n.visible || !fusable || n.blend != crate::scene::BlendMode::Composite {
             continue;
         }
@@ -563,14 +619,95 @@ pub fn shear_warp_pair(scene: &Scene, nodes: &[usize]) -> Result<(usize, usize),
     Ok((first, second))
 }
 
+/// The group `nodes`, every one naming `gpu-raycast` (`settings`), fused on the GPU, each
+/// volume on its own grid: Ok(Err(why)) where the GPU cannot fuse them (more than two, a
+/// volume in several bricks).
+fn render_fused_on_gpu(
+    scene: &Scene,
+    nodes: &[usize],
+    settings: &[&gpu_volume::Settings],
+    camera: &Camera,
+    size: (usize, usize),
+    cache: &RenderCache,
+) -> Result<Result<Frame, String>> {
+    if nodes.len() != 2 {
+        return Ok(Err(format!("{} volumes (the GPU fuses two)", nodes.len())));
+    }
+    // The finest step and latest termination of the two; skipping where both skip.
+    let merged = gpu_volume::Settings {
+        step: settings.iter().map(|s| s.step).fold(f64::INFINITY, f64::min),
+        termination: settings.iter().map(|s| s.termination).fold(0.0, f64::max),
+        skipping: settings.iter().all(|s| s.skipping),
+        brick: settings[0].brick,
+    };
+    let t = Instant::now();
+    let mut owned = Vec::with_capacity(2);
+    for &i in nodes {
+        owned.push((scene.volume(i)?, scene.classification(i)?, scene.shading(i), scene.crop_region(i), scene.world_transform(i)));
+    }
+    let load = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let mut prepared = Vec::with_capacity(2);
+    for (volume, _, _, _, node_to_world) in &owned {
+        let index_to_world = crate::geometry::index_to_world(*node_to_world, crate::geometry::affine_matrix(&volume.affine))?;
+        let (_, reach) = gpu_volume::step_and_reach(index_to_world, &merged);
+        prepared.push(cache.gpu_volume(volume, (merged.brick, reach), scene.limits(), &scene.source)?);
+    }
+    let prepare = t.elapsed().as_secs_f64();
+    let inputs: Vec<gpu_volume::Input> = owned
+        .iter()
+        .zip(&prepared)
+        .map(|((_, tf, shading, crop, node_to_world), p)| gpu_volume::Input {
+            prepared: p,
+            node_to_world: *node_to_world,
+            tf,
+            blend: crate::scene::BlendMode::Composite,
+            shading: shading.as_ref(),
+            lights: &scene.file.lights,
+            crop,
+        })
+        .collect();
+    if let Err(why) = gpu_volume::can_fuse(&inputs) {
+        return Ok(Err(why));
+    }
+    let t = Instant::now();
+    let mut frame = gpu_volume::render_fused(&inputs, &camera.rays(size.0, size.1), &merged)?;
+    let names: Vec<&str> = nodes.iter().map(|&i| scene.nodes()[i].name.as_str()).collect();
+    frame.stats.notes.push(format!("volumes {} overlap: fused along each ray on the GPU, each sampled on its own grid", names.join(", ")));
+    frame.stats.nodes.push(NodeTime {
+        node: names.join("+"),
+        renderer: format!("{} (fused)", gpu_volume::RENDERER.name),
+        load,
+        prepare,
+        render: t.elapsed().as_secs_f64(),
+    });
+    Ok(Ok(frame))
+}
+
 /// Draws the volume nodes `nodes` (a group from [`fusion_groups`]) fused along every ray:
-/// by shear-warp where the nodes name it and it can fuse them (`shear_warp_pair`: the
+/// on the GPU where both name `gpu-raycast` and it can (`render_fused_on_gpu`), by
+/// shear-warp where the nodes name it and it can fuse them (`shear_warp_pair`: the
 /// second resampled onto the first's grid, cached in `cache`), else by the reference ray
 /// caster at the finest step and latest termination the nodes' own reference settings
 /// give, or — where a node names shear-warp — at the reference's preview step (0.25
 /// voxel), with the reason in the frame's notes.
 pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size: (usize, usize), cache: &RenderCache) -> Result<Frame> {
     let names: Vec<&str> = nodes.iter().map(|&i| scene.nodes()[i].name.as_str()).collect();
+    let gpu_settings: Vec<&gpu_volume::Settings> = nodes
+        .iter()
+        .filter_map(|&i| match scene.node_settings(i) {
+            Some(NodeSettings::GpuRaycast(s)) => Some(s),
+            _ => None,
+        })
+        .collect();
+    let mut gpu_refusal = None;
+    if gpu_settings.len() == nodes.len() {
+        match render_fused_on_gpu(scene, nodes, &gpu_settings, camera, size, cache) {
+            Ok(Ok(frame)) => return Ok(frame),
+            Ok(Err(why)) => gpu_refusal = Some(why),
+            Err(e) => return Err(e),
+        }
+    }
     let pair = shear_warp_pair(scene, nodes);
     if let Ok((first, second)) = pair {
         let t = Instant::now();
@@ -657,11 +794,14 @@ pub fn render_fused_group(scene: &Scene, nodes: &[usize], camera: &Camera, size:
     let t = Instant::now();
     let mut frame = reference_volume::render_fused(&inputs, &camera.rays(size.0, size.1), &settings)?;
     if !shear_warp_nodes.is_empty() {
+        let why = match gpu_refusal {
+            Some(why) => format!("not on the GPU: {why}"),
+            None => format!("not by shear-warp: {}", pair.err().unwrap_or_default()),
+        };
         frame.stats.notes.push(format!(
-            "volumes {} overlap: fused along each ray by the reference ray caster at step {} voxel (not by shear-warp: {})",
+            "volumes {} overlap: fused along each ray by the reference ray caster at step {} voxel ({why})",
             names.join(", "),
             settings.step,
-            pair.err().unwrap_or_default()
         ));
     }
     frame.stats.nodes.push(NodeTime {

@@ -29,7 +29,7 @@ use glam::{DMat3, DMat4, DVec3, Mat3, Vec3};
 
 /// One light as the volume shader uses it.
 #[derive(Debug, Clone, Copy)]
-enum Source {
+pub enum Source {
     /// Toward the light, world space.
     Directional(DVec3),
     Point(DVec3),
@@ -67,6 +67,17 @@ impl Shader {
                 .collect::<Result<Vec<_>>>()?
         };
         Ok(Some(Shader { coeffs, lights, gradient_to_world: gradient_to_world(index_to_world) }))
+    }
+
+    /// The shading coefficients (ambient, diffuse, specular, power).
+    pub fn coefficients(&self) -> VolumeShading {
+        self.coeffs
+    }
+
+    /// The lights (the headlight where the scene has none), each with its colour ×
+    /// intensity: what a renderer that shades elsewhere (the GPU) hands on.
+    pub fn lights(&self) -> &[(Source, [f64; 3])] {
+        &self.lights
     }
 
     /// The gradient of the trilinear field `f` (continuous voxel index → value) at `p`,

@@ -11,7 +11,9 @@ Usage: vtk_volume.py OUT_DIR SCENE.toml...
        prints {"configs": [{"sample_distance", "image_sample_distance", "ms": [[per-run
        ms]...]}...], "vtk"} and writes each config's images to the spec's paths, each
        path's stem followed by "_sd{sd}_isd{isd}")
-       vtk_volume.py --clinical SPEC.json   (for `volterra bench clinical`: the first view's
+       vtk_volume.py --clinical SPEC.json   (for `volterra bench clinical` and `bench
+       gpu-volume`; the spec's "mapper" is "fixed-point" (default) or "gpu"
+       (vtkGPUVolumeRayCastMapper), its "size" [w, h] overrides the scene's: the first view's
        frame timed from reading the file — nibabel + numpy into vtkImageData — to the end of
        its first render, then each further view rendered once, timed; prints
        {"first_ms", "further_ms", "peak_bytes", "vtk", "curve"}; for each of the spec's
@@ -32,7 +34,8 @@ import vtk
 from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 
 
-def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=False, sample_distance=1.0, image_sample_distance=1.0):
+def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=False, sample_distance=1.0, image_sample_distance=1.0,
+           mapper_kind="fixed-point", size=None):
     start = time.perf_counter()
     with open(scene_path, "rb") as f:
         scene = tomllib.load(f)
@@ -89,7 +92,14 @@ def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=F
         prop.SetSpecularPower(shading.get("specular_power", 10.0))
     else:
         prop.ShadeOff()
-    mapper = vtk.vtkFixedPointVolumeRayCastMapper()
+    # VTK's fixed-point CPU mapper, or its GPU ray caster (OpenGL: 3D Slicer's default; on a
+    # machine without a GPU, Mesa's llvmpipe through EGL).
+    if mapper_kind == "gpu":
+        mapper = vtk.vtkGPUVolumeRayCastMapper()
+    elif mapper_kind == "fixed-point":
+        mapper = vtk.vtkFixedPointVolumeRayCastMapper()
+    else:
+        raise SystemExit(f"vtk_volume.py: unknown mapper {mapper_kind!r} (fixed-point or gpu)")
     mapper.SetInputData(image)
     mapper.SetAutoAdjustSampleDistances(0)
     # One sample per voxel along the finest axis (1 for the 1 mm comparison scenes), or
@@ -139,7 +149,7 @@ def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=F
     cam.SetParallelScale(c.get("parallel_scale", 1.0))
     cam.SetViewAngle(c.get("view_angle", 30.0))
     ren.ResetCameraClippingRange()
-    w, h = scene["image"]["width"], scene["image"]["height"]
+    w, h = size if size else (scene["image"]["width"], scene["image"]["height"])
     win = vtk.vtkRenderWindow()
     win.SetOffScreenRendering(1)
     win.SetAlphaBitPlanes(1)
@@ -182,6 +192,17 @@ def render(scene_path, out_path, views=None, runs=0, shading=None, first_frame=F
     return timings
 
 
+def opengl_renderer():
+    """The OpenGL renderer VTK's windows draw with (llvmpipe where there is no GPU)."""
+    win = vtk.vtkRenderWindow()
+    win.SetOffScreenRendering(1)
+    win.Render()
+    for line in win.ReportCapabilities().splitlines():
+        if line.startswith("OpenGL renderer string:"):
+            return line.split(":", 1)[1].strip()
+    return None
+
+
 def write_image(win, w, h, path):
     buf = vtk.vtkFloatArray()
     win.GetRGBAPixelData(0, 0, w - 1, h - 1, 1, buf)
@@ -202,15 +223,18 @@ def main():
 
         with open(sys.argv[2]) as f:
             spec = json.load(f)
-        ms = render(spec["scene"], None, spec["views"], first_frame=True)
+        mapper_kind = spec.get("mapper", "fixed-point")
+        size = spec.get("size")
+        ms = render(spec["scene"], None, spec["views"], first_frame=True, mapper_kind=mapper_kind, size=size)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
         curve = []
         for sd, isd in spec.get("configs", []):
             views = [dict(v, image=config_path(v["image"], sd, isd)) for v in spec["views"]]
-            t = render(spec["scene"], None, views, first_frame=True, sample_distance=sd, image_sample_distance=isd)
+            t = render(spec["scene"], None, views, first_frame=True, sample_distance=sd, image_sample_distance=isd, mapper_kind=mapper_kind,
+                       size=size)
             curve.append({"sample_distance": sd, "image_sample_distance": isd, "first_ms": t[0], "further_ms": t[1:]})
         print(json.dumps({"first_ms": ms[0], "further_ms": ms[1:], "peak_bytes": peak, "vtk": vtk.vtkVersion.GetVTKVersion(),
-                          "curve": curve}))
+                          "curve": curve, "opengl": opengl_renderer()}))
         return
     if sys.argv[1] == "--bench":
         with open(sys.argv[2]) as f:

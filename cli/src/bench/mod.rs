@@ -4,6 +4,7 @@
 pub mod clinical;
 pub mod formats;
 pub mod frames;
+pub mod gpu_volume;
 pub mod points;
 pub mod report;
 pub mod shear_warp;
@@ -126,6 +127,24 @@ pub fn dispatch(bench: crate::args::BenchCommand, limits: Limits) -> Result<()> 
                 sets,
                 error: error || curve,
                 curve: curve.then_some(plot),
+            })
+        }
+        BenchCommand::GpuVolume { slices, frames, sizes, aneurism, error, json, sets, no_vtk, common } => {
+            // The aneurism of the shared data, where it is beside the checkout.
+            let aneurism = aneurism.or_else(|| {
+                let shared = std::env::var_os("VOLTERRA_SHARED_DATA").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("../shared/data"));
+                Some(shared.join("volumes/aneurism/aneurism.nii.gz")).filter(|p| p.is_file())
+            });
+            gpu_volume::run(&gpu_volume::GpuVolumeBench {
+                env: common.resolve(limits)?,
+                slices,
+                frames,
+                sizes,
+                aneurism,
+                error,
+                json,
+                sets,
+                no_vtk,
             })
         }
         BenchCommand::Points { count, style, image: (width, height), runs, json, common } => {

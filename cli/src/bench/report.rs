@@ -215,6 +215,7 @@ fn declared_tables() -> Vec<(&'static str, &'static [&'static [&'static str]])> 
         ("formats", formats::TABLES),
         ("shear-warp", shear_warp::TABLES),
         ("clinical", clinical::TABLES),
+        ("gpu-volume", gpu_volume::TABLES),
         ("terrain", terrain::TABLES),
         ("points", points::TABLES),
         ("frames", frames::TABLES),

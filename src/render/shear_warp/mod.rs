@@ -23,7 +23,8 @@ mod composite;
 pub mod factor;
 pub mod fusion;
 pub mod minmax;
-pub mod preint;
+/// The pre-integrated table, shared with the GPU ray-caster (`render::preint`).
+pub use super::preint;
 mod prepare;
 mod scanline;
 mod shading;

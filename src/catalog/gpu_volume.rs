@@ -1,0 +1,43 @@
+//! The settings of `gpu-raycast`, the volume ray-caster on the GPU (`render::gpu_volume`).
+
+use super::{NodeKind, NodeSettings, RendererDecl};
+use crate::settings::{Bounds, Control, Preview, Widget};
+
+crate::declare_settings! {
+    pub struct Settings {
+        /// Sample step as a fraction of the smallest voxel spacing. Each step is one
+        /// pre-integrated segment (the scalar taken as linear between its two samples), so
+        /// a step of a voxel shows no wood-grain; a finer one follows the trilinear field's
+        /// kinks between voxels more closely.
+        pub step: f64 = 0.5, unit = "voxel", range = Bounds::open_closed(0.0, 1.0), quality = true,
+            viewer = Control { label: "Step (voxels)", widget: Widget::Drag { lo: 0.05, hi: 1.0, speed: 0.01 } },
+            preview = Preview::AtLeast(1.0);
+        /// Stop a ray once its accumulated opacity reaches this.
+        pub termination: f64 = 0.995, range = Bounds::open_closed(0.0, 1.0), quality = true;
+        /// Leap over blocks of 8³ voxels whose every segment the transfer function makes
+        /// transparent (MIP: whose highest value does not pass the ray's). The picture is
+        /// the same either way, bit for bit; off only to measure what it saves.
+        pub skipping: bool = true, quality = true;
+        /// The most voxels along each edge of one 3-D texture: a volume larger along any
+        /// axis is cut into bricks that overlap by the voxels its samples and gradients
+        /// read, drawn one after another front to back into the same image.
+        pub brick: usize = 0, unit = "voxels", range = Bounds::closed(8.0, 16384.0),
+            zero = "auto: the adapter's largest 3-D texture (`max_texture_dimension_3d`)", quality = true;
+    }
+}
+
+pub const RENDERER: RendererDecl = RendererDecl {
+    name: "gpu-raycast",
+    kind: NodeKind::Volume,
+    doc: "Ray casting on the GPU (wgpu compute, `shaders/volume_raycast.wgsl`): the volume as a \
+          3-D texture of its stored type (16-bit where the data is), trilinear samples, the \
+          pre-integrated table shear-warp uses, gradient shading and gradient opacity, MIP, \
+          crop box and clipping planes cut at exact crossings, empty-space skipping over a \
+          min-max grid of 8³-voxel blocks tested against the transfer function, early \
+          termination. Parallel and perspective cameras, the eye inside the volume included. \
+          Bricked where the volume passes the adapter's 3-D texture size.",
+    reference: false,
+    settings: Settings::DECLS,
+    heights_held: None,
+    parse: |t| Settings::from_table(t).map(NodeSettings::GpuRaycast),
+};
