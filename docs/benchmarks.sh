@@ -9,6 +9,7 @@ page=docs/benchmarks.md
 "$volterra" bench formats --markdown "$page"
 "$volterra" bench shear-warp --plot docs/images/bench_shear_warp.png --markdown "$page"
 "$volterra" bench clinical --curve --plot docs/images/bench_clinical.png --markdown "$page"
+"$volterra" bench gpu-volume --error --markdown "$page"
 "$volterra" bench terrain --plot docs/images/bench_terrain.png --markdown "$page"
 "$volterra" bench points --markdown "$page"
 "$volterra" bench frames --markdown "$page"

@@ -462,3 +462,55 @@ fn a_fine_volume_inside_a_coarse_one_fuses_as_the_reference_does() {
         assert!(alone_coarse.min(alone_fine) > 10.0 * e.max(0.002), "{name}: both volumes show ({alone_coarse}, {alone_fine})");
     }
 }
+
+/// The volume's textures are counted against the memory limit before they are made: a
+/// limit below them refuses the upload in one line naming what needed the memory.
+#[test]
+fn textures_over_the_memory_limit_are_refused_before_they_are_made() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let v = ct_blob([64, 64, 64], [1.0; 3]);
+    let gpu = gpu_volume::gpu::gpu().unwrap();
+    let limits = Limits { max_bytes: Some(256 << 10) };
+    let err = match gpu_volume::Prepared::new(gpu, &v, 0, 1, &limits, "ct.nii".as_ref()) {
+        Ok(_) => panic!("a 512 KiB volume fitted a 256 KiB limit"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(err.contains("ct.nii") && err.contains("the volume's GPU textures") && !err.contains('\n'), "{err}");
+}
+
+/// The classification (pre-integrated table and the blocks it leaves clear) is made once
+/// per transfer function and step: a new view reuses it, a new transfer function or step
+/// makes it again.
+#[test]
+fn the_classification_is_rebuilt_only_when_the_transfer_function_or_step_changes() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let v = blob([33, 31, 29]);
+    let gpu = gpu_volume::gpu::gpu().unwrap();
+    let prepared = gpu_volume::Prepared::new(gpu, &v, 0, 1, &Limits::default(), "test".as_ref()).unwrap();
+    let draw = |tf: &TransferFunction, cam: &Camera, step: f64| {
+        let input = gpu_volume::Input {
+            prepared: &prepared,
+            node_to_world: DMat4::IDENTITY,
+            tf,
+            blend: BlendMode::Composite,
+            shading: None,
+            lights: &[],
+            crop: &[],
+        };
+        gpu_volume::render(&input, &cam.rays(32, 32), &gpu_volume::Settings { step, ..Default::default() }).unwrap();
+        // Held, so a new one cannot take its address.
+        prepared.classified.lock().unwrap().clone().unwrap()
+    };
+    let tf = tf_ramp(20.0, 255.0, 0.3);
+    let first = draw(&tf, &camera([0.3, 1.0, 0.2], 24.0), 0.5);
+    use std::sync::Arc;
+    assert!(Arc::ptr_eq(&draw(&tf, &camera([1.0, 0.2, 0.4], 24.0), 0.5), &first), "a new view classified again");
+    let other = draw(&tf_ramp(60.0, 255.0, 0.3), &camera([1.0, 0.2, 0.4], 24.0), 0.5);
+    assert!(!Arc::ptr_eq(&other, &first), "a new transfer function kept the old table");
+    let finer = draw(&tf_ramp(60.0, 255.0, 0.3), &camera([1.0, 0.2, 0.4], 24.0), 0.25);
+    assert!(!Arc::ptr_eq(&finer, &other), "a new step kept the old table");
+}

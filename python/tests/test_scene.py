@@ -44,7 +44,7 @@ ODD_AFFINE = np.array(
 )
 
 
-@pytest.mark.parametrize("renderer", ["shear-warp", "reference"])
+@pytest.mark.parametrize("renderer", ["shear-warp", "reference", "gpu-raycast"])
 def test_volume_from_arrays_renders_as_the_cli_from_files(tmp_path, renderer):
     scene = volterra.Scene(width=96, height=80, background=(0.1, 0.1, 0.2))
     scene.add_volume(blob(), ODD_AFFINE, preset="CT-AAA", shading=True, renderer=renderer)

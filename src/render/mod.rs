@@ -335,6 +335,12 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
                 cache.gpu_volume(&vol, (s.brick, reach), scene.limits(), &scene.source)
             })
             .with_context(|| format!("node '{}'", desc.name))?;
+            // The frame's buffers on the GPU and read back (colour, depth, samples: 24 bytes a
+            // pixel each side), against the memory limit.
+            scene
+                .limits()
+                .check(&scene.source, "the GPU volume frame's buffers", &[(size.0 * size.1) as u64 * 48])
+                .with_context(|| format!("node '{}'", desc.name))?;
             let (tf, shading, crop) = (scene.classification(node)?, scene.shading(node), scene.crop_region(node));
             let input = gpu_volume::Input {
                 prepared: &prepared,

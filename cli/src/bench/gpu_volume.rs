@@ -236,8 +236,8 @@ pub fn run(b: &GpuVolumeBench) -> Result<()> {
                 json.push(serde_json::json!({"volume": s.name, "size": [size.0, size.1], "renderer": label, "first_ms": t.first_ms,
                     "further_ms": t.further_ms, "further_median_ms": med, "rel_rmse": err}));
             }
-            if let (Some(g), Some(v)) = (further.get("gpu-raycast"), further.get("vtk:gpu")) {
-                ratios.push(format!("{} at {}×{}: VTK's GPU ray caster over ours {:.2}", s.name, size.0, size.1, v / g));
+            if let (Some(g), Some(w), Some(v)) = (further.get("gpu-raycast"), further.get("shear-warp"), further.get("vtk:gpu")) {
+                ratios.push(format!("{} at {}×{}: over gpu-raycast {:.2}, over shear-warp {:.2}", s.name, size.0, size.1, v / g, v / w));
             }
         }
     }
@@ -256,6 +256,10 @@ pub fn run(b: &GpuVolumeBench) -> Result<()> {
     report.table(table);
     if !ratios.is_empty() {
         report.line(format!("Further frames, VTK's GPU ray caster's time over ours (above 1: volterra faster): {}.", ratios.join("; ")));
+        report.line(format!(
+            "The viewer draws volumes with gpu-raycast on a hardware GPU and with shear-warp on a CPU adapter such as this one ({}).",
+            if gpu.is_software() { "software" } else { "hardware" }
+        ));
     }
     report.finish(b.json, b.env.markdown.as_deref())
 }
