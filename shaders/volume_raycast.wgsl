@@ -124,11 +124,18 @@ fn field(v: u32, p: vec3<f32>) -> f32 {
     let i0 = vec3<i32>(f0);
     let i1 = min(i0 + 1, top);
     let t = q - f0;
-    let c00 = mix(voxel(v, vec3(i0.x, i0.y, i0.z)), voxel(v, vec3(i1.x, i0.y, i0.z)), t.x);
-    let c10 = mix(voxel(v, vec3(i0.x, i1.y, i0.z)), voxel(v, vec3(i1.x, i1.y, i0.z)), t.x);
-    let c01 = mix(voxel(v, vec3(i0.x, i0.y, i1.z)), voxel(v, vec3(i1.x, i0.y, i1.z)), t.x);
-    let c11 = mix(voxel(v, vec3(i0.x, i1.y, i1.z)), voxel(v, vec3(i1.x, i1.y, i1.z)), t.x);
-    return mix(mix(c00, c10, t.y), mix(c01, c11, t.y), t.z);
+    let c00 = lerp(voxel(v, vec3(i0.x, i0.y, i0.z)), voxel(v, vec3(i1.x, i0.y, i0.z)), t.x);
+    let c10 = lerp(voxel(v, vec3(i0.x, i1.y, i0.z)), voxel(v, vec3(i1.x, i1.y, i0.z)), t.x);
+    let c01 = lerp(voxel(v, vec3(i0.x, i0.y, i1.z)), voxel(v, vec3(i1.x, i0.y, i1.z)), t.x);
+    let c11 = lerp(voxel(v, vec3(i0.x, i1.y, i1.z)), voxel(v, vec3(i1.x, i1.y, i1.z)), t.x);
+    return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
+}
+
+// a + (b − a)·t: exactly a where b = a. (WGSL's mix, a·(1 − t) + b·t, rounds a constant
+// field to values a few ulps apart, whose differences then give a flat region a random
+// normal: rings of speckle in shading where the eye sits in a uniform region.)
+fn lerp(a: f32, b: f32, t: f32) -> f32 {
+    return a + (b - a) * t;
 }
 
 fn real(v: u32, stored: f32) -> f32 {

@@ -23,6 +23,7 @@ pub const SCENES: &[(&str, &str)] = &[
     ("angio_shaded.toml", include_str!("../samples/angio_shaded.toml")),
     ("angio_preset.toml", include_str!("../samples/angio_preset.toml")),
     ("angio_cropped.toml", include_str!("../samples/angio_cropped.toml")),
+    ("angio_gpu.toml", include_str!("../samples/angio_gpu.toml")),
     ("terrain.toml", include_str!("../samples/terrain.toml")),
     ("terrain_png.toml", include_str!("../samples/terrain_png.toml")),
     ("terrain_walk.toml", include_str!("../samples/terrain_walk.toml")),
