@@ -6,66 +6,16 @@
 
 mod common;
 
+use common::volumes::{blob, blob_values, camera, perspective, rel_rmse, tf_ramp};
 use glam::DMat4;
 use volterra::render::{gpu_volume, reference_volume, Frame};
 use volterra::scene::{BlendMode, Camera, ClipPlane, CropBox, HalfSpace, Light, TransferFunction, VolumeShading};
 use volterra_formats::{Limits, Rescale, Volume, VoxelData};
 
-/// A smooth blob with a shell: values 0..255, non-power-of-two dims.
-fn blob_values(dims: [usize; 3]) -> Vec<f64> {
-    let mut out = Vec::new();
-    for k in 0..dims[2] {
-        for j in 0..dims[1] {
-            for i in 0..dims[0] {
-                let p = [i, j, k].map(|v| v as f64);
-                let r = (0..3).map(|a| ((p[a] - 0.5 * (dims[a] - 1) as f64) / (0.5 * dims[a] as f64)).powi(2)).sum::<f64>().sqrt();
-                let v = 200.0 * (-((r - 0.6) / 0.15).powi(2)).exp() + 120.0 * (-(r / 0.25).powi(2)).exp();
-                out.push(v.min(255.0));
-            }
-        }
-    }
-    out
-}
-
-fn blob(dims: [usize; 3]) -> Volume {
-    Volume::centred(dims, [1.0; 3], VoxelData::U8(blob_values(dims).iter().map(|&v| v as u8).collect()))
-}
-
 /// The blob as a CT would store it: int16 with a slope and intercept, anisotropic voxels.
 fn ct_blob(dims: [usize; 3], spacing: [f64; 3]) -> Volume {
     let data = blob_values(dims).iter().map(|&v| (v * 4.0) as i16 - 1024).collect();
     Volume { rescale: Rescale { slope: 0.5, intercept: -200.0 }, ..Volume::centred(dims, spacing, VoxelData::I16(data)) }
-}
-
-fn camera(dir: [f64; 3], scale: f64) -> Camera {
-    let d = glam::DVec3::from(dir).normalize() * 500.0;
-    let up = if dir[2].abs() > 0.9 * glam::DVec3::from(dir).length() { [0.0, 1.0, 0.0] } else { [0.0, 0.0, 1.0] };
-    Camera {
-        position: [-d.x, -d.y, -d.z],
-        focal_point: [0.0; 3],
-        view_up: up,
-        view_angle: 30.0,
-        parallel_projection: true,
-        parallel_scale: scale,
-    }
-}
-
-fn perspective(dir: [f64; 3], dist: f64, angle: f64) -> Camera {
-    let mut cam = camera(dir, 1.0);
-    let d = glam::DVec3::from(dir).normalize() * dist;
-    cam.position = [-d.x, -d.y, -d.z];
-    cam.parallel_projection = false;
-    cam.view_angle = angle;
-    cam
-}
-
-fn tf_ramp(lo: f64, hi: f64, a: f64) -> TransferFunction {
-    TransferFunction {
-        scalar_opacity: vec![[lo, 0.0], [hi, a]],
-        color: vec![[lo, 1.0, 0.3, 0.1], [hi, 0.9, 0.9, 1.0]],
-        scalar_opacity_unit_distance: 1.0,
-        gradient_opacity: Vec::new(),
-    }
 }
 
 /// What one render draws: the classification and the region.
@@ -119,19 +69,6 @@ impl<'a> Case<'a> {
     fn gpu(&self) -> Frame {
         self.gpu_with(&Default::default())
     }
-}
-
-fn rel_rmse(a: &Frame, b: &Frame) -> f64 {
-    let (mut se, mut rs) = (0.0, 0.0);
-    for (p, q) in a.rgba.iter().zip(&b.rgba) {
-        for k in 0..4 {
-            // A highlight may take a shaded colour past 1, as in the reference.
-            assert!(p[k].is_finite() && p[k] >= -1e-6 && p[k] <= 1.5, "value {} out of range", p[k]);
-            se += ((p[k] - q[k]) as f64).powi(2);
-            rs += (q[k] as f64).powi(2);
-        }
-    }
-    (se / rs.max(1e-300)).sqrt()
 }
 
 /// The GPU's error from the reference, and the error of `without` (the reference drawn

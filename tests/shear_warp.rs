@@ -3,6 +3,7 @@
 
 mod common;
 
+use common::volumes::{blob, camera, perspective, rel_rmse, tf_ramp};
 use glam::DMat4;
 use volterra::render::{reference_volume, shear_warp, Frame};
 use volterra::scene::{BlendMode, Camera, ClipPlane, CropBox, HalfSpace, TransferFunction};
@@ -10,44 +11,6 @@ use volterra_formats::{Rescale, Volume, VoxelData};
 
 fn volume(dims: [usize; 3], spacing: [f64; 3], data: VoxelData, rescale: Rescale) -> Volume {
     Volume { rescale, ..Volume::centred(dims, spacing, data) }
-}
-
-/// A smooth blob with a shell: values 0..255 (u8), non-power-of-two dims.
-fn blob(dims: [usize; 3]) -> Volume {
-    let mut data = Vec::new();
-    for k in 0..dims[2] {
-        for j in 0..dims[1] {
-            for i in 0..dims[0] {
-                let p = [i, j, k].map(|v| v as f64);
-                let r = (0..3).map(|a| ((p[a] - 0.5 * (dims[a] - 1) as f64) / (0.5 * dims[a] as f64)).powi(2)).sum::<f64>().sqrt();
-                let v = 200.0 * (-((r - 0.6) / 0.15).powi(2)).exp() + 120.0 * (-(r / 0.25).powi(2)).exp();
-                data.push(v.min(255.0) as u8);
-            }
-        }
-    }
-    volume(dims, [1.0; 3], VoxelData::U8(data), Rescale::IDENTITY)
-}
-
-fn camera(dir: [f64; 3], scale: f64) -> Camera {
-    let d = glam::DVec3::from(dir).normalize() * 500.0;
-    let up = if dir[2].abs() > 0.9 * glam::DVec3::from(dir).length() { [0.0, 1.0, 0.0] } else { [0.0, 0.0, 1.0] };
-    Camera {
-        position: [-d.x, -d.y, -d.z],
-        focal_point: [0.0; 3],
-        view_up: up,
-        view_angle: 30.0,
-        parallel_projection: true,
-        parallel_scale: scale,
-    }
-}
-
-fn tf_ramp(lo: f64, hi: f64, a: f64) -> TransferFunction {
-    TransferFunction {
-        scalar_opacity: vec![[lo, 0.0], [hi, a]],
-        color: vec![[lo, 1.0, 0.3, 0.1], [hi, 0.9, 0.9, 1.0]],
-        scalar_opacity_unit_distance: 1.0,
-        gradient_opacity: Vec::new(),
-    }
 }
 
 fn render_both(v: &Volume, tf: &TransferFunction, cam: &Camera, size: usize, blend: BlendMode, s: &shear_warp::Settings) -> (Frame, Frame) {
@@ -88,19 +51,6 @@ fn render_both_cropped(
     )
     .unwrap();
     (sw, rf)
-}
-
-/// Relative RMSE of RGBA over all pixels (reference RMS as the scale).
-fn rel_rmse(a: &Frame, b: &Frame) -> f64 {
-    let (mut se, mut rs) = (0.0, 0.0);
-    for (p, q) in a.rgba.iter().zip(&b.rgba) {
-        for k in 0..4 {
-            assert!(p[k].is_finite() && p[k] >= -1e-6 && p[k] <= 1.0 + 1e-5, "value {} out of range", p[k]);
-            se += ((p[k] - q[k]) as f64).powi(2);
-            rs += (q[k] as f64).powi(2);
-        }
-    }
-    (se / rs.max(1e-300)).sqrt()
 }
 
 /// Relative RMSE over pixels whose 4-neighbours are all covered in the reference (the
@@ -333,17 +283,6 @@ fn rays_through_the_side_faces_are_covered_to_the_edge() {
         assert!((ratio - 1.0).abs() < tol, "view {dir:?}: total opacity {ratio} of the reference's");
         assert!(e < tol_e, "view {dir:?}: {e}");
     }
-}
-
-/// A perspective camera `dist` from the volume's centre (at the origin) looking at it
-/// along `dir`.
-fn perspective(dir: [f64; 3], dist: f64, angle: f64) -> Camera {
-    let mut cam = camera(dir, 1.0);
-    let d = glam::DVec3::from(dir).normalize() * dist;
-    cam.position = [-d.x, -d.y, -d.z];
-    cam.parallel_projection = false;
-    cam.view_angle = angle;
-    cam
 }
 
 fn shear_warp_only(v: &Volume, tf: &TransferFunction, cam: &Camera, size: usize) -> anyhow::Result<Frame> {

@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+pub mod volumes;
+
 /// `../shared/data` beside the repository (or $VOLTERRA_SHARED_DATA). Under CI (CI=true) a
 /// missing directory is a failure; locally the test is skipped with a printed reason.
 pub fn shared_data() -> Option<PathBuf> {
