@@ -168,16 +168,21 @@ impl RenderCache {
         Ok(Some(s))
     }
 
-    /// The volume on the GPU in bricks of at most `edge` voxels holding what segments
-    /// reaching `reach` voxels read, kept while the volume stays.
+    /// The volume on the GPU for `settings` with the volume placed by `node_to_world`: in
+    /// bricks of at most `settings.brick` voxels holding what its segments read (their
+    /// reach follows the step and the placement), kept while the volume, bricks and reach
+    /// stay.
     fn gpu_volume(
         &self,
         volume: &Arc<Volume>,
-        (edge, reach): (usize, usize),
+        node_to_world: glam::DMat4,
+        settings: &gpu_volume::Settings,
         limits: &Limits,
         source: &std::path::Path,
     ) -> Result<Arc<gpu_volume::Prepared>> {
-        let key = Arc::as_ptr(volume) as usize;
+        let index_to_world = crate::geometry::index_to_world(node_to_world, crate::geometry::affine_matrix(&volume.affine))?;
+        let (_, reach) = gpu_volume::step_and_reach(index_to_world, settings);
+        let (edge, key) = (settings.brick, Arc::as_ptr(volume) as usize);
         if let Some((_, at, p)) = self.gpu_volumes.lock().unwrap().get(&key) {
             if *at == (edge, reach) {
                 return Ok(p.clone());
@@ -326,13 +331,11 @@ pub fn render_node_with(scene: &Scene, node: usize, camera: &Camera, size: (usiz
             shear_warp::render(&input, &rays, s)?
         }
         (NodeSettings::GpuRaycast(s), Loaded::Data(NodeData::Volume(vol))) => {
-            let index_to_world = crate::geometry::index_to_world(node_to_world, crate::geometry::affine_matrix(&vol.affine))?;
-            let (_, reach) = gpu_volume::step_and_reach(index_to_world, s);
             let prepared = timed(&mut prepare, || {
                 // The device opened first: its driver's memory is then in use when the
                 // textures are checked against the memory limit.
                 gpu_volume::gpu::gpu()?;
-                cache.gpu_volume(&vol, (s.brick, reach), scene.limits(), &scene.source)
+                cache.gpu_volume(&vol, node_to_world, s, scene.limits(), &scene.source)
             })
             .with_context(|| format!("node '{}'", desc.name))?;
             // The frame's buffers on the GPU and read back (colour, depth, samples: 24 bytes a
@@ -655,9 +658,7 @@ fn render_fused_on_gpu(
     let t = Instant::now();
     let mut prepared = Vec::with_capacity(2);
     for (volume, _, _, _, node_to_world) in &owned {
-        let index_to_world = crate::geometry::index_to_world(*node_to_world, crate::geometry::affine_matrix(&volume.affine))?;
-        let (_, reach) = gpu_volume::step_and_reach(index_to_world, &merged);
-        prepared.push(cache.gpu_volume(volume, (merged.brick, reach), scene.limits(), &scene.source)?);
+        prepared.push(cache.gpu_volume(volume, *node_to_world, &merged, scene.limits(), &scene.source)?);
     }
     let prepare = t.elapsed().as_secs_f64();
     let inputs: Vec<gpu_volume::Input> = owned

@@ -164,7 +164,7 @@ pub fn run(b: &ClinicalBench) -> Result<()> {
     });
     let spec_path = b.env.work_dir.join("vtk_clinical.json");
     std::fs::write(&spec_path, spec.to_string())?;
-    let vtk = run_vtk(&b.env.python, &b.env.scripts, &spec_path);
+    let vtk = super::run_vtk_volume(&b.env, "--clinical", &spec_path);
 
     // The first view against the truth (after both sides' peaks were taken).
     let reference = if b.error { Some(reference_image(b, &scene_path, &cam)?) } else { None };
@@ -350,17 +350,4 @@ fn reference_image(b: &ClinicalBench, scene_path: &Path, cam: &Camera) -> Result
     let img = frame.to_image([0.0; 3]);
     volterra_formats::exr_io::write_exr(&path, &img)?;
     Ok(frame.rgba)
-}
-
-fn run_vtk(python: &Path, scripts: &Path, spec: &PathBuf) -> Result<serde_json::Value> {
-    let out = std::process::Command::new(python)
-        .arg(scripts.join("vtk_volume.py"))
-        .arg("--clinical")
-        .arg(spec)
-        .output()
-        .with_context(|| format!("cannot run {}", python.display()))?;
-    if !out.status.success() {
-        bail!("vtk_volume.py failed: {}", crate::child::last_line(&out.stderr));
-    }
-    Ok(serde_json::from_slice(&out.stdout)?)
 }

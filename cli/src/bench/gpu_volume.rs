@@ -126,16 +126,7 @@ fn vtk(b: &GpuVolumeBench, s: &Subject, mapper: &str, (w, h): (usize, usize)) ->
     });
     let spec_path = b.env.work_dir.join(format!("vtk_gpu_volume_{mapper}.json"));
     std::fs::write(&spec_path, spec.to_string())?;
-    let out = std::process::Command::new(&b.env.python)
-        .arg(b.env.scripts.join("vtk_volume.py"))
-        .arg("--clinical")
-        .arg(&spec_path)
-        .output()
-        .with_context(|| format!("cannot run {}", b.env.python.display()))?;
-    if !out.status.success() {
-        bail!("vtk_volume.py failed: {}", crate::child::last_line(&out.stderr));
-    }
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    let v = super::run_vtk_volume(&b.env, "--clinical", &spec_path)?;
     let first = volterra_formats::exr_io::read_exr(&image(0), &b.env.limits).ok().map(|img| rgba_pixels(&img));
     let further_ms = v["further_ms"].as_array().map(|a| a.iter().filter_map(|x| x.as_f64()).collect()).unwrap_or_default();
     Ok((Timed { first_ms: v["first_ms"].as_f64().unwrap_or(f64::NAN), further_ms, first }, v))

@@ -11,7 +11,7 @@ pub mod shear_warp;
 pub mod smoke;
 pub mod terrain;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 /// A memory line of /proc/self/status, in bytes (the memory limit's own reader).
 pub use volterra_formats::memory::proc_status_bytes;
@@ -62,6 +62,21 @@ pub fn plot(python: &Path, scripts: &Path, script: &str, data: &Path, out: &Path
         Ok(s) if s.success() => say!("{what} written to {}", out.display()),
         _ => say!("{what} skipped (needs matplotlib in {})", python.display()),
     }
+}
+
+/// Runs tests/reference/vtk_volume.py in `mode` (`--bench` or `--clinical`) on the spec
+/// file `spec`, returning what it prints (JSON); its last stderr line where it fails.
+pub fn run_vtk_volume(env: &BenchEnv, mode: &str, spec: &Path) -> Result<serde_json::Value> {
+    let out = std::process::Command::new(&env.python)
+        .arg(env.scripts.join("vtk_volume.py"))
+        .arg(mode)
+        .arg(spec)
+        .output()
+        .with_context(|| format!("cannot run {}", env.python.display()))?;
+    if !out.status.success() {
+        bail!("vtk_volume.py failed: {}", crate::child::last_line(&out.stderr));
+    }
+    Ok(serde_json::from_slice(&out.stdout)?)
 }
 
 /// A stable hash for the cache keys of reference images (the shear-warp and clinical

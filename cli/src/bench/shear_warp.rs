@@ -425,16 +425,7 @@ fn vtk_rows(b: &ShearWarpBench, set: &ViewSet, refs: &[Vec<[f32; 4]>], shading: 
                                   "configs": VTK_CONFIGS});
     let spec_path = b.env.work_dir.join("vtk_spec.json");
     std::fs::write(&spec_path, spec.to_string())?;
-    let out = std::process::Command::new(&b.env.python)
-        .arg(b.env.scripts.join("vtk_volume.py"))
-        .arg("--bench")
-        .arg(&spec_path)
-        .output()
-        .with_context(|| format!("cannot run {}", b.env.python.display()))?;
-    if !out.status.success() {
-        bail!("vtk_volume.py failed: {}", crate::child::last_line(&out.stderr));
-    }
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    let v = super::run_vtk_volume(&b.env, "--bench", &spec_path)?;
     let mut rows = Vec::new();
     for (c, &config) in v["configs"].as_array().context("no configurations")?.iter().zip(&VTK_CONFIGS) {
         let mut ms: Vec<f64> = c["ms"]
