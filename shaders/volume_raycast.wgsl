@@ -20,8 +20,9 @@
 // is classified by its own table (and shaded by its own gradient), extinctions add and
 // the colour is the extinction-weighted mean.
 //
-// `VOXEL0` and `VOXEL1` are replaced by the textures' sample types (u32, i32 or f32)
-// before compiling.
+// The line `// VOLUMES` is replaced before compiling by the two volumes' bindings (1 and
+// 9) and their readers `voxel0` and `voxel1` (render::gpu_volume::gpu): a 3-D texture of
+// the stored type, or a storage buffer of the stored values packed into words.
 
 // One volume as the rays see it.
 struct Vol {
@@ -64,10 +65,11 @@ struct Params {
     right: vec4<f32>,
     up: vec4<f32>,
     // The brick `main` draws: its segments start inside [owned_lo, owned_hi) (±1e30 on
-    // the volume's outer faces); its texture holds voxels from `origin` on.
+    // the volume's outer faces); it holds voxels from `origin` on, `extent` of them.
     owned_lo: vec4<f32>,
     owned_hi: vec4<f32>,
     origin: vec4<i32>,
+    extent: vec4<u32>,
     // width, height, lights, flags (COMPOSITE, FIRST)
     counts: vec4<u32>,
     // termination, -, -, -
@@ -79,7 +81,7 @@ struct Params {
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
-@group(0) @binding(1) var volume0: texture_3d<VOXEL0>;
+// VOLUMES
 @group(0) @binding(2) var table0: texture_2d<f32>;
 // One bit per block: every segment starting in it is transparent.
 @group(0) @binding(3) var<storage, read> clear0: array<u32>;
@@ -93,8 +95,7 @@ struct Params {
 @group(0) @binding(7) var<storage, read_write> depth: array<f32>;
 // Per pixel: segments classified.
 @group(0) @binding(8) var<storage, read_write> samples: array<u32>;
-// The second volume (`fused`; `main` is given the first's again).
-@group(0) @binding(9) var volume1: texture_3d<VOXEL1>;
+// The second volume (`fused`; `main` is given the first's again): its voxels at binding 9.
 @group(0) @binding(10) var table1: texture_2d<f32>;
 @group(0) @binding(11) var<storage, read> clear1: array<u32>;
 @group(0) @binding(12) var<storage, read> gradient_points1: array<vec2<f32>>;
@@ -110,9 +111,9 @@ const POINT_LIGHTS: u32 = 8u;
 
 fn voxel(v: u32, i: vec3<i32>) -> f32 {
     if v == 0u {
-        return f32(textureLoad(volume0, i - P.origin.xyz, 0).x);
+        return voxel0(i - P.origin.xyz);
     }
-    return f32(textureLoad(volume1, i, 0).x);
+    return voxel1(i);
 }
 
 // The trilinear field of volume v in stored units at index-space point p (clamped to the
@@ -274,6 +275,11 @@ fn shade(v: u32, c: vec4<f32>, g: vec3<f32>, at: vec3<f32>, dir: vec3<f32>) -> v
         s += k.z * highlight * P.light_color[i].rgb;
     }
     return vec4<f32>(c.rgb * d + s * c.a, c.a);
+}
+
+// Whether the table may give the segment between `front` and `back` some opacity.
+fn visible(v: u32, front: f32, back: f32) -> bool {
+    return max(level(v, real(v, front)), level(v, real(v, back))) >= P.vol[v].values.w;
 }
 
 // The segment [t, t + len] of volume v's ray (o, d) between values `front` and `back`
@@ -498,60 +504,101 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         // computation as sampling it again).
         var carried = false;
         var front = 0.0;
-        loop {
-            if k > k_hi {
-                break;
-            }
-            let t = t0 + f32(k) * dt;
-            let p = o + d * t;
-            if !owned(p) {
-                k++;
-                carried = false;
-                continue;
-            }
-            if skip {
-                var empty = false;
-                if composite {
-                    empty = block_clear(0u, p);
-                } else {
-                    empty = block_max[block_of(0u, p)] <= acc.x;
+        if !composite {
+            loop {
+                if k > k_hi {
+                    break;
                 }
-                if empty {
-                    let next = ceil((block_exit(0u, o, d, p) - t0) / dt);
-                    k = max(k + 1u, u32(min(next, f32(k_hi) + 1.0)));
-                    carried = false;
+                let t = t0 + f32(k) * dt;
+                let p = o + d * t;
+                if !owned(p) {
+                    k++;
                     continue;
                 }
-            }
-            var tb = t1;
-            if k < k_last {
-                tb = t0 + f32(k + 1u) * dt;
-            }
-            let len = max(tb - t, 0.0);
-            n++;
-            if !composite {
+                if skip && block_max[block_of(0u, p)] <= acc.x {
+                    let next = ceil((block_exit(0u, o, d, p) - t0) / dt);
+                    k = max(k + 1u, u32(min(next, f32(k_hi) + 1.0)));
+                    continue;
+                }
+                var tb = t1;
+                if k < k_last {
+                    tb = t0 + f32(k + 1u) * dt;
+                }
+                let len = max(tb - t, 0.0);
+                n++;
                 let tm = t + 0.5 * len;
                 let v = real(0u, field(0u, o + d * tm));
                 if v > acc.x {
                     acc = vec4<f32>(v, tm, 0.0, 1.0);
                 }
                 k++;
-                continue;
             }
-            if !carried {
-                front = field(0u, p);
+        }
+        // Composite: an outer loop whose each pass first walks (cheaply: block test, one
+        // value, the table's transparency test) to the next segment the table does not make
+        // transparent, then classifies and shades that one. On a SIMD target that runs every
+        // branch under a mask (lavapipe), the shading's cost is paid once per pass instead of
+        // once per step.
+        loop {
+            if !composite || k > k_hi {
+                break;
             }
-            let back = field(0u, o + d * tb);
-            carried = true;
+            var found = false;
+            var t = 0.0;
+            var len = 0.0;
+            var back = 0.0;
+            loop {
+                if k > k_hi {
+                    break;
+                }
+                t = t0 + f32(k) * dt;
+                let p = o + d * t;
+                if !owned(p) {
+                    k++;
+                    carried = false;
+                    continue;
+                }
+                if skip && block_clear(0u, p) {
+                    let next = ceil((block_exit(0u, o, d, p) - t0) / dt);
+                    k = max(k + 1u, u32(min(next, f32(k_hi) + 1.0)));
+                    carried = false;
+                    continue;
+                }
+                var tb = t1;
+                if k < k_last {
+                    tb = t0 + f32(k + 1u) * dt;
+                }
+                // One value per pass of this loop (each is eight texel loads, paid by every
+                // SIMD lane whether it needs it or not): the segment's start where the
+                // previous segment did not leave it, then its end.
+                let value = field(0u, select(p, o + d * tb, carried));
+                if !carried {
+                    front = value;
+                    carried = true;
+                    continue;
+                }
+                back = value;
+                len = max(tb - t, 0.0);
+                n++;
+                if visible(0u, front, back) {
+                    found = true;
+                    break;
+                }
+                front = back;
+                k++;
+            }
+            if !found {
+                break;
+            }
             let c = classify(0u, o, d, t, len, front, back, r.origin_world, r.dir_world);
             front = back;
+            k++;
             if c.a > 0.0 {
                 accumulate(&acc, &z, c, t, len);
                 if acc.a >= P.control.x {
                     break;
                 }
             }
-            k++;
         }
     }
     state[pixel] = acc;

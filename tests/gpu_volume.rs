@@ -8,7 +8,8 @@ mod common;
 
 use common::volumes::{blob, blob_values, camera, perspective, rel_rmse, tf_ramp};
 use glam::DMat4;
-use volterra::render::{gpu_volume, reference_volume, Frame};
+use volterra::render::gpu_volume::{self, Voxels};
+use volterra::render::{reference_volume, Frame};
 use volterra::scene::{BlendMode, Camera, ClipPlane, CropBox, HalfSpace, Light, TransferFunction, VolumeShading};
 use volterra_formats::{Limits, Rescale, Volume, VoxelData};
 
@@ -53,7 +54,9 @@ impl<'a> Case<'a> {
         let gpu = gpu_volume::gpu::gpu().unwrap();
         let index_to_world = volterra::geometry::affine_matrix(&self.volume.affine);
         let (_, reach) = gpu_volume::step_and_reach(index_to_world, settings);
-        let prepared = gpu_volume::Prepared::new(gpu, self.volume, settings.brick, reach, &Limits::default(), "test".as_ref()).unwrap();
+        let prepared =
+            gpu_volume::Prepared::new(gpu, self.volume, settings.voxels, settings.brick, reach, &Limits::default(), "test".as_ref())
+                .unwrap();
         let input = gpu_volume::Input {
             prepared: &prepared,
             node_to_world: DMat4::IDENTITY,
@@ -86,6 +89,11 @@ fn check_feature(name: &str, case: &Case, without: &Case, bound: f64) {
 
 fn gpu_or_skip() -> bool {
     common::gpu().is_some()
+}
+
+/// Whether the frame's notes say `what`.
+fn note(f: &Frame, what: &str) -> bool {
+    f.stats.notes.iter().any(|n| n.contains(what))
 }
 
 #[test]
@@ -240,7 +248,9 @@ fn opacity_scale_matches_the_reference() {
 }
 
 /// Every stored type the readers give reaches the shader as its values: the same volume
-/// as u8, u16, i16 with a negative slope, f32 and f64 draws the same picture.
+/// as u8, u16, i16 with a negative slope, f32 and f64 draws the same picture; held in a
+/// texture or packed into a buffer's words (rows of an odd length, so voxels straddle
+/// words at every offset), bit for bit the same.
 #[test]
 fn every_stored_type_draws_its_real_values() {
     if !gpu_or_skip() {
@@ -251,7 +261,12 @@ fn every_stored_type_draws_its_real_values() {
     let tf = tf_ramp(20.0, 255.0, 0.4);
     let cam = camera([0.3, 1.0, 0.2], 22.0);
     let u8v = Volume::centred(dims, [1.0; 3], VoxelData::U8(values.iter().map(|&v| v as u8).collect()));
-    let base = Case::new(&u8v, tf.clone(), cam.clone(), 64).gpu();
+    let case = Case::new(&u8v, tf.clone(), cam.clone(), 64);
+    let base = case.gpu();
+    let held = |case: &Case, voxels| case.gpu_with(&gpu_volume::Settings { voxels, ..Default::default() });
+    let (texture, buffer) = (held(&case, Voxels::Texture), held(&case, Voxels::Buffer));
+    assert!(note(&texture, "3-D textures") && note(&buffer, "storage buffers"));
+    assert_eq!(texture.rgba, buffer.rgba, "u8: the buffer changed the picture");
     let real: Vec<f64> = values.iter().map(|&v| (v as u8) as f64).collect();
     let with = |data: VoxelData, rescale: Rescale| Volume { rescale, ..Volume::centred(dims, [1.0; 3], data) };
     for (name, v) in [
@@ -264,7 +279,11 @@ fn every_stored_type_draws_its_real_values() {
         ("f64", with(VoxelData::F64(real.clone()), Rescale::IDENTITY)),
         ("i8", with(VoxelData::I8(real.iter().map(|&v| (v - 128.0) as i8).collect()), Rescale { slope: 1.0, intercept: 128.0 })),
     ] {
-        let f = Case::new(&v, tf.clone(), cam.clone(), 64).gpu();
+        let case = Case::new(&v, tf.clone(), cam.clone(), 64);
+        let f = case.gpu();
+        let (texture, buffer) = (held(&case, Voxels::Texture), held(&case, Voxels::Buffer));
+        assert_eq!(texture.rgba, buffer.rgba, "{name}: the buffer changed the picture");
+        assert_eq!(texture.depth, buffer.depth, "{name}: the buffer changed the depth");
         let e = rel_rmse(&f, &base);
         eprintln!("{name}: relative RMSE {e:.2e} from u8");
         assert!(e < 1e-4, "{name}: {e}");
@@ -297,11 +316,13 @@ fn bricks_and_empty_space_skipping_change_nothing() {
         case.blend = blend;
         case.shading = Some(shading);
         let whole = case.gpu();
-        let bricked = case.gpu_with(&gpu_volume::Settings { brick: 24, ..Default::default() });
-        assert!(bricked.stats.counters.iter().any(|(k, n)| k == "bricks" && *n >= 18.0), "{name}: {:?}", bricked.stats.counters);
         assert!(whole.rgba.iter().any(|p| p[3] > 0.1), "{name}: nothing drawn");
-        assert_eq!(whole.rgba, bricked.rgba, "{name}: bricks changed the colour");
-        assert_eq!(whole.depth, bricked.depth, "{name}: bricks changed the depth");
+        for voxels in [Voxels::Texture, Voxels::Buffer] {
+            let bricked = case.gpu_with(&gpu_volume::Settings { brick: 24, voxels, ..Default::default() });
+            assert!(bricked.stats.counters.iter().any(|(k, n)| k == "bricks" && *n >= 18.0), "{name}: {:?}", bricked.stats.counters);
+            assert_eq!(whole.rgba, bricked.rgba, "{name}: {voxels:?} bricks changed the colour");
+            assert_eq!(whole.depth, bricked.depth, "{name}: {voxels:?} bricks changed the depth");
+        }
         if blend == BlendMode::Composite {
             let all = case.gpu_with(&gpu_volume::Settings { skipping: false, ..Default::default() });
             assert_eq!(whole.rgba, all.rgba, "{name}: skipping changed the colour");
@@ -336,7 +357,7 @@ fn a_fine_volume_inside_a_coarse_one_fuses_as_the_reference_does() {
             volterra::geometry::index_to_world(m, volterra::geometry::affine_matrix(&v.affine)).unwrap(),
             &settings,
         );
-        gpu_volume::Prepared::new(gpu, v, 0, reach, &Limits::default(), "test".as_ref()).unwrap()
+        gpu_volume::Prepared::new(gpu, v, Voxels::Auto, 0, reach, &Limits::default(), "test".as_ref()).unwrap()
     };
     let (p_coarse, p_fine) = (prepare(&coarse, DMat4::IDENTITY), prepare(&fine, place));
     for (name, cam, shaded) in
@@ -400,8 +421,8 @@ fn a_fine_volume_inside_a_coarse_one_fuses_as_the_reference_does() {
     }
 }
 
-/// The volume's textures are counted against the memory limit before they are made: a
-/// limit below them refuses the upload in one line naming what needed the memory.
+/// The volume's textures or buffers are counted against the memory limit before they are
+/// made: a limit below them refuses the upload in one line naming what needed the memory.
 #[test]
 fn textures_over_the_memory_limit_are_refused_before_they_are_made() {
     if !gpu_or_skip() {
@@ -410,11 +431,11 @@ fn textures_over_the_memory_limit_are_refused_before_they_are_made() {
     let v = ct_blob([64, 64, 64], [1.0; 3]);
     let gpu = gpu_volume::gpu::gpu().unwrap();
     let limits = Limits { max_bytes: Some(256 << 10) };
-    let err = match gpu_volume::Prepared::new(gpu, &v, 0, 1, &limits, "ct.nii".as_ref()) {
+    let err = match gpu_volume::Prepared::new(gpu, &v, Voxels::Auto, 0, 1, &limits, "ct.nii".as_ref()) {
         Ok(_) => panic!("a 512 KiB volume fitted a 256 KiB limit"),
         Err(e) => format!("{e:#}"),
     };
-    assert!(err.contains("ct.nii") && err.contains("the volume's GPU textures") && !err.contains('\n'), "{err}");
+    assert!(err.contains("ct.nii") && err.contains("the volume's GPU copy") && !err.contains('\n'), "{err}");
 }
 
 /// The classification (pre-integrated table and the blocks it leaves clear) is made once
@@ -427,7 +448,7 @@ fn the_classification_is_rebuilt_only_when_the_transfer_function_or_step_changes
     }
     let v = blob([33, 31, 29]);
     let gpu = gpu_volume::gpu::gpu().unwrap();
-    let prepared = gpu_volume::Prepared::new(gpu, &v, 0, 1, &Limits::default(), "test".as_ref()).unwrap();
+    let prepared = gpu_volume::Prepared::new(gpu, &v, Voxels::Auto, 0, 1, &Limits::default(), "test".as_ref()).unwrap();
     let draw = |tf: &TransferFunction, cam: &Camera, step: f64| {
         let input = gpu_volume::Input {
             prepared: &prepared,

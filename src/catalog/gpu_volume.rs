@@ -3,6 +3,25 @@
 use super::{NodeKind, NodeSettings, RendererDecl};
 use crate::settings::{Bounds, Control, Preview, Widget};
 
+crate::setting_choice! {
+    /// Where the volume's voxels live on the GPU.
+    pub enum Voxels {
+        /// A storage buffer on a CPU adapter (lavapipe), where one binding holds the whole
+        /// volume; a 3-D texture otherwise. On lavapipe each texel load is a call that
+        /// works out the texture's size and bounds, a buffer load is inline: faster frames
+        /// (measured in docs/renderers.md). A volume cut into bricks to fit the binding
+        /// is slower than one texture, so it stays a texture.
+        Auto = "auto",
+        /// A 3-D texture of the stored type (8, 16-bit integers or f32), bricked where the
+        /// volume passes `max_texture_dimension_3d` (or `brick`).
+        Texture = "texture",
+        /// A storage buffer of the stored values packed into 32-bit words (four 8-bit or two
+        /// 16-bit values a word), bricked where the volume passes the adapter's largest
+        /// storage binding (`max_storage_buffer_binding_size`, 128 MiB on lavapipe).
+        Buffer = "buffer",
+    }
+}
+
 crate::declare_settings! {
     pub struct Settings {
         /// Sample step as a fraction of the smallest voxel spacing. Each step is one
@@ -18,11 +37,13 @@ crate::declare_settings! {
         /// transparent (MIP: whose highest value does not pass the ray's). The picture is
         /// the same either way, bit for bit; off only to measure what it saves.
         pub skipping: bool = true, quality = true;
-        /// The most voxels along each edge of one 3-D texture: a volume larger along any
-        /// axis is cut into bricks that overlap by the voxels its samples and gradients
+        /// The most voxels along each edge of one brick (3-D texture or buffer): a volume
+        /// larger along any axis is cut into bricks that overlap by the voxels its samples and gradients
         /// read, drawn one after another front to back into the same image.
         pub brick: usize = 0, unit = "voxels", range = Bounds::closed(8.0, 16384.0),
-            zero = "auto: the adapter's largest 3-D texture (`max_texture_dimension_3d`)", quality = true;
+            zero = "auto: the adapter's largest 3-D texture (`max_texture_dimension_3d`), or for a buffer its largest storage binding", quality = true;
+        /// Where the voxels live on the GPU: the same picture bit for bit either way.
+        pub voxels: Voxels = Voxels::Auto, quality = true;
     }
 }
 
@@ -30,12 +51,13 @@ pub const RENDERER: RendererDecl = RendererDecl {
     name: "gpu-raycast",
     kind: NodeKind::Volume,
     doc: "Ray casting on the GPU (wgpu compute, `shaders/volume_raycast.wgsl`): the volume as a \
-          3-D texture of its stored type (16-bit where the data is), trilinear samples, the \
+          3-D texture of its stored type (16-bit where the data is; a storage buffer on a CPU \
+          adapter), trilinear samples, the \
           pre-integrated table shear-warp uses, gradient shading and gradient opacity, MIP, \
           crop box and clipping planes cut at exact crossings, empty-space skipping over a \
           min-max grid of 8³-voxel blocks tested against the transfer function, early \
           termination. Parallel and perspective cameras, the eye inside the volume included. \
-          Bricked where the volume passes the adapter's 3-D texture size.",
+          Bricked where the volume passes the adapter's 3-D texture size or storage binding.",
     reference: false,
     settings: Settings::DECLS,
     heights_held: None,

@@ -57,9 +57,9 @@ pub struct RenderCache {
     gpu_volumes: Mutex<HashMap<usize, PreparedGpuVolume>>,
 }
 
-/// The volume (held so its address stays taken), the brick edge and reach it was uploaded
-/// for, and the upload.
-type PreparedGpuVolume = (Arc<Volume>, (usize, usize), Arc<gpu_volume::Prepared>);
+/// The volume (held so its address stays taken), the brick edge, reach and way of holding
+/// it was uploaded for, and the upload.
+type PreparedGpuVolume = (Arc<Volume>, (usize, usize, gpu_volume::Voxels), Arc<gpu_volume::Prepared>);
 
 /// The particles (held so their address stays taken) and their nearest-neighbour radii.
 type PreparedSpacing = (Arc<volterra_formats::ParticleSet>, Arc<Vec<f32>>);
@@ -184,15 +184,15 @@ impl RenderCache {
         let (_, reach) = gpu_volume::step_and_reach(index_to_world, settings);
         let (edge, key) = (settings.brick, Arc::as_ptr(volume) as usize);
         if let Some((_, at, p)) = self.gpu_volumes.lock().unwrap().get(&key) {
-            if *at == (edge, reach) {
+            if *at == (edge, reach, settings.voxels) {
                 return Ok(p.clone());
             }
         }
         // The old upload goes before the new one is made.
         self.gpu_volumes.lock().unwrap().remove(&key);
         let gpu = gpu_volume::gpu::gpu()?;
-        let p = Arc::new(gpu_volume::Prepared::new(gpu, volume, edge, reach, limits, source)?);
-        self.gpu_volumes.lock().unwrap().insert(key, (volume.clone(), (edge, reach), p.clone()));
+        let p = Arc::new(gpu_volume::Prepared::new(gpu, volume, settings.voxels, edge, reach, limits, source)?);
+        self.gpu_volumes.lock().unwrap().insert(key, (volume.clone(), (edge, reach, settings.voxels), p.clone()));
         Ok(p)
     }
 
@@ -648,6 +648,7 @@ fn render_fused_on_gpu(
         termination: settings.iter().map(|s| s.termination).fold(0.0, f64::max),
         skipping: settings.iter().all(|s| s.skipping),
         brick: settings[0].brick,
+        voxels: settings[0].voxels,
     };
     let t = Instant::now();
     let mut owned = Vec::with_capacity(2);

@@ -1,5 +1,6 @@
-//! The volume ray-caster's pipelines on the shared device (`crate::gpu`): one per texel
-//! type of the volume's texture (unsigned, signed, float), compiled on first use.
+//! The volume ray-caster's pipelines on the shared device (`crate::gpu`): one per way the
+//! volumes are held (texture of a texel family, or buffer of a stored type) and entry,
+//! compiled on first use.
 
 use crate::shared_error::SharedError;
 use anyhow::Result;
@@ -48,12 +49,83 @@ impl SampleKind {
         }
     }
 
-    /// Which pipeline (0 unsigned, 1 signed, 2 float).
-    fn family(self) -> usize {
+    /// The texture's sample type and its WGSL name.
+    fn texel(self) -> (wgpu::TextureSampleType, &'static str) {
         match self {
-            SampleKind::U8 | SampleKind::U16 => 0,
-            SampleKind::I8 | SampleKind::I16 => 1,
-            SampleKind::F32 => 2,
+            SampleKind::U8 | SampleKind::U16 => (wgpu::TextureSampleType::Uint, "u32"),
+            SampleKind::I8 | SampleKind::I16 => (wgpu::TextureSampleType::Sint, "i32"),
+            SampleKind::F32 => (wgpu::TextureSampleType::Float { filterable: false }, "f32"),
+        }
+    }
+
+    /// WGSL that reads voxel `i` (a u32 index) of words `w` as f32, little-endian.
+    fn unpack(self, w: &str) -> String {
+        match self {
+            SampleKind::U8 => format!("f32(({w}[i >> 2u] >> ((i & 3u) << 3u)) & 0xffu)"),
+            SampleKind::I8 => format!("f32(i32({w}[i >> 2u] << ((3u - (i & 3u)) << 3u)) >> 24u)"),
+            SampleKind::U16 => format!("f32(({w}[i >> 1u] >> ((i & 1u) << 4u)) & 0xffffu)"),
+            SampleKind::I16 => format!("f32(i32({w}[i >> 1u] << ((1u - (i & 1u)) << 4u)) >> 16u)"),
+            SampleKind::F32 => format!("bitcast<f32>({w}[i])"),
+        }
+    }
+}
+
+/// How a volume's voxels are held on the GPU (`prepare`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Store {
+    Texture,
+    Buffer,
+}
+
+/// What a pipeline's shader is compiled for about one volume.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct Held {
+    store: Store,
+    /// For a texture only its family (unsigned, signed, float) matters.
+    kind: SampleKind,
+}
+
+impl Held {
+    fn new(store: Store, kind: SampleKind) -> Held {
+        let kind = match (store, kind) {
+            (Store::Texture, SampleKind::U16) => SampleKind::U8,
+            (Store::Texture, SampleKind::I16) => SampleKind::I8,
+            _ => kind,
+        };
+        Held { store, kind }
+    }
+
+    /// The binding's layout entry.
+    fn binding(self) -> wgpu::BindingType {
+        match self.store {
+            Store::Texture => wgpu::BindingType::Texture {
+                sample_type: self.kind.texel().0,
+                view_dimension: wgpu::TextureViewDimension::D3,
+                multisampled: false,
+            },
+            Store::Buffer => wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+        }
+    }
+
+    /// WGSL declaring volume `slot` at `binding` and `fn voxel{slot}(j)`, the stored value
+    /// at j in its brick's voxel indices; a buffer's rows are `row` voxels long and its
+    /// slices `slice` rows.
+    fn wgsl(self, slot: usize, binding: u32, (row, slice): (&str, &str)) -> String {
+        match self.store {
+            Store::Texture => format!(
+                "@group(0) @binding({binding}) var volume{slot}: texture_3d<{t}>;\n\
+                 fn voxel{slot}(j: vec3<i32>) -> f32 {{\n    return f32(textureLoad(volume{slot}, j, 0).x);\n}}\n",
+                t = self.kind.texel().1
+            ),
+            Store::Buffer => format!(
+                "@group(0) @binding({binding}) var<storage, read> volume{slot}: array<u32>;\n\
+                 fn voxel{slot}(j: vec3<i32>) -> f32 {{\n    let i = u32(j.x) + {row} * (u32(j.y) + {slice} * u32(j.z));\n    return {};\n}}\n",
+                self.kind.unpack(&format!("volume{slot}"))
+            ),
         }
     }
 }
@@ -61,8 +133,8 @@ impl SampleKind {
 /// The shared device with the ray-caster's pipelines.
 pub struct Gpu {
     shared: &'static crate::gpu::Device,
-    /// Keyed by the two volumes' texel families and whether the entry is `fused`.
-    pipelines: Mutex<HashMap<(usize, usize, bool), Arc<Pipeline>>>,
+    /// Keyed by how the two volumes are held and whether the entry is `fused`.
+    pipelines: Mutex<HashMap<(Held, Held, bool), Arc<Pipeline>>>,
 }
 
 pub struct Pipeline {
@@ -86,29 +158,20 @@ pub fn gpu() -> Result<&'static Gpu> {
         .map_err(|e| anyhow::Error::new(e.clone()))
 }
 
-/// A texel family's sample type and its WGSL name.
-fn sample_type(family: usize) -> (wgpu::TextureSampleType, &'static str) {
-    match family {
-        0 => (wgpu::TextureSampleType::Uint, "u32"),
-        1 => (wgpu::TextureSampleType::Sint, "i32"),
-        _ => (wgpu::TextureSampleType::Float { filterable: false }, "f32"),
-    }
-}
-
 impl Gpu {
-    /// The pipeline of entry `main` (one volume; `second` None) or `fused` (two).
-    pub fn pipeline(&self, first: SampleKind, second: Option<SampleKind>) -> Arc<Pipeline> {
-        let key = (first.family(), second.unwrap_or(first).family(), second.is_some());
+    /// The pipeline of entry `main` (one volume; `second` None) or `fused` (two), for
+    /// volumes held as `(store, kind)`.
+    pub fn pipeline(&self, first: (Store, SampleKind), second: Option<(Store, SampleKind)>) -> Arc<Pipeline> {
+        let held0 = Held::new(first.0, first.1);
+        let held1 = second.map_or(held0, |(s, k)| Held::new(s, k));
+        let key = (held0, held1, second.is_some());
         if let Some(p) = self.pipelines.lock().unwrap().get(&key) {
             return p.clone();
         }
         let device = &self.device;
-        let ((type0, texel0), (type1, texel1)) = (sample_type(key.0), sample_type(key.1));
-        let texture = |binding: u32, sample_type, view_dimension| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Texture { sample_type, view_dimension, multisampled: false },
-            count: None,
+        let entry = |binding: u32, ty| wgpu::BindGroupLayoutEntry { binding, visibility: wgpu::ShaderStages::COMPUTE, ty, count: None };
+        let texture = |binding: u32, sample_type, view_dimension| {
+            entry(binding, wgpu::BindingType::Texture { sample_type, view_dimension, multisampled: false })
         };
         let buffer = |binding: u32, ty| wgpu::BindGroupLayoutEntry {
             binding,
@@ -123,7 +186,7 @@ impl Gpu {
             label: Some("volume ray casting"),
             entries: &[
                 buffer(0, wgpu::BufferBindingType::Uniform),
-                texture(1, type0, wgpu::TextureViewDimension::D3),
+                entry(1, held0.binding()),
                 texture(2, table, wgpu::TextureViewDimension::D2),
                 buffer(3, read),
                 buffer(4, read),
@@ -131,13 +194,15 @@ impl Gpu {
                 buffer(6, write),
                 buffer(7, write),
                 buffer(8, write),
-                texture(9, type1, wgpu::TextureViewDimension::D3),
+                entry(9, held1.binding()),
                 texture(10, table, wgpu::TextureViewDimension::D2),
                 buffer(11, read),
                 buffer(12, read),
             ],
         });
-        let source = include_str!("../../../shaders/volume_raycast.wgsl").replace("VOXEL0", texel0).replace("VOXEL1", texel1);
+        // The first volume's rows are its brick's (`P.extent`), the second's its own.
+        let volumes = held0.wgsl(0, 1, ("P.extent.x", "P.extent.y")) + &held1.wgsl(1, 9, ("P.vol[1].dims.x", "P.vol[1].dims.y"));
+        let source = include_str!("../../../shaders/volume_raycast.wgsl").replace("// VOLUMES\n", &volumes);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("volume_raycast.wgsl"),
             source: wgpu::ShaderSource::Wgsl(source.into()),

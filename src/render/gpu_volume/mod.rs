@@ -9,9 +9,10 @@
 //! every segment the table makes transparent are leapt over (a test rebuilt when the
 //! transfer function or the step changes, not per frame); rays stop at `termination`.
 //!
-//! The volume stays a texture of its stored type (16-bit where the data is), cut into
-//! bricks where it passes the adapter's largest 3-D texture (`prepare`); bricks are drawn
-//! one after another, nearest the eye first, each continuing every pixel's running
+//! The volume stays a texture of its stored type (16-bit where the data is), or on a CPU
+//! adapter a storage buffer of its stored values (`Voxels`), cut into bricks where it
+//! passes the adapter's largest 3-D texture or storage binding (`prepare`); bricks are
+//! drawn one after another, nearest the eye first, each continuing every pixel's running
 //! colour, opacity and depth.
 
 pub mod gpu;
@@ -19,7 +20,7 @@ pub mod prepare;
 
 use super::frame::{Frame, FrameStats};
 use super::preint::{level_count, PreintTable};
-pub use crate::catalog::gpu_volume::{Settings, RENDERER};
+pub use crate::catalog::gpu_volume::{Settings, Voxels, RENDERER};
 use crate::scene::{BlendMode, HalfSpace, Light, RayGenerator, TransferFunction, VolumeShading};
 use anyhow::{anyhow, bail, Result};
 use glam::{DMat4, DVec3};
@@ -80,6 +81,7 @@ struct Params {
     owned_lo: [f32; 4],
     owned_hi: [f32; 4],
     origin: [i32; 4],
+    extent: [u32; 4],
     counts: [u32; 4],
     control: [f32; 4],
     light: [[f32; 4]; MAX_LIGHTS],
@@ -377,8 +379,8 @@ fn bind_group(
     gpu: &Gpu,
     pipeline: &gpu::Pipeline,
     uniform: &wgpu::Buffer,
-    (first, brick, block_max): (&Placed, &wgpu::TextureView, &wgpu::Buffer),
-    second: Option<(&Placed, &wgpu::TextureView)>,
+    (first, brick, block_max): (&Placed, &prepare::Held, &wgpu::Buffer),
+    second: Option<(&Placed, &prepare::Held)>,
     target: &Target,
     unused: &(wgpu::TextureView, wgpu::Buffer),
 ) -> wgpu::BindGroup {
@@ -394,7 +396,7 @@ fn bind_group(
         layout: &pipeline.layout,
         entries: &[
             wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 1, resource: view(brick) },
+            wgpu::BindGroupEntry { binding: 1, resource: brick.binding() },
             wgpu::BindGroupEntry { binding: 2, resource: view(table0) },
             wgpu::BindGroupEntry { binding: 3, resource: clear0.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 4, resource: block_max.as_entire_binding() },
@@ -402,7 +404,7 @@ fn bind_group(
             wgpu::BindGroupEntry { binding: 6, resource: target.state.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 7, resource: target.depth.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 8, resource: target.samples.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 9, resource: view(other_brick) },
+            wgpu::BindGroupEntry { binding: 9, resource: other_brick.binding() },
             wgpu::BindGroupEntry { binding: 10, resource: view(table1) },
             wgpu::BindGroupEntry { binding: 11, resource: clear1.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 12, resource: other.points.as_entire_binding() },
@@ -453,7 +455,7 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
     let unused = placeholder_table(gpu);
     let back = gpu.guarded("ray casting the volume on the GPU", || {
         let target = Target::new(gpu, size)?;
-        let pipeline = gpu.pipeline(prepared.kind, None);
+        let pipeline = gpu.pipeline((prepared.store, prepared.kind), None);
         let mut uniforms = Vec::new();
         let mut groups = Vec::new();
         for (i, &bi) in order.iter().enumerate() {
@@ -462,12 +464,13 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
             q.owned_lo = [brick.owned_lo[0], brick.owned_lo[1], brick.owned_lo[2], 0.0];
             q.owned_hi = [brick.owned_hi[0], brick.owned_hi[1], brick.owned_hi[2], 0.0];
             q.origin = [brick.origin[0], brick.origin[1], brick.origin[2], 0];
+            q.extent = [brick.size[0] as u32, brick.size[1] as u32, brick.size[2] as u32, 0];
             if i > 0 {
                 q.counts[3] &= !FIRST;
             }
             uniforms.push(gpu::uniform_buffer(gpu, bytemuck::bytes_of(&q)));
             let uniform = uniforms.last().unwrap();
-            groups.push(bind_group(gpu, &pipeline, uniform, (&placed, &brick.view, &prepared.block_max), None, &target, &unused));
+            groups.push(bind_group(gpu, &pipeline, uniform, (&placed, &brick.held, &prepared.block_max), None, &target, &unused));
         }
         dispatch(gpu, &pipeline, &groups, &target, size)
     })?;
@@ -477,6 +480,10 @@ pub fn render(input: &Input, rays: &RayGenerator, settings: &Settings) -> Result
         ("bricks".into(), prepared.bricks.len() as f64),
         ("upload ms".into(), prepared.seconds * 1e3),
     ]);
+    frame.stats.notes.push(match prepared.store {
+        gpu::Store::Texture => "voxels in 3-D textures".into(),
+        gpu::Store::Buffer => "voxels in storage buffers".into(),
+    });
     if let Some(c) = &placed.classified {
         frame.stats.counters.push(("clear blocks".into(), c.clear_fraction));
         frame.stats.counters.push(("classification ms".into(), c.seconds * 1e3));
@@ -515,14 +522,16 @@ pub fn render_fused(inputs: &[Input], rays: &RayGenerator, settings: &Settings) 
     let (p0, p1) = (inputs[0].prepared, inputs[1].prepared);
     let back = gpu.guarded("fusing volumes on the GPU", || {
         let target = Target::new(gpu, size)?;
-        let pipeline = gpu.pipeline(p0.kind, Some(p1.kind));
+        let pipeline = gpu.pipeline((p0.store, p0.kind), Some((p1.store, p1.kind)));
+        let mut q = q;
+        q.extent = [p0.dims[0] as u32, p0.dims[1] as u32, p0.dims[2] as u32, 0];
         let uniform = gpu::uniform_buffer(gpu, bytemuck::bytes_of(&q));
         let group = bind_group(
             gpu,
             &pipeline,
             &uniform,
-            (&placed[0], &p0.bricks[0].view, &p0.block_max),
-            Some((&placed[1], &p1.bricks[0].view)),
+            (&placed[0], &p0.bricks[0].held, &p0.block_max),
+            Some((&placed[1], &p1.bricks[0].held)),
             &target,
             &unused,
         );

@@ -1,8 +1,10 @@
 //! What the GPU ray-caster keeps of a volume across frames: its bricks as 3-D textures of
-//! the stored type, and the min-max grid of its blocks (real values) that the empty-space
-//! test reads. Neither depends on the camera or the transfer function.
+//! the stored type or as storage buffers of the stored values packed into words, and the
+//! min-max grid of its blocks (real values) that the empty-space test reads. Neither
+//! depends on the camera or the transfer function.
 
-use super::gpu::{Gpu, SampleKind};
+use super::gpu::{Gpu, SampleKind, Store};
+use crate::catalog::gpu_volume::Voxels;
 use anyhow::{anyhow, bail, Result};
 use rayon::prelude::*;
 use volterra_formats::{Limits, Volume, VoxelData};
@@ -10,10 +12,26 @@ use volterra_formats::{Limits, Volume, VoxelData};
 /// Voxels per block edge of the min-max grid.
 pub const BLOCK: usize = 8;
 
-/// One brick: a texture holding voxels `origin ..` and the box of index space whose
-/// segments it draws.
+/// A brick's voxels on the GPU.
+pub enum Held {
+    Texture(wgpu::TextureView),
+    /// Row after row, slice after slice (x fastest), packed little-endian into words.
+    Buffer(wgpu::Buffer),
+}
+
+impl Held {
+    pub fn binding(&self) -> wgpu::BindingResource<'_> {
+        match self {
+            Held::Texture(view) => wgpu::BindingResource::TextureView(view),
+            Held::Buffer(buf) => buf.as_entire_binding(),
+        }
+    }
+}
+
+/// One brick: a texture or buffer holding voxels `origin ..` and the box of index space
+/// whose segments it draws.
 pub struct Brick {
-    pub view: wgpu::TextureView,
+    pub held: Held,
     pub origin: [i32; 3],
     /// Its voxel counts.
     pub size: [usize; 3],
@@ -31,6 +49,8 @@ pub struct Prepared {
     /// Voxel index → the node's coordinates (the volume's affine).
     pub index_to_node: glam::DMat4,
     pub kind: SampleKind,
+    /// Texture or buffer (what `Voxels::Auto` chose).
+    pub store: Store,
     pub bricks: Vec<Brick>,
     /// Bricks per axis.
     pub brick_grid: [usize; 3],
@@ -76,42 +96,123 @@ fn cuts(n: usize, edge: usize, ghost: usize) -> Result<Vec<(usize, usize)>> {
     Ok((0..n.div_ceil(owned)).map(|b| (b * owned, ((b + 1) * owned).min(n))).collect())
 }
 
+/// How a volume of `dims` is cut: the bricks' owned runs per axis, and each brick's span of
+/// voxels (its owned run and the `ghost` voxels beyond it where the axis is cut).
+struct Cutting {
+    axes: [Vec<(usize, usize)>; 3],
+    dims: [usize; 3],
+    ghost: usize,
+}
+
+impl Cutting {
+    fn new(dims: [usize; 3], edges: [usize; 3], ghost: usize) -> Result<Cutting> {
+        let cut = |a: usize| cuts(dims[a], edges[a], ghost).map_err(|e| anyhow!("axis {a} of {} voxels: {e}", dims[a]));
+        Ok(Cutting { axes: [cut(0)?, cut(1)?, cut(2)?], dims, ghost })
+    }
+
+    fn grid(&self) -> [usize; 3] {
+        self.axes.each_ref().map(Vec::len)
+    }
+
+    fn span(&self, a: usize, (lo, hi): (usize, usize)) -> (usize, usize) {
+        if self.axes[a].len() == 1 {
+            (0, self.dims[a])
+        } else {
+            (lo.saturating_sub(self.ghost), (hi + self.ghost + 1).min(self.dims[a]))
+        }
+    }
+
+    /// Each brick's voxel count, in the order the bricks are made (x fastest).
+    fn brick_voxels(&self) -> impl Iterator<Item = usize> + '_ {
+        let len = |a: usize, r: (usize, usize)| {
+            let (lo, hi) = self.span(a, r);
+            hi - lo
+        };
+        self.axes[2].iter().flat_map(move |&z| {
+            self.axes[1].iter().flat_map(move |&y| self.axes[0].iter().map(move |&x| len(0, x) * len(1, y) * len(2, z)))
+        })
+    }
+}
+
+/// Bytes of a brick of `voxels` voxels held as `store`.
+fn held_bytes(store: Store, kind: SampleKind, voxels: usize) -> u64 {
+    match store {
+        Store::Texture => (voxels * kind.bytes()) as u64,
+        Store::Buffer => (voxels * kind.bytes()).next_multiple_of(4) as u64,
+    }
+}
+
+/// Brick edges per axis for buffers of at most `max_binding` bytes: `edge` (0: none) on
+/// every axis, then cut down along z, then y, then x (slabs keep rows and slices whole
+/// where they can) until the largest brick fits.
+fn buffer_edges(dims: [usize; 3], edge: usize, ghost: usize, kind: SampleKind, max_binding: u64) -> Result<[usize; 3]> {
+    let mut edges = dims.map(|n| if edge == 0 { n } else { edge.min(n) });
+    let fits = |edges: [usize; 3]| -> Result<bool> {
+        let c = Cutting::new(dims, edges, ghost)?;
+        let all_fit = c.brick_voxels().all(|v| held_bytes(Store::Buffer, kind, v) <= max_binding);
+        Ok(all_fit)
+    };
+    // The smallest edge that leaves a block owned inside the overlap.
+    let least = 2 * ghost + 1 + BLOCK;
+    for a in [2, 1, 0] {
+        while !fits(edges)? {
+            if edges[a] <= least {
+                break;
+            }
+            edges[a] = edges[a].saturating_sub(BLOCK).max(least);
+        }
+    }
+    if !fits(edges)? {
+        bail!("bricks of the smallest size still pass the GPU's largest storage binding ({} MiB)", max_binding >> 20);
+    }
+    Ok(edges)
+}
+
 impl Prepared {
-    /// Uploads `volume` in bricks of at most `edge` voxels per axis (0: the adapter's
-    /// largest 3-D texture), each holding `ghost_for(reach)` voxels beyond its box; the
-    /// textures and buffers checked against `limits` first.
-    pub fn new(gpu: &Gpu, volume: &Volume, edge: usize, reach: usize, limits: &Limits, source: &std::path::Path) -> Result<Prepared> {
+    /// Uploads `volume` held as `voxels` says, in bricks of at most `edge` voxels per axis
+    /// (0: as large as the adapter allows), each holding `ghost_for(reach)` voxels beyond
+    /// its box; the textures and buffers checked against `limits` first.
+    pub fn new(
+        gpu: &Gpu,
+        volume: &Volume,
+        voxels: Voxels,
+        edge: usize,
+        reach: usize,
+        limits: &Limits,
+        source: &std::path::Path,
+    ) -> Result<Prepared> {
         let start = std::time::Instant::now();
         let device = &gpu.device;
-        let max_edge = device.limits().max_texture_dimension_3d as usize;
-        let edge = if edge == 0 { max_edge } else { edge.min(max_edge) };
         let dims = volume.dims;
         let kind = SampleKind::of(&volume.data);
         let ghost = ghost_for(reach);
-        let axes: Vec<Vec<(usize, usize)>> = (0..3)
-            .map(|a| cuts(dims[a], edge, ghost).map_err(|e| anyhow!("axis {a} of {} voxels: {e}", dims[a])))
-            .collect::<Result<_>>()?;
-        let brick_grid = [axes[0].len(), axes[1].len(), axes[2].len()];
-        let span = |a: usize, (lo, hi): (usize, usize)| -> (usize, usize) {
-            if brick_grid[a] == 1 {
-                (0, dims[a])
-            } else {
-                (lo.saturating_sub(ghost), (hi + ghost + 1).min(dims[a]))
-            }
-        };
-        let blocks = dims.map(|n| n.div_ceil(BLOCK));
-        let n_blocks = blocks.iter().product::<usize>();
-        let mut texture_bytes = 0u64;
-        for &x in &axes[0] {
-            for &y in &axes[1] {
-                for &z in &axes[2] {
-                    let (sx, sy, sz) = (span(0, x), span(1, y), span(2, z));
-                    texture_bytes += ((sx.1 - sx.0) * (sy.1 - sy.0) * (sz.1 - sz.0) * kind.bytes()) as u64;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        let store = match voxels {
+            Voxels::Texture => Store::Texture,
+            Voxels::Buffer => Store::Buffer,
+            Voxels::Auto => {
+                let whole = held_bytes(Store::Buffer, kind, dims.iter().product());
+                if gpu.is_software() && whole <= max_binding && edge == 0 {
+                    Store::Buffer
+                } else {
+                    Store::Texture
                 }
             }
-        }
-        let bytes = texture_bytes + n_blocks as u64 * 4;
-        limits.check(source, "the volume's GPU textures", &[bytes + n_blocks as u64 * 8 + crate::gpu::driver_working_memory()])?;
+        };
+        let edges = match store {
+            Store::Texture => {
+                let max_edge = device.limits().max_texture_dimension_3d as usize;
+                [if edge == 0 { max_edge } else { edge.min(max_edge) }; 3]
+            }
+            Store::Buffer => buffer_edges(dims, edge, ghost, kind, max_binding)?,
+        };
+        let cutting = Cutting::new(dims, edges, ghost)?;
+        let brick_grid = cutting.grid();
+        let blocks = dims.map(|n| n.div_ceil(BLOCK));
+        let n_blocks = blocks.iter().product::<usize>();
+        let held: u64 = cutting.brick_voxels().map(|v| held_bytes(store, kind, v)).sum();
+        let bytes = held + n_blocks as u64 * 4;
+        limits.check(source, "the volume's GPU copy", &[bytes + n_blocks as u64 * 8 + crate::gpu::driver_working_memory()])?;
         let max_buffer = device.limits().max_storage_buffer_binding_size;
         if n_blocks as u64 * 4 > max_buffer {
             bail!("the volume's {n_blocks} blocks of {BLOCK}³ voxels pass the GPU's largest storage buffer ({} MiB)", max_buffer >> 20);
@@ -120,16 +221,20 @@ impl Prepared {
         let (lo, hi) = volume.value_range().unwrap_or((0.0, 1.0));
         let hi = if hi > lo { hi } else { lo + 1.0 };
         let mut bricks = Vec::new();
+        let axes = &cutting.axes;
         gpu.guarded("uploading the volume to the GPU", || {
             for (cz, &z) in axes[2].iter().enumerate() {
                 for (cy, &y) in axes[1].iter().enumerate() {
                     for (cx, &x) in axes[0].iter().enumerate() {
                         let cell = [cx, cy, cz];
-                        let lo = [span(0, x).0, span(1, y).0, span(2, z).0];
-                        let hi = [span(0, x).1, span(1, y).1, span(2, z).1];
                         let owned = [x, y, z];
-                        let size = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
-                        let view = upload_brick(gpu, volume, kind, lo, size)?;
+                        let spans = [cutting.span(0, x), cutting.span(1, y), cutting.span(2, z)];
+                        let lo = spans.map(|s| s.0);
+                        let size = spans.map(|s| s.1 - s.0);
+                        let held = match store {
+                            Store::Texture => Held::Texture(upload_texture(gpu, volume, kind, lo, size)?),
+                            Store::Buffer => Held::Buffer(upload_buffer(gpu, volume, kind, lo, size)?),
+                        };
                         let open = |a: usize, first: bool| -> f32 {
                             match first {
                                 true if cell[a] == 0 => -1e30,
@@ -139,7 +244,7 @@ impl Prepared {
                             }
                         };
                         bricks.push(Brick {
-                            view,
+                            held,
                             origin: lo.map(|v| v as i32),
                             size,
                             owned_lo: [open(0, true), open(1, true), open(2, true)],
@@ -157,6 +262,7 @@ impl Prepared {
             dims,
             index_to_node: crate::geometry::affine_matrix(&volume.affine),
             kind,
+            store,
             bricks,
             brick_grid,
             reach,
@@ -174,10 +280,13 @@ impl Prepared {
     }
 }
 
-/// Writes the voxels of the box at `lo` of `size` into a new 3-D texture of `kind`, in
-/// bands of about 16 MiB each finished before the next (a staging copy of the whole
+/// Bytes of upload finished before the next band is made (a staging copy of the whole
 /// volume would double the peak memory where the GPU's memory is the host's).
-fn upload_brick(gpu: &Gpu, volume: &Volume, kind: SampleKind, lo: [usize; 3], size: [usize; 3]) -> Result<wgpu::TextureView> {
+const BAND_BYTES: usize = 16 << 20;
+
+/// Writes the voxels of the box at `lo` of `size` into a new 3-D texture of `kind`, in
+/// bands of about `BAND_BYTES` each finished before the next.
+fn upload_texture(gpu: &Gpu, volume: &Volume, kind: SampleKind, lo: [usize; 3], size: [usize; 3]) -> Result<wgpu::TextureView> {
     let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some("volume brick"),
         size: wgpu::Extent3d { width: size[0] as u32, height: size[1] as u32, depth_or_array_layers: size[2] as u32 },
@@ -189,7 +298,7 @@ fn upload_brick(gpu: &Gpu, volume: &Volume, kind: SampleKind, lo: [usize; 3], si
         view_formats: &[],
     });
     let slice_bytes = size[0] * size[1] * kind.bytes();
-    let band = ((16usize << 20) / slice_bytes.max(1)).clamp(1, size[2]);
+    let band = (BAND_BYTES / slice_bytes.max(1)).clamp(1, size[2]);
     let [nx, ny, _] = volume.dims;
     for z0 in (0..size[2]).step_by(band) {
         let depth = band.min(size[2] - z0);
@@ -219,6 +328,46 @@ fn upload_brick(gpu: &Gpu, volume: &Volume, kind: SampleKind, lo: [usize; 3], si
         gpu.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("uploading the volume: {e}"))?;
     }
     Ok(texture.create_view(&Default::default()))
+}
+
+/// Writes the voxels of the box at `lo` of `size` into a new storage buffer, `kind`'s
+/// values packed little-endian into 32-bit words (the shader unpacks them), in bands of
+/// about `BAND_BYTES`.
+fn upload_buffer(gpu: &Gpu, volume: &Volume, kind: SampleKind, lo: [usize; 3], size: [usize; 3]) -> Result<wgpu::Buffer> {
+    let total = (size.iter().product::<usize>() * kind.bytes()).next_multiple_of(4);
+    let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("volume brick"),
+        size: total.max(4) as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let [nx, ny, _] = volume.dims;
+    let mut band = Vec::with_capacity(BAND_BYTES + size[0] * kind.bytes());
+    let mut offset = 0usize;
+    let flush = |band: &mut Vec<u8>, offset: &mut usize, last: bool| -> Result<()> {
+        // Writes start and end on whole words: the tail of a band waits for the next.
+        let n = if last { band.len().next_multiple_of(4) } else { band.len() / 4 * 4 };
+        band.resize(band.len().max(n), 0);
+        gpu.queue.write_buffer(&buffer, *offset as u64, &band[..n]);
+        gpu.queue.submit(std::iter::empty());
+        gpu.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("uploading the volume: {e}"))?;
+        band.drain(..n);
+        *offset += n;
+        Ok(())
+    };
+    for z in 0..size[2] {
+        for y in 0..size[1] {
+            let first = lo[0] + nx * (lo[1] + y + ny * (lo[2] + z));
+            kind.push_row(&volume.data, first..first + size[0], &mut band);
+        }
+        if band.len() >= BAND_BYTES {
+            flush(&mut band, &mut offset, false)?;
+        }
+    }
+    if !band.is_empty() {
+        flush(&mut band, &mut offset, true)?;
+    }
+    Ok(buffer)
 }
 
 /// Each block's lowest and highest real value over the voxels any segment starting in it
@@ -292,6 +441,27 @@ mod tests {
         assert_eq!(c.last().unwrap().1, 1000);
         assert!(c.iter().all(|&(a, b)| a % BLOCK == 0 && b - a <= 56));
         assert!(cuts(1000, 10, 3).is_err());
+    }
+
+    #[test]
+    fn buffer_bricks_fit_the_binding_cut_along_z_first() {
+        // 512 × 512 × 400 int16 (200 MiB) into 128 MiB bindings: two slabs along z, rows
+        // and slices whole.
+        let (dims, ghost, mib) = ([512, 512, 400], 3, 1u64 << 20);
+        let edges = buffer_edges(dims, 0, ghost, SampleKind::I16, 128 * mib).unwrap();
+        let c = Cutting::new(dims, edges, ghost).unwrap();
+        assert_eq!(c.grid(), [1, 1, 2], "{edges:?}");
+        assert!(c.brick_voxels().all(|v| held_bytes(Store::Buffer, SampleKind::I16, v) <= 128 * mib));
+        // A binding too small for a slab of whole slices cuts y as well.
+        let edges = buffer_edges(dims, 0, ghost, SampleKind::I16, 4 * mib).unwrap();
+        let c = Cutting::new(dims, edges, ghost).unwrap();
+        assert!(c.grid()[1] > 1 && c.brick_voxels().all(|v| held_bytes(Store::Buffer, SampleKind::I16, v) <= 4 * mib), "{edges:?}");
+        // Voxels packed into whole words: 3 × 1 × 1 bytes take a word.
+        assert_eq!(held_bytes(Store::Buffer, SampleKind::U8, 3), 4);
+        assert_eq!(held_bytes(Store::Texture, SampleKind::U8, 3), 3);
+        // No brick can fit: refused in one line.
+        let err = buffer_edges(dims, 0, ghost, SampleKind::F32, 1024).unwrap_err().to_string();
+        assert!(err.contains("storage binding") && !err.contains('\n'), "{err}");
     }
 
     #[test]
