@@ -59,11 +59,11 @@ pub(super) fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
 }
 
 /// The volume renderer the viewer draws with where the choice is open: the GPU ray-caster
-/// (`gpu-raycast`) on a hardware GPU; shear-warp on a CPU adapter (lavapipe), where
-/// `volterra bench gpu-volume` measured shear-warp faster (2 cores: 399 against 875 ms a
-/// further frame on the 512 × 512 × 400 CT at 512², 304 against 1216 ms on the aneurism;
-/// both faster than VTK's GPU ray caster on llvmpipe, 801 and 468 ms). With the reason, for
-/// the status line.
+/// (`gpu-raycast`) on a hardware GPU; shear-warp, the CPU path, on a CPU adapter
+/// (lavapipe), where `volterra bench gpu-volume` finds neither faster throughout (2 cores,
+/// a further frame at 512²: the aneurism 303 ms by shear-warp against 357 ms on lavapipe,
+/// the 512 × 512 × 400 CT 357 against 207 ms; VTK's GPU ray caster on llvmpipe 462 and
+/// 799 ms). With the reason, for the status line.
 pub(super) fn volume_renderer() -> (&'static str, String) {
     use volterra::render::{gpu_volume, shear_warp};
     match volterra::gpu::device() {
