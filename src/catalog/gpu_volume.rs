@@ -13,7 +13,8 @@ crate::setting_choice! {
         /// is slower than one texture, so it stays a texture.
         Auto = "auto",
         /// A 3-D texture of the stored type (8, 16-bit integers or f32), bricked where the
-        /// volume passes `max_texture_dimension_3d` (or `brick`).
+        /// volume passes `max_texture_dimension_3d` (or `brick`) or its bytes the largest
+        /// allocation (`max_buffer_size` stands in: wgpu tells no other).
         Texture = "texture",
         /// A storage buffer of the stored values packed into 32-bit words (four 8-bit or two
         /// 16-bit values a word), bricked where the volume passes the adapter's largest
@@ -41,7 +42,7 @@ crate::declare_settings! {
         /// larger along any axis is cut into bricks that overlap by the voxels its samples and gradients
         /// read, drawn one after another front to back into the same image.
         pub brick: usize = 0, unit = "voxels", range = Bounds::closed(8.0, 16384.0),
-            zero = "auto: the adapter's largest 3-D texture (`max_texture_dimension_3d`), or for a buffer its largest storage binding", quality = true;
+            zero = "auto: as large as the adapter allows (a texture: `max_texture_dimension_3d` and `max_buffer_size`; a buffer: its largest storage binding)", quality = true;
         /// Where the voxels live on the GPU: the same picture bit for bit either way.
         pub voxels: Voxels = Voxels::Auto, quality = true;
     }
@@ -57,7 +58,7 @@ pub const RENDERER: RendererDecl = RendererDecl {
           crop box and clipping planes cut at exact crossings, empty-space skipping over a \
           min-max grid of 8³-voxel blocks tested against the transfer function, early \
           termination. Parallel and perspective cameras, the eye inside the volume included. \
-          Bricked where the volume passes the adapter's 3-D texture size or storage binding.",
+          Bricked where the volume passes what one texture or storage binding of the adapter holds.",
     reference: false,
     settings: Settings::DECLS,
     heights_held: None,

@@ -142,14 +142,21 @@ fn held_bytes(store: Store, kind: SampleKind, voxels: usize) -> u64 {
     }
 }
 
-/// Brick edges per axis for buffers of at most `max_binding` bytes: `edge` (0: none) on
-/// every axis, then cut down along z, then y, then x (slabs keep rows and slices whole
-/// where they can) until the largest brick fits.
-fn buffer_edges(dims: [usize; 3], edge: usize, ghost: usize, kind: SampleKind, max_binding: u64) -> Result<[usize; 3]> {
+/// Brick edges per axis for bricks held as `store` of at most `max_bytes` each (`bound`
+/// names that limit): `edge` on every axis (0: none), then cut down along z, then y, then
+/// x (slabs keep rows and slices whole where they can) until the largest brick fits.
+fn fitted_edges(
+    dims: [usize; 3],
+    edge: usize,
+    ghost: usize,
+    (store, kind): (Store, SampleKind),
+    max_bytes: u64,
+    bound: &str,
+) -> Result<[usize; 3]> {
     let mut edges = dims.map(|n| if edge == 0 { n } else { edge.min(n) });
     let fits = |edges: [usize; 3]| -> Result<bool> {
         let c = Cutting::new(dims, edges, ghost)?;
-        let all_fit = c.brick_voxels().all(|v| held_bytes(Store::Buffer, kind, v) <= max_binding);
+        let all_fit = c.brick_voxels().all(|v| held_bytes(store, kind, v) <= max_bytes);
         Ok(all_fit)
     };
     // The smallest edge that leaves a block owned inside the overlap.
@@ -163,7 +170,7 @@ fn buffer_edges(dims: [usize; 3], edge: usize, ghost: usize, kind: SampleKind, m
         }
     }
     if !fits(edges)? {
-        bail!("bricks of the smallest size still pass the GPU's largest storage binding ({} MiB)", max_binding >> 20);
+        bail!("bricks of the smallest size still pass {bound} ({} MiB)", max_bytes >> 20);
     }
     Ok(edges)
 }
@@ -200,11 +207,18 @@ impl Prepared {
             }
         };
         let edges = match store {
+            // wgpu tells no largest allocation; its largest buffer stands in (on Vulkan it
+            // is at most maxMemoryAllocationSize, which bounds one texture too).
             Store::Texture => {
                 let max_edge = device.limits().max_texture_dimension_3d as usize;
-                [if edge == 0 { max_edge } else { edge.min(max_edge) }; 3]
+                let edge = if edge == 0 { max_edge } else { edge.min(max_edge) };
+                let bound = "the GPU's largest allocation (`max_buffer_size`)";
+                fitted_edges(dims, edge, ghost, (store, kind), device.limits().max_buffer_size, bound)?
             }
-            Store::Buffer => buffer_edges(dims, edge, ghost, kind, max_binding)?,
+            Store::Buffer => {
+                let bound = "the GPU's largest storage binding";
+                fitted_edges(dims, edge, ghost, (store, kind), max_binding, bound)?
+            }
         };
         let cutting = Cutting::new(dims, edges, ghost)?;
         let brick_grid = cutting.grid();
@@ -444,24 +458,31 @@ mod tests {
     }
 
     #[test]
-    fn buffer_bricks_fit_the_binding_cut_along_z_first() {
+    fn bricks_fit_the_binding_or_allocation_cut_along_z_first() {
         // 512 × 512 × 400 int16 (200 MiB) into 128 MiB bindings: two slabs along z, rows
         // and slices whole.
         let (dims, ghost, mib) = ([512, 512, 400], 3, 1u64 << 20);
-        let edges = buffer_edges(dims, 0, ghost, SampleKind::I16, 128 * mib).unwrap();
+        let buffer = (Store::Buffer, SampleKind::I16);
+        let edges = fitted_edges(dims, 0, ghost, buffer, 128 * mib, "the binding").unwrap();
         let c = Cutting::new(dims, edges, ghost).unwrap();
         assert_eq!(c.grid(), [1, 1, 2], "{edges:?}");
         assert!(c.brick_voxels().all(|v| held_bytes(Store::Buffer, SampleKind::I16, v) <= 128 * mib));
         // A binding too small for a slab of whole slices cuts y as well.
-        let edges = buffer_edges(dims, 0, ghost, SampleKind::I16, 4 * mib).unwrap();
+        let edges = fitted_edges(dims, 0, ghost, buffer, 4 * mib, "the binding").unwrap();
         let c = Cutting::new(dims, edges, ghost).unwrap();
         assert!(c.grid()[1] > 1 && c.brick_voxels().all(|v| held_bytes(Store::Buffer, SampleKind::I16, v) <= 4 * mib), "{edges:?}");
         // Voxels packed into whole words: 3 × 1 × 1 bytes take a word.
         assert_eq!(held_bytes(Store::Buffer, SampleKind::U8, 3), 4);
         assert_eq!(held_bytes(Store::Texture, SampleKind::U8, 3), 3);
         // No brick can fit: refused in one line.
-        let err = buffer_edges(dims, 0, ghost, SampleKind::F32, 1024).unwrap_err().to_string();
-        assert!(err.contains("storage binding") && !err.contains('\n'), "{err}");
+        let err = fitted_edges(dims, 0, ghost, (Store::Buffer, SampleKind::F32), 1024, "the binding").unwrap_err().to_string();
+        assert!(err.contains("the binding") && !err.contains('\n'), "{err}");
+        // A texture larger than the largest allocation is bricked the same way: 512 × 512 ×
+        // 1000 int16 (500 MiB) in 256 MiB.
+        let dims = [512, 512, 1000];
+        let edges = fitted_edges(dims, 0, ghost, (Store::Texture, SampleKind::I16), 256 * mib, "the allocation").unwrap();
+        let c = Cutting::new(dims, edges, ghost).unwrap();
+        assert_eq!(c.grid(), [1, 1, 2], "{edges:?}");
     }
 
     #[test]
