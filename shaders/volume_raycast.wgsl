@@ -144,23 +144,110 @@ fn real(v: u32, stored: f32) -> f32 {
 }
 
 // Central differences one voxel either side, shortened at the volume's edge (the rule of
-// render::volume_shading::gradient), in stored units per voxel.
+// render::volume_shading::gradient), in stored units per voxel: the six trilinear samples
+// field(p ± a step along each axis), each computed as `field` computes it, from the 32
+// voxels they read between them (six separate samples would load 48). Along each axis the
+// four voxels from the centre cell's lower one less one are loaded, and each sample picks
+// its two from them.
 fn gradient_at(v: u32, p: vec3<f32>) -> vec3<f32> {
+    let dims = vec3<i32>(P.vol[v].dims.xyz);
+    let top = dims - 1;
+    let topf = vec3<f32>(top);
+    // The centre cell, as `field` takes it.
+    let q = clamp(p, vec3<f32>(0.0), topf);
+    let f0 = floor(q);
+    let c0 = vec3<i32>(f0);
+    let c1 = min(c0 + 1, top);
+    let t = q - f0;
+    // Rows along x (y, z of the cell's corners), four voxels each from c0.x − 1.
+    let r00 = window_x(v, c0.x, vec2<i32>(c0.y, c0.z), top.x);
+    let r10 = window_x(v, c0.x, vec2<i32>(c1.y, c0.z), top.x);
+    let r01 = window_x(v, c0.x, vec2<i32>(c0.y, c1.z), top.x);
+    let r11 = window_x(v, c0.x, vec2<i32>(c1.y, c1.z), top.x);
+    // Along y: x-interpolated values at four y from c0.y − 1, for the cell's two z.
+    let y0 = vec4<f32>(
+        lerp(voxel(v, vec3<i32>(c0.x, max(c0.y - 1, 0), c0.z)), voxel(v, vec3<i32>(c1.x, max(c0.y - 1, 0), c0.z)), t.x),
+        lerp(r00.y, r00.z, t.x),
+        lerp(r10.y, r10.z, t.x),
+        lerp(voxel(v, vec3<i32>(c0.x, min(c0.y + 2, top.y), c0.z)), voxel(v, vec3<i32>(c1.x, min(c0.y + 2, top.y), c0.z)), t.x),
+    );
+    let y1 = vec4<f32>(
+        lerp(voxel(v, vec3<i32>(c0.x, max(c0.y - 1, 0), c1.z)), voxel(v, vec3<i32>(c1.x, max(c0.y - 1, 0), c1.z)), t.x),
+        lerp(r01.y, r01.z, t.x),
+        lerp(r11.y, r11.z, t.x),
+        lerp(voxel(v, vec3<i32>(c0.x, min(c0.y + 2, top.y), c1.z)), voxel(v, vec3<i32>(c1.x, min(c0.y + 2, top.y), c1.z)), t.x),
+    );
+    // Along z: xy-interpolated values at four z from c0.z − 1.
+    let zb = max(c0.z - 1, 0);
+    let za = min(c0.z + 2, top.z);
+    let z = vec4<f32>(
+        lerp(
+            lerp(voxel(v, vec3<i32>(c0.x, c0.y, zb)), voxel(v, vec3<i32>(c1.x, c0.y, zb)), t.x),
+            lerp(voxel(v, vec3<i32>(c0.x, c1.y, zb)), voxel(v, vec3<i32>(c1.x, c1.y, zb)), t.x),
+            t.y,
+        ),
+        y0.y + (y0.z - y0.y) * t.y,
+        y1.y + (y1.z - y1.y) * t.y,
+        lerp(
+            lerp(voxel(v, vec3<i32>(c0.x, c0.y, za)), voxel(v, vec3<i32>(c1.x, c0.y, za)), t.x),
+            lerp(voxel(v, vec3<i32>(c0.x, c1.y, za)), voxel(v, vec3<i32>(c1.x, c1.y, za)), t.x),
+            t.y,
+        ),
+    );
+    // The two positions along each axis, and the sample at each.
+    let x = q;
+    let up = min(topf - x, vec3<f32>(1.0));
+    let down = min(x, vec3<f32>(1.0));
+    let span = up + down;
     var g = vec3<f32>(0.0);
-    for (var a = 0; a < 3; a++) {
-        let top = f32(P.vol[v].dims[a]) - 1.0;
-        let x = clamp(p[a], 0.0, top);
-        let up = min(top - x, 1.0);
-        let down = min(x, 1.0);
-        if up + down > 0.0 {
-            var hi = p;
-            var lo = p;
-            hi[a] = x + up;
-            lo[a] = x - down;
-            g[a] = (field(v, hi) - field(v, lo)) / (up + down);
-        }
+    if span.x > 0.0 {
+        let hi = along(x.x + up.x, topf.x, c0.x);
+        let lo = along(x.x - down.x, topf.x, c0.x);
+        let at_hi = lerp(lerp(pick2(r00, hi), pick2(r10, hi), t.y), lerp(pick2(r01, hi), pick2(r11, hi), t.y), t.z);
+        let at_lo = lerp(lerp(pick2(r00, lo), pick2(r10, lo), t.y), lerp(pick2(r01, lo), pick2(r11, lo), t.y), t.z);
+        g.x = (at_hi - at_lo) / span.x;
+    }
+    if span.y > 0.0 {
+        let hi = along(x.y + up.y, topf.y, c0.y);
+        let lo = along(x.y - down.y, topf.y, c0.y);
+        g.y = (lerp(pick2(y0, hi), pick2(y1, hi), t.z) - lerp(pick2(y0, lo), pick2(y1, lo), t.z)) / span.y;
+    }
+    if span.z > 0.0 {
+        g.z = (pick2(z, along(x.z + up.z, topf.z, c0.z)) - pick2(z, along(x.z - down.z, topf.z, c0.z))) / span.z;
     }
     return g;
+}
+
+// The voxels x = c − 1 … c + 2 (clamped into the volume) of the row (y, z) of volume v.
+fn window_x(v: u32, c: i32, yz: vec2<i32>, top: i32) -> vec4<f32> {
+    return vec4<f32>(
+        voxel(v, vec3<i32>(max(c - 1, 0), yz.x, yz.y)),
+        voxel(v, vec3<i32>(c, yz.x, yz.y)),
+        voxel(v, vec3<i32>(min(c + 1, top), yz.x, yz.y)),
+        voxel(v, vec3<i32>(min(c + 2, top), yz.x, yz.y)),
+    );
+}
+
+// Where a sample at coordinate s falls along one axis, as `field` takes it: its two voxels
+// as places in the window of four from c − 1 (x, y), and its fraction (z). A place beyond
+// the window comes only with a fraction of 0 (s + 1 rounded up to a whole number): its
+// weight is nil.
+fn along(s: f32, top: f32, c: i32) -> vec3<f32> {
+    let sc = clamp(s, 0.0, top);
+    let f = floor(sc);
+    let i0 = i32(f);
+    let i1 = min(i0 + 1, i32(top));
+    return vec3<f32>(f32(clamp(i0 - c + 1, 0, 3)), f32(clamp(i1 - c + 1, 0, 3)), sc - f);
+}
+
+// The window's value at place k (0 … 3).
+fn pick(w: vec4<f32>, k: f32) -> f32 {
+    return select(select(w.x, w.y, k == 1.0), select(w.z, w.w, k == 3.0), k >= 2.0);
+}
+
+// The sample `a` (from `along`) on the window w.
+fn pick2(w: vec4<f32>, a: vec3<f32>) -> f32 {
+    return lerp(pick(w, a.x), pick(w, a.y), a.z);
 }
 
 fn to_world(v: u32, g: vec3<f32>) -> vec3<f32> {
