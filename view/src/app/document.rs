@@ -61,9 +61,9 @@ pub(super) fn load_document(path: &Path, load: &LoadOptions) -> Result<Opened> {
 /// The volume renderer the viewer draws with where the choice is open: the GPU ray-caster
 /// (`gpu-raycast`) on a hardware GPU; shear-warp, the CPU path, on a CPU adapter
 /// (lavapipe), where `volterra bench gpu-volume` finds neither faster throughout (2 cores,
-/// a further frame at 512²: the aneurism 303 ms by shear-warp against 357 ms on lavapipe,
-/// the 512 × 512 × 400 CT 357 against 207 ms; VTK's GPU ray caster on llvmpipe 462 and
-/// 799 ms). With the reason, for the status line.
+/// a further frame at 512²: the aneurism 315 ms by shear-warp against 376 ms on lavapipe,
+/// the 512 × 512 × 400 CT 398 against 209 ms; VTK's GPU ray caster on llvmpipe 461 and
+/// 806 ms). With the reason, for the status line.
 pub(super) fn volume_renderer() -> (&'static str, String) {
     use volterra::render::{gpu_volume, shear_warp};
     match volterra::gpu::device() {
