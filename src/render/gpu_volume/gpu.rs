@@ -79,20 +79,20 @@ pub enum Store {
 
 /// What a pipeline's shader is compiled for about one volume.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-struct Held {
+struct VoxelLayout {
     store: Store,
     /// For a texture only its family (unsigned, signed, float) matters.
     kind: SampleKind,
 }
 
-impl Held {
-    fn new(store: Store, kind: SampleKind) -> Held {
+impl VoxelLayout {
+    fn new(store: Store, kind: SampleKind) -> VoxelLayout {
         let kind = match (store, kind) {
             (Store::Texture, SampleKind::U16) => SampleKind::U8,
             (Store::Texture, SampleKind::I16) => SampleKind::I8,
             _ => kind,
         };
-        Held { store, kind }
+        VoxelLayout { store, kind }
     }
 
     /// The binding's layout entry.
@@ -134,7 +134,7 @@ impl Held {
 pub struct Gpu {
     shared: &'static crate::gpu::Device,
     /// Keyed by how the two volumes are held and whether the entry is `fused`.
-    pipelines: Mutex<HashMap<(Held, Held, bool), Arc<Pipeline>>>,
+    pipelines: Mutex<HashMap<(VoxelLayout, VoxelLayout, bool), Arc<Pipeline>>>,
 }
 
 pub struct Pipeline {
@@ -162,8 +162,8 @@ impl Gpu {
     /// The pipeline of entry `main` (one volume; `second` None) or `fused` (two), for
     /// volumes held as `(store, kind)`.
     pub fn pipeline(&self, first: (Store, SampleKind), second: Option<(Store, SampleKind)>) -> Arc<Pipeline> {
-        let held0 = Held::new(first.0, first.1);
-        let held1 = second.map_or(held0, |(s, k)| Held::new(s, k));
+        let held0 = VoxelLayout::new(first.0, first.1);
+        let held1 = second.map_or(held0, |(s, k)| VoxelLayout::new(s, k));
         let key = (held0, held1, second.is_some());
         if let Some(p) = self.pipelines.lock().unwrap().get(&key) {
             return p.clone();
