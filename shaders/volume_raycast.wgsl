@@ -495,6 +495,21 @@ fn block_exit(v: u32, o: vec3<f32>, d: vec3<f32>, p: vec3<f32>) -> f32 {
     return t;
 }
 
+// The first step at or after where the ray leaves a clear block (`exit`), on the grid
+// t0 + k·dt: at least the step after k, at most one past `k_max` (the march's end).
+fn leap(k: u32, exit: f32, t0: f32, dt: f32, k_max: u32) -> u32 {
+    return max(k + 1u, u32(min(ceil((exit - t0) / dt), f32(k_max) + 1.0)));
+}
+
+// Where segment k of a march from t0 to t1 in steps of dt ends: the next step, or t1 for
+// the last (k_last).
+fn segment_end(k: u32, k_last: u32, t0: f32, t1: f32, dt: f32) -> f32 {
+    if k < k_last {
+        return t0 + f32(k + 1u) * dt;
+    }
+    return t1;
+}
+
 // A pixel's ray: in world space, and through a parallel view's image plane or from the
 // eye, as camera::RayGenerator::ray.
 struct Ray {
@@ -603,14 +618,10 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
                     continue;
                 }
                 if skip && block_max[block_of(0u, p)] <= acc.x {
-                    let next = ceil((block_exit(0u, o, d, p) - t0) / dt);
-                    k = max(k + 1u, u32(min(next, f32(k_hi) + 1.0)));
+                    k = leap(k, block_exit(0u, o, d, p), t0, dt, k_hi);
                     continue;
                 }
-                var tb = t1;
-                if k < k_last {
-                    tb = t0 + f32(k + 1u) * dt;
-                }
+                let tb = segment_end(k, k_last, t0, t1, dt);
                 let len = max(tb - t, 0.0);
                 n++;
                 let tm = t + 0.5 * len;
@@ -646,15 +657,11 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
                     continue;
                 }
                 if skip && block_clear(0u, p) {
-                    let next = ceil((block_exit(0u, o, d, p) - t0) / dt);
-                    k = max(k + 1u, u32(min(next, f32(k_hi) + 1.0)));
+                    k = leap(k, block_exit(0u, o, d, p), t0, dt, k_hi);
                     carried = false;
                     continue;
                 }
-                var tb = t1;
-                if k < k_last {
-                    tb = t0 + f32(k + 1u) * dt;
-                }
+                let tb = segment_end(k, k_last, t0, t1, dt);
                 // One value per pass of this loop (each is eight texel loads, paid by every
                 // SIMD lane whether it needs it or not): the segment's start where the
                 // previous segment did not leave it, then its end.
@@ -787,15 +794,11 @@ fn fused(@builtin(global_invocation_id) id: vec3<u32>) {
                 }
             }
             if clear {
-                let next = ceil((exit - c0) / dt);
-                k = max(k + 1u, u32(min(next, f32(k_last) + 1.0)));
+                k = leap(k, exit, c0, dt, k_last);
                 carried = false;
                 continue;
             }
-            var tb = c1;
-            if k < k_last {
-                tb = c0 + f32(k + 1u) * dt;
-            }
+            let tb = segment_end(k, k_last, c0, c1, dt);
             let len = max(tb - t, 0.0);
             n++;
             var c = vec4<f32>(0.0);
